@@ -1,0 +1,25 @@
+"""rft_mujoco: 3D Resistive Force Theory (Agarwal, Goldman & Kamrin, PNAS 2023) sand forces for MuJoCo.
+
+Quick start::
+
+    import mujoco, rft_mujoco
+    model = mujoco.MjModel.from_xml_path("scene.xml")
+    sand = rft_mujoco.attach(model, rft_mujoco.MALADEN_GLASS_BEADS, bodies=["foot"], surface_height=0.0)
+    data = mujoco.MjData(model)
+    mujoco.mj_step(model, data)          # includes the sand forces
+    sand.diagnostics(data).force         # per-body sand force, N
+    sand.detach()
+"""
+
+from .law import PUBLISHED, Guards, element_forces, stress_per_depth
+from .media import (DEM_GLASS_BEADS, LI_LOOSE_GLASS_BEADS, MALADEN_GLASS_BEADS, MPM_VALIDATION, PRESETS,
+                    Media, get_media)
+from .terrain import FlatSurface, HeightfieldSurface, SandRegion
+from .coupling import Diagnostics, SandHandle, attach, detach_all
+
+__all__ = [
+    "Media", "PRESETS", "get_media", "MPM_VALIDATION", "DEM_GLASS_BEADS", "LI_LOOSE_GLASS_BEADS",
+    "MALADEN_GLASS_BEADS", "element_forces", "stress_per_depth", "Guards", "PUBLISHED",
+    "FlatSurface", "HeightfieldSurface", "SandRegion", "attach", "detach_all", "SandHandle", "Diagnostics",
+]
+__version__ = "0.1.0"

@@ -1,0 +1,36 @@
+# Set-up and everyday commands. Every target creates .venv when it is missing.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-$(shell cksum pyproject.toml | cut -d' ' -f1)
+export MUJOCO_GL ?= egl
+
+.PHONY: demo test view validate bench stability train clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q torch==2.13.0   # the CPU wheel, before stable-baselines3
+	$(BIN)/python -m pip install -q -e '.[envs,train,test]'
+	rm -f $(VENV)/.installed-* && touch $@
+
+demo: $(STAMP)          ## quadruped trotting on sand (headless): summary, plot and video in out/
+	$(BIN)/python -m rft_mujoco demo
+
+test: $(STAMP)          ## the test suite (what CI runs)
+	$(BIN)/python -m pytest -q -p no:cacheprovider
+
+view: $(STAMP)          ## the demo scene in the interactive viewer (needs a display)
+	$(BIN)/python -m rft_mujoco view
+
+validate: $(STAMP)      ## the paper's validation set: tables and plots in out/validation
+	$(BIN)/python -m rft_mujoco validate
+
+bench: $(STAMP)         ## speed and speed-accuracy tables and plots in out/bench
+	$(BIN)/python -m rft_mujoco bench
+
+stability: $(STAMP)     ## drop/drag/rotate stability study: table and map in out/stability
+	$(BIN)/python -m rft_mujoco stability
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

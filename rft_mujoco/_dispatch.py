@@ -1,0 +1,163 @@
+"""The one process-wide MuJoCo control-callback dispatcher (the package's only module-level mutable state).
+
+MuJoCo callbacks are global to the process, so every attached sand handle of every model goes through
+one dispatcher installed with ``mujoco.set_mjcb_control``. It
+
+* chains a control callback the user had installed before (called first, so ``ctrl`` is final);
+* routes each evaluation to the handles of that model (several models and datas work independently);
+* owns the ``xfrc_applied`` bookkeeping per MjData, so that the row always ends as user wrench + sand
+  wrench, whether the user left the row alone (we subtract what we added), zeroed it, or assigned a new
+  wrench between steps (a row that differs from what we wrote is taken as the user's new value);
+* keeps model compilation working while installed: mujoco 4.0's compiler raises "Python exception
+  raised" whenever any Python callback is installed, so the compile entry points
+  (``MjModel.from_xml_string / from_xml_path / from_binary_path``, ``MjSpec.compile / recompile``) are
+  wrapped to suspend the callback for the duration of the call. The wrappers are removed when the last
+  handle detaches.
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+import weakref
+
+import mujoco
+import numpy as np
+
+_COMPILE_ENTRY_POINTS = (
+    (mujoco.MjModel, "from_xml_string", True),
+    (mujoco.MjModel, "from_xml_path", True),
+    (mujoco.MjModel, "from_binary_path", True),
+    (mujoco.MjSpec, "compile", False),
+    (mujoco.MjSpec, "recompile", False),
+)
+
+
+class _DataBook:
+    """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
+
+    __slots__ = ("added", "written", "rows", "model", "__weakref__")
+
+    def __init__(self, model) -> None:
+        nbody = model.nbody
+        self.model = weakref.ref(model)
+        self.added = np.zeros((nbody, 6))
+        self.written = np.zeros((nbody, 6))
+        self.rows = np.zeros(0, dtype=np.int64)
+
+
+class Dispatcher:
+    def __init__(self) -> None:
+        self._handles: list = []
+        self._chained = None
+        self._originals: dict = {}
+        self._books: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+        self._lock = threading.RLock()
+
+    # --- registration ---------------------------------------------------------------------------
+    def register(self, handle) -> None:
+        with self._lock:
+            if not self._handles:
+                self._install()
+            self._handles.append(handle)
+
+    def unregister(self, handle) -> None:
+        with self._lock:
+            if handle in self._handles:
+                self._handles.remove(handle)
+            if not self._handles:
+                self._uninstall()
+
+    @property
+    def handles(self) -> tuple:
+        return tuple(self._handles)
+
+    def _install(self) -> None:
+        current = mujoco.get_mjcb_control()
+        self._chained = current if current is not self else None
+        mujoco.set_mjcb_control(self)
+        for owner, name, static in _COMPILE_ENTRY_POINTS:
+            original = owner.__dict__[name] if name in owner.__dict__ else getattr(owner, name)
+            self._originals[(owner, name)] = original
+            func = original.__func__ if isinstance(original, staticmethod) else original
+            wrapped = self._suspending(func)
+            setattr(owner, name, staticmethod(wrapped) if static else wrapped)
+
+    def _uninstall(self) -> None:
+        if mujoco.get_mjcb_control() is self:
+            mujoco.set_mjcb_control(self._chained)
+        self._chained = None
+        for (owner, name), original in self._originals.items():
+            setattr(owner, name, original)
+        self._originals.clear()
+
+    def _suspending(self, func):
+        @functools.wraps(func)
+        def call(*args, **kwargs):
+            with self._lock:
+                current = mujoco.get_mjcb_control()
+                mujoco.set_mjcb_control(None)
+                try:
+                    return func(*args, **kwargs)
+                finally:
+                    mujoco.set_mjcb_control(current)
+        return call
+
+    # --- xfrc bookkeeping -------------------------------------------------------------------------
+    def book(self, model, data) -> _DataBook:
+        book = self._books.get(data)
+        if book is None or book.added.shape[0] != model.nbody:
+            book = self._books[data] = _DataBook(model)
+        return book
+
+    def user_xfrc(self, model, data) -> np.ndarray:
+        """(nbody, 6) the user's own part of ``data.xfrc_applied`` (sand contribution removed)."""
+        book = self.book(model, data)
+        xfrc = data.xfrc_applied
+        user = xfrc.copy()
+        rows = book.rows
+        if rows.size:
+            untouched = np.all(xfrc[rows] == book.written[rows], axis=1)
+            r = rows[untouched]
+            user[r] -= book.added[r]
+        return user
+
+    # --- the callback -----------------------------------------------------------------------------
+    def __call__(self, model, data) -> None:
+        if self._chained is not None:
+            self._chained(model, data)
+        handles = [h for h in self._handles if h.model is model]
+        if not handles:
+            return
+        book = self.book(model, data)
+        user = self.user_xfrc(model, data)
+        sand = np.zeros((model.nbody, 6))
+        for h in handles:
+            h._evaluate(data, user, sand)
+        rows = np.unique(np.concatenate([h.body_ids for h in handles]))
+        stale = np.setdiff1d(book.rows, rows)           # rows of handles detached since the last call
+        if stale.size:
+            data.xfrc_applied[stale] = user[stale]
+        data.xfrc_applied[rows] = user[rows] + sand[rows]
+        book.added[:] = 0.0
+        book.added[rows] = sand[rows]
+        book.written[rows] = data.xfrc_applied[rows]
+        book.rows = rows
+
+    def remove_sand(self, model, data, rows: np.ndarray) -> None:
+        """Take the sand part out of ``data.xfrc_applied`` rows (used at detach)."""
+        book = self._books.get(data)
+        if book is None:
+            return
+        user = self.user_xfrc(model, data)
+        data.xfrc_applied[rows] = user[rows]
+        book.added[rows] = 0.0
+        book.rows = np.setdiff1d(book.rows, rows)
+
+    def datas_of(self, model) -> list:
+        """The MjData objects of ``model`` the dispatcher has written to (and that are still alive)."""
+        return [d for d, b in list(self._books.items()) if b.model() is model]
+
+
+DISPATCHER = Dispatcher()
+"""The process-wide dispatcher; use :func:`rft_mujoco.attach` rather than this object."""

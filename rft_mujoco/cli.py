@@ -1,0 +1,32 @@
+"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability}`` (``--help`` on each)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+COMMANDS = {
+    "demo": ("rft_mujoco.demo", "quadruped trotting on sand, headless: summary table, plot and video"),
+    "view": ("rft_mujoco.demo", "the demo scene in the interactive mujoco.viewer with sand force arrows"),
+    "validate": ("rft_mujoco.validation", "the paper's validation intrusions: force tables and plots"),
+    "bench": ("rft_mujoco.bench", "speed and speed-accuracy benchmarks: tables and plots"),
+    "stability": ("rft_mujoco.stability", "drop / drag / rotate stability study: table and stability map"),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(prog="python -m rft_mujoco", description=__doc__)
+    parser.add_argument("command", choices=sorted(COMMANDS), help="; ".join(
+        f"{k}: {v[1]}" for k, v in COMMANDS.items()))
+    if not argv or argv[0] in ("-h", "--help"):
+        parser.print_help()
+        return 0 if argv else 2
+    args, rest = parser.parse_known_args(argv[:1])
+    module = importlib.import_module(COMMANDS[args.command][0])
+    return int(module.main(argv[1:], command=args.command) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,533 @@
+"""MuJoCo geoms and meshes -> flat surface elements (centroid, outward unit normal, area), computed once.
+
+3D-RFT sums a stress over small flat pieces of an intruder's surface. This module cuts each geom into
+such pieces, in the geom frame (:func:`geom_elements`) or the body frame (:func:`body_elements`).
+
+Element size is a target edge length in m: a preset name from :data:`RESOLUTIONS` or a float
+(:func:`element_size`). Small geoms keep a minimum tessellation (:data:`MIN_CIRCLE_SEGMENTS` around any
+circle, :data:`MIN_EDGE_CELLS` along any box edge) so a 1 cm foot at a 1 cm size is still its shape.
+
+Constructions (each tested for convergence in tests/test_surface.py):
+
+* sphere, capsule caps: latitude-longitude cells with their exact spherical areas; the normal is the
+  cell's mean normal (direction of the integral of n dA) and the centroid is the surface point with that
+  normal. Total area and enclosed volume are exact for the sphere at every size.
+* ellipsoid: the same grid in the (theta, phi) parametrization; areas and mean normals by Gauss-Legendre
+  quadrature of ``x_theta x x_phi``, centroid at the surface point with the mean normal.
+* box, cylinder: flat grid cells (cylinder sides: true normal at the mid angle; caps: polar annular
+  sectors with their exact area centroids). Areas and volumes exact at every size.
+* mesh: each triangle is split into ``k^2`` congruent triangles (``k = ceil(longest edge / size)``);
+  degenerate triangles are dropped; inverted meshes raise, open ones warn.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import warnings
+from typing import Sequence
+
+import mujoco
+import numpy as np
+
+# --- presets and tolerances: one place -------------------------------------------------------------
+RESOLUTIONS = types.MappingProxyType({
+    "coarse": 0.02,
+    "default": 0.01,
+    "fine": 0.005,
+    "reference": 0.002,
+})
+"""Named element sizes (target edge length, m). Read-only mapping: pass a float for anything else."""
+
+MIN_CIRCLE_SEGMENTS = 12
+"""Fewest segments around any circle (sphere/ellipsoid longitudes, cylinder and cap rings)."""
+MIN_EDGE_CELLS = 2
+"""Fewest cells along any box edge and along a cylinder's or capsule's straight side."""
+QUADRATURE_POINTS = 4
+"""Gauss-Legendre points per parameter direction per ellipsoid cell."""
+NORMAL_TOL = 1e-6
+"""Normals whose length differs from 1 by more than this are rejected by :class:`Elements`."""
+ROTATION_TOL = 1e-6
+"""``mat`` in :meth:`Elements.transformed` must satisfy ``|mat^T mat - I| <= ROTATION_TOL``."""
+DEGENERATE_TOL = 1e-9
+"""A mesh triangle with ``area <= DEGENERATE_TOL * (longest edge)^2`` is degenerate and dropped."""
+VOLUME_TOL = 1e-9
+"""A mesh whose enclosed volume is below ``-VOLUME_TOL * (bounding-box diagonal)^3`` is inverted."""
+MERGE_TOL = 1e-9
+"""Mesh vertices closer than ``MERGE_TOL * (bounding-box diagonal)`` count as one for the topology check."""
+
+_GEOM = mujoco.mjtGeom
+_TERRAIN_TYPES = (int(_GEOM.mjGEOM_PLANE), int(_GEOM.mjGEOM_HFIELD))
+_SUPPORTED = "sphere, ellipsoid, box, cylinder, capsule, mesh"
+
+
+# --- elements --------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, eq=False, repr=False)
+class Elements:
+    """Flat surface elements of a closed surface; arrays are read-only float64 copies.
+
+    Attributes:
+        centroids: (N, 3) float, element centroids in m.
+        normals: (N, 3) float, unit outward normals.
+        areas: (N,) float, element areas in m^2, all > 0.
+    """
+
+    centroids: np.ndarray
+    normals: np.ndarray
+    areas: np.ndarray
+
+    def __post_init__(self) -> None:
+        c = _as_points(self.centroids, "centroids")
+        n = _as_points(self.normals, "normals")
+        a = np.array(self.areas, dtype=float)
+        if a.ndim != 1 or a.shape[0] != c.shape[0] or n.shape[0] != c.shape[0]:
+            raise ValueError(f"centroids (N, 3), normals (N, 3) and areas (N,) must agree in N, got shapes "
+                             f"{c.shape}, {n.shape}, {a.shape}")
+        if not np.all(np.isfinite(a) & (a > 0)):
+            raise ValueError(f"areas must be finite and > 0 (m^2), got min {a.min()!r}")
+        length = np.linalg.norm(n, axis=1)
+        if np.any(np.abs(length - 1.0) > NORMAL_TOL):
+            raise ValueError(f"normals must be unit vectors (within {NORMAL_TOL}), got lengths in "
+                             f"[{length.min()}, {length.max()}]")
+        for name, arr in (("centroids", c), ("normals", n), ("areas", a)):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    def __len__(self) -> int:
+        return int(self.areas.shape[0])
+
+    def __repr__(self) -> str:
+        return f"Elements(n={len(self)}, area={self.area():.6g} m^2)"
+
+    def area(self) -> float:
+        """Total area in m^2."""
+        return float(self.areas.sum())
+
+    def enclosed_volume(self) -> float:
+        """Enclosed volume in m^3 by the divergence theorem, ``(1/3) sum (c . n) A``.
+
+        Positive for a closed surface with outward normals; independent of the origin only when the
+        surface is closed (``sum n A = 0``).
+        """
+        return float(np.einsum("ij,ij,i->", self.centroids, self.normals, self.areas) / 3.0)
+
+    def transformed(self, pos, mat) -> "Elements":
+        """The elements moved rigidly: ``x' = pos + mat @ x``, ``n' = mat @ n``.
+
+        Args:
+            pos: (3,) float, translation in m.
+            mat: (3, 3) float, a rotation matrix (orthonormal, det +1); a flat (9,) array such as
+                MuJoCo's ``xmat`` rows is accepted.
+        """
+        p = np.asarray(pos, dtype=float)
+        r = np.asarray(mat, dtype=float)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"pos must be a finite (3,) float array, got shape {p.shape}")
+        if r.shape == (9,):
+            r = r.reshape(3, 3)
+        if r.shape != (3, 3):
+            raise ValueError(f"mat must be a (3, 3) rotation matrix, got shape {r.shape}")
+        if not (np.all(np.abs(r.T @ r - np.eye(3)) <= ROTATION_TOL) and np.linalg.det(r) > 0):
+            raise ValueError(f"mat must be a rotation (orthonormal, det +1), got {r.tolist()}; "
+                             "scale geometry before making elements, not through transformed()")
+        return Elements(self.centroids @ r.T + p, self.normals @ r.T, self.areas)
+
+    @staticmethod
+    def concatenate(parts: Sequence["Elements"]) -> "Elements":
+        """All elements of ``parts`` in order; an empty sequence gives zero elements."""
+        parts = list(parts)
+        if not parts:
+            return Elements(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+        return Elements(np.concatenate([p.centroids for p in parts]),
+                        np.concatenate([p.normals for p in parts]),
+                        np.concatenate([p.areas for p in parts]))
+
+
+# --- argument checks -------------------------------------------------------------------------------
+def _as_points(x, name: str) -> np.ndarray:
+    arr = np.array(x, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must be an (n, 3) float array, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got non-finite values")
+    return arr
+
+
+def _check_length(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a positive finite length in m, got {value!r}") from None
+    if isinstance(value, bool) or not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be a positive finite length in m, got {value!r}")
+    return v
+
+
+def _check_lengths(value, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must be a (3,) float array of lengths in m, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr) & (arr > 0)):
+        raise ValueError(f"{name} must be positive finite lengths in m, got {arr.tolist()}")
+    return arr
+
+
+def element_size(resolution: str | float) -> float:
+    """Element size in m: a preset name from :data:`RESOLUTIONS` or a positive finite float (m)."""
+    if isinstance(resolution, str):
+        if resolution in RESOLUTIONS:
+            return float(RESOLUTIONS[resolution])
+        raise ValueError(f"unknown resolution {resolution!r}; use one of {sorted(RESOLUTIONS)} "
+                         f"({', '.join(f'{k}={v} m' for k, v in RESOLUTIONS.items())}) or an element size "
+                         "in m (a positive float)")
+    if isinstance(resolution, (bool, np.bool_)) or not isinstance(resolution, (int, float, np.number)):
+        raise ValueError(f"resolution must be a preset name {sorted(RESOLUTIONS)} or an element size in m "
+                         f"(a positive float), got {resolution!r}")
+    v = float(resolution)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"resolution must be a positive finite element size in m, got {resolution!r}; "
+                         f"or use a preset name {sorted(RESOLUTIONS)}")
+    return v
+
+
+def _segments(length, size: float, minimum: int, multiple: int = 1) -> np.ndarray:
+    """Cells along ``length`` (m, scalar or array): ``ceil(length / size)``, at least ``minimum``, rounded
+    up to a multiple of ``multiple``."""
+    n = np.maximum(np.ceil(np.asarray(length, dtype=float) / size - 1e-9), minimum).astype(np.int64)
+    return -(-n // multiple) * multiple
+
+
+# --- latitude-longitude cells (sphere, ellipsoid, capsule caps) ------------------------------------
+def _latlong_cells(theta_edges: np.ndarray, ring_radius: float, size: float):
+    """Cells ``[theta0, theta1] x [phi0, phi1]``: each band ``theta_edges[i:i+2]`` gets
+    ``max(MIN_CIRCLE_SEGMENTS, 2 pi ring_radius sin(theta_mid) / size)`` longitudes, a multiple of 4
+    (the grid is then symmetric under x, y mirrors and quarter turns about z). Returns four (n,) arrays."""
+    t0, t1 = theta_edges[:-1], theta_edges[1:]
+    circumference = 2.0 * np.pi * ring_radius * np.sin(0.5 * (t0 + t1))
+    n_phi = _segments(circumference, size, MIN_CIRCLE_SEGMENTS, multiple=4)
+    band = np.repeat(np.arange(t0.size), n_phi)
+    start = np.repeat(np.cumsum(n_phi) - n_phi, n_phi)
+    k = np.arange(band.size) - start                       # longitude index within its band
+    dphi = 2.0 * np.pi / n_phi[band]
+    return t0[band], t1[band], k * dphi, (k + 1) * dphi
+
+
+def _spherical_cells(radius: float, center, t0, t1, p0, p1) -> Elements:
+    """Exact spherical cells: area ``r^2 dphi (cos t0 - cos t1)``, normal = direction of the cell's
+    integral of ``n dA``, centroid = surface point with that normal."""
+    area = radius**2 * (p1 - p0) * (np.cos(t0) - np.cos(t1))
+    s2 = 0.5 * (t1 - t0) - 0.25 * (np.sin(2 * t1) - np.sin(2 * t0))   # integral of sin^2
+    sc = 0.5 * (np.sin(t1) ** 2 - np.sin(t0) ** 2)                   # integral of sin cos
+    m = np.stack([s2 * (np.sin(p1) - np.sin(p0)), s2 * (np.cos(p0) - np.cos(p1)), sc * (p1 - p0)], axis=1)
+    n = m / np.linalg.norm(m, axis=1, keepdims=True)
+    return Elements(np.asarray(center, dtype=float) + radius * n, n, area)
+
+
+def sphere(radius, size) -> Elements:
+    """Sphere of ``radius`` m centred at the origin; ``size`` m is the target element edge length.
+
+    Total area and enclosed volume are exact at every size.
+    """
+    r, h = _check_length(radius, "radius"), _check_length(size, "size")
+    n_theta = int(_segments(np.pi * r, h, MIN_CIRCLE_SEGMENTS // 2))
+    cells = _latlong_cells(np.linspace(0.0, np.pi, n_theta + 1), r, h)
+    return _spherical_cells(r, np.zeros(3), *cells)
+
+
+def ellipsoid(radii, size) -> Elements:
+    """Axis-aligned ellipsoid with semi-axes ``radii`` ((3,) float, m, like MuJoCo's geom_size) at the
+    origin; ``size`` m is the target element edge length.
+
+    Areas and mean normals come from Gauss-Legendre quadrature over each (theta, phi) cell; the
+    centroid is the surface point whose normal is the cell's mean normal.
+    """
+    abc = _check_lengths(radii, "radii")
+    h = _check_length(size, "size")
+    a, b, c = abc
+    n_theta = int(_segments(np.pi * abc.max(), h, MIN_CIRCLE_SEGMENTS // 2))
+    t0, t1, p0, p1 = _latlong_cells(np.linspace(0.0, np.pi, n_theta + 1), max(a, b), h)
+    x, w = np.polynomial.legendre.leggauss(QUADRATURE_POINTS)
+    u = 0.5 * (x + 1.0)
+    ww = 0.25 * np.outer(w, w).ravel()                                  # weights on [0, 1]^2
+    uu, vv = np.meshgrid(u, u, indexing="ij")
+    theta = t0[:, None] + (t1 - t0)[:, None] * uu.ravel()[None, :]      # (n, q^2)
+    phi = p0[:, None] + (p1 - p0)[:, None] * vv.ravel()[None, :]
+    jac = ((t1 - t0) * (p1 - p0))[:, None] * ww[None, :]
+    st = np.sin(theta)
+    # x_theta x x_phi = sin(theta) (b c sin(theta) cos(phi), a c sin(theta) sin(phi), a b cos(theta))
+    cross = np.stack([b * c * st * st * np.cos(phi), a * c * st * st * np.sin(phi),
+                      a * b * st * np.cos(theta)], axis=-1)             # (n, q^2, 3)
+    area = np.einsum("nq,nq->n", np.linalg.norm(cross, axis=-1), jac)
+    m = np.einsum("nqk,nq->nk", cross, jac)
+    n = m / np.linalg.norm(m, axis=1, keepdims=True)
+    d2n = n * abc**2
+    centroid = d2n / np.sqrt(np.einsum("ij,ij->i", n, d2n))[:, None]
+    return Elements(centroid, n, area)
+
+
+# --- flat-faced primitives ---------------------------------------------------------------------------
+def box(half_extents, size) -> Elements:
+    """Axis-aligned box with ``half_extents`` ((3,) float, m, like MuJoCo's geom_size) at the origin;
+    each face is a grid of equal rectangles, at least :data:`MIN_EDGE_CELLS` per edge."""
+    he = _check_lengths(half_extents, "half_extents")
+    h = _check_length(size, "size")
+    counts = _segments(2.0 * he, h, MIN_EDGE_CELLS)
+    parts = []
+    for k in range(3):
+        i, j = (k + 1) % 3, (k + 2) % 3
+        ni, nj = counts[i], counts[j]
+        ci = (np.arange(ni) + 0.5) / ni * 2.0 * he[i] - he[i]
+        cj = (np.arange(nj) + 0.5) / nj * 2.0 * he[j] - he[j]
+        gi, gj = np.meshgrid(ci, cj, indexing="ij")
+        cell_area = 4.0 * he[i] * he[j] / (ni * nj)
+        for sign in (1.0, -1.0):
+            c = np.zeros((gi.size, 3))
+            c[:, i], c[:, j], c[:, k] = gi.ravel(), gj.ravel(), sign * he[k]
+            n = np.zeros((gi.size, 3))
+            n[:, k] = sign
+            parts.append(Elements(c, n, np.full(gi.size, cell_area)))
+    return Elements.concatenate(parts)
+
+
+def _cylinder_side(radius: float, half_length: float, size: float) -> Elements:
+    n_phi = int(_segments(2.0 * np.pi * radius, size, MIN_CIRCLE_SEGMENTS, multiple=4))
+    n_z = int(_segments(2.0 * half_length, size, MIN_EDGE_CELLS))
+    phi = (np.arange(n_phi) + 0.5) * (2.0 * np.pi / n_phi)
+    z = (np.arange(n_z) + 0.5) / n_z * 2.0 * half_length - half_length
+    pp, zz = np.meshgrid(phi, z, indexing="ij")
+    n = np.stack([np.cos(pp.ravel()), np.sin(pp.ravel()), np.zeros(pp.size)], axis=1)
+    c = radius * n
+    c[:, 2] = zz.ravel()
+    area = np.full(pp.size, radius * (2.0 * np.pi / n_phi) * (2.0 * half_length / n_z))
+    return Elements(c, n, area)
+
+
+def _disc(radius: float, z: float, sign: float, size: float) -> Elements:
+    """Flat disc at height ``z`` with normal ``sign * e_z``: rings of annular sectors, exact areas and
+    area centroids."""
+    n_r = int(_segments(radius, size, MIN_EDGE_CELLS))
+    r_edges = np.linspace(0.0, radius, n_r + 1)
+    r0, r1 = r_edges[:-1], r_edges[1:]
+    n_phi = _segments(np.pi * (r0 + r1), size, MIN_CIRCLE_SEGMENTS, multiple=4)
+    ring = np.repeat(np.arange(n_r), n_phi)
+    k = np.arange(ring.size) - np.repeat(np.cumsum(n_phi) - n_phi, n_phi)
+    dphi = 2.0 * np.pi / n_phi[ring]
+    a0, a1 = r0[ring], r1[ring]
+    area = 0.5 * dphi * (a1**2 - a0**2)
+    rho = (2.0 / 3.0) * (a1**3 - a0**3) / (a1**2 - a0**2) * np.sin(0.5 * dphi) / (0.5 * dphi)
+    phi = (k + 0.5) * dphi
+    c = np.stack([rho * np.cos(phi), rho * np.sin(phi), np.full(ring.size, float(z))], axis=1)
+    n = np.zeros((ring.size, 3))
+    n[:, 2] = sign
+    return Elements(c, n, area)
+
+
+def cylinder(radius, half_length, size) -> Elements:
+    """Cylinder of ``radius`` m along the local z axis from ``-half_length`` to ``+half_length`` m, with
+    flat caps (MuJoCo's geom_size ``[radius, half_length]``)."""
+    r, hl = _check_length(radius, "radius"), _check_length(half_length, "half_length")
+    h = _check_length(size, "size")
+    return Elements.concatenate([_cylinder_side(r, hl, h), _disc(r, hl, 1.0, h), _disc(r, -hl, -1.0, h)])
+
+
+def capsule(radius, half_length, size) -> Elements:
+    """Capsule: a cylinder of ``radius`` m along local z over ``[-half_length, half_length]`` m with
+    hemispherical caps (MuJoCo's geom_size ``[radius, half_length]``)."""
+    r, hl = _check_length(radius, "radius"), _check_length(half_length, "half_length")
+    h = _check_length(size, "size")
+    n_theta = int(_segments(0.5 * np.pi * r, h, MIN_CIRCLE_SEGMENTS // 4))
+    top = _latlong_cells(np.linspace(0.0, 0.5 * np.pi, n_theta + 1), r, h)
+    bottom = _latlong_cells(np.linspace(0.5 * np.pi, np.pi, n_theta + 1), r, h)
+    return Elements.concatenate([_cylinder_side(r, hl, h), _spherical_cells(r, (0.0, 0.0, hl), *top),
+                                 _spherical_cells(r, (0.0, 0.0, -hl), *bottom)])
+
+
+# --- triangle meshes -------------------------------------------------------------------------------
+def _subdivision_centroids(k: int) -> np.ndarray:
+    """(k^2, 2) barycentric (u, w) of the centroids of the k^2 congruent sub-triangles of a triangle
+    (point = v0 + u (v1 - v0) + w (v2 - v0))."""
+    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    up = i + j <= k - 1
+    down = i + j <= k - 2
+    return np.concatenate([np.stack([i[up] + 1 / 3, j[up] + 1 / 3], axis=1),
+                           np.stack([i[down] + 2 / 3, j[down] + 2 / 3], axis=1)]) / k
+
+
+def _topology(vertices: np.ndarray, faces: np.ndarray, scale: float) -> tuple[int, int]:
+    """(open edges, inconsistently wound edges) after merging coincident vertices."""
+    key = np.round(vertices / (MERGE_TOL * scale)).astype(np.int64)
+    _, vid = np.unique(key, axis=0, return_inverse=True)
+    f = vid.reshape(-1)[faces]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    undirected, count = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    n_open = int(np.count_nonzero(count != 2))
+    _, dcount = np.unique(directed, axis=0, return_counts=True)
+    # A consistently wound closed mesh uses each directed edge once.
+    n_flipped = int(np.count_nonzero(dcount > 1))
+    return n_open, n_flipped
+
+
+def mesh(vertices, faces, size=None, *, name: str = "mesh") -> Elements:
+    """Elements of a triangle mesh (counter-clockwise faces seen from outside = outward normals).
+
+    Args:
+        vertices: (n, 3) float, m.
+        faces: (m, 3) int, vertex indices.
+        size: if given, each triangle is split into ``k^2`` congruent triangles with
+            ``k = ceil(longest edge / size)``, so all edges are ``<= size``; ``None`` keeps the faces.
+        name: how errors and warnings name the mesh.
+    Raises:
+        ValueError: bad shapes or indices, no non-degenerate face, inverted mesh (negative enclosed
+            volume) or inconsistently wound faces.
+    Warns:
+        UserWarning: once, if the mesh is open (some edge not shared by exactly two faces).
+    """
+    return _mesh(vertices, faces, size, f"mesh {name!r}")
+
+
+def _mesh(vertices, faces, size, label: str) -> Elements:
+    """:func:`mesh`, with ``label`` naming the mesh in errors and warnings."""
+    v = _as_points(vertices, "vertices")
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+        raise ValueError(f"faces of {label} must be a non-empty (m, 3) int array, got shape {f.shape}")
+    if not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"faces of {label} must be integers, got dtype {f.dtype}")
+    if f.min() < 0 or f.max() >= v.shape[0]:
+        raise ValueError(f"faces of {label} index vertices 0..{v.shape[0] - 1}, got indices "
+                         f"{f.min()}..{f.max()}")
+    h = None if size is None else _check_length(size, "size")
+    used = v[np.unique(f)]
+    scale = float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))   # bounding-box diagonal, m
+    if scale <= 0:
+        raise ValueError(f"{label} has zero extent")
+
+    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    cross = np.cross(p1 - p0, p2 - p0)
+    double_area = np.linalg.norm(cross, axis=1)
+    longest = np.sqrt(np.max(np.stack([((p1 - p0) ** 2).sum(1), ((p2 - p1) ** 2).sum(1),
+                                       ((p0 - p2) ** 2).sum(1)]), axis=0))
+    keep = 0.5 * double_area > DEGENERATE_TOL * longest**2
+    if not np.any(keep):
+        raise ValueError(f"{label} has only degenerate (zero-area) faces")
+
+    volume = float(np.einsum("ij,ij->", p0[keep] - used.mean(0), cross[keep]) / 6.0)
+    n_open, n_flipped = _topology(v, f[keep], scale)
+    if volume < -VOLUME_TOL * scale**3:
+        raise ValueError(f"{label} is inverted: its enclosed volume is {volume:.6g} m^3 < 0, so its "
+                         "face normals point inward; reverse the vertex order of every face (e.g. "
+                         "trimesh's mesh.invert() or swap two indices per face) and reload")
+    if n_flipped:
+        raise ValueError(f"{label} has inconsistently wound faces ({n_flipped} edges used twice in "
+                         "the same direction), so some normals point inward; fix the winding (e.g. "
+                         "trimesh.repair.fix_normals) and reload")
+    if n_open:
+        warnings.warn(f"{label} is open: {n_open} edges are not shared by exactly two faces; sand "
+                      "acts only on the outward side of the faces given and the volume check is "
+                      "approximate; close the mesh (e.g. trimesh.repair.fill_holes) for a solid intruder",
+                      UserWarning, stacklevel=2)
+
+    p0, e1, e2 = p0[keep], (p1 - p0)[keep], (p2 - p0)[keep]
+    normal = cross[keep] / double_area[keep, None]
+    area = 0.5 * double_area[keep]
+    if h is None:
+        return Elements(p0 + (e1 + e2) / 3.0, normal, area)
+    k = np.maximum(np.ceil(longest[keep] / h - 1e-9), 1).astype(np.int64)
+    parts = []
+    for kk in np.unique(k):          # one pass per subdivision level, vectorized over its triangles
+        sel = np.flatnonzero(k == kk)
+        uw = _subdivision_centroids(int(kk))
+        c = (p0[sel, None, :] + uw[None, :, 0, None] * e1[sel, None, :]
+             + uw[None, :, 1, None] * e2[sel, None, :])                    # (m_k, k^2, 3)
+        m = uw.shape[0]
+        parts.append(Elements(c.reshape(-1, 3), np.repeat(normal[sel], m, axis=0),
+                              np.repeat(area[sel] / m, m)))
+    return Elements.concatenate(parts)
+
+
+# --- MuJoCo geoms ----------------------------------------------------------------------------------
+def _geom_label(model, geom_id: int) -> str:
+    name = model.geom(geom_id).name
+    return f"geom {name!r} (id {geom_id})" if name else f"geom id {geom_id} (unnamed)"
+
+
+def _quat_to_mat(q) -> np.ndarray:
+    """(3, 3) rotation of a MuJoCo quaternion (w, x, y, z)."""
+    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def geom_elements(model, geom_id: int, size: float) -> Elements:
+    """Surface elements of one geom, in the GEOM frame.
+
+    Args:
+        model: the ``mujoco.MjModel``.
+        geom_id: geom index, ``0 <= geom_id < model.ngeom``.
+        size: target element edge length in m (see :func:`element_size`).
+    Raises:
+        ValueError: out-of-range id, or a geom type without a surface here (plane, hfield, sdf, ...).
+    """
+    g = int(geom_id)
+    if not 0 <= g < model.ngeom:
+        raise ValueError(f"geom_id must be in 0..{model.ngeom - 1}, got {geom_id}")
+    h = _check_length(size, "size")
+    t = int(model.geom_type[g])
+    s = np.asarray(model.geom_size[g], dtype=float)
+    if t == _GEOM.mjGEOM_SPHERE:
+        return sphere(s[0], h)
+    if t == _GEOM.mjGEOM_ELLIPSOID:
+        return ellipsoid(s[:3], h)
+    if t == _GEOM.mjGEOM_BOX:
+        return box(s[:3], h)
+    if t == _GEOM.mjGEOM_CYLINDER:
+        return cylinder(s[0], s[1], h)
+    if t == _GEOM.mjGEOM_CAPSULE:
+        return capsule(s[0], s[1], h)
+    if t == _GEOM.mjGEOM_MESH:
+        m = int(model.geom_dataid[g])
+        va, vn = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+        fa, fn = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
+        label = repr(model.mesh(m).name) if model.mesh(m).name else f"id {m}"
+        return _mesh(model.mesh_vert[va:va + vn], model.mesh_face[fa:fa + fn], h,
+                     f"mesh {label} of {_geom_label(model, g)}")
+    try:
+        type_name = _GEOM(t).name.removeprefix("mjGEOM_").lower()
+    except ValueError:
+        type_name = str(t)
+    hint = " (planes and heightfields are terrain, not intruders)" if t in _TERRAIN_TYPES else ""
+    raise ValueError(f"{_geom_label(model, g)} has type {type_name!r}, which has no surface elements"
+                     f"{hint}; supported types: {_SUPPORTED}")
+
+
+def body_elements(model, body_id: int, size: float) -> Elements:
+    """Surface elements of all geoms of one body (collidable or not), in the BODY frame.
+
+    Each geom's elements are placed by ``model.geom_pos`` / ``model.geom_quat``. Plane and hfield geoms
+    are skipped (terrain, not intruders); sdf geoms are skipped with a UserWarning. A body without
+    surface geoms gives zero elements.
+
+    Args:
+        model: the ``mujoco.MjModel``.
+        body_id: body index, ``0 <= body_id < model.nbody``.
+        size: target element edge length in m.
+    """
+    b = int(body_id)
+    if not 0 <= b < model.nbody:
+        raise ValueError(f"body_id must be in 0..{model.nbody - 1}, got {body_id}")
+    parts = []
+    for g in np.flatnonzero(np.asarray(model.geom_bodyid) == b):
+        t = int(model.geom_type[g])
+        if t in _TERRAIN_TYPES:
+            continue
+        if t == _GEOM.mjGEOM_SDF:
+            warnings.warn(f"{_geom_label(model, int(g))} is an sdf geom; sdf surfaces are not supported and "
+                          "it feels no sand; add a mesh or primitive geom for it", UserWarning, stacklevel=2)
+            continue
+        el = geom_elements(model, int(g), size)
+        parts.append(el.transformed(model.geom_pos[g], _quat_to_mat(model.geom_quat[g])))
+    return Elements.concatenate(parts)

@@ -1,0 +1,246 @@
+"""The MuJoCo coupling against the pure law, on tiny inline models."""
+
+import mujoco
+import numpy as np
+import pytest
+
+import rft_mujoco
+from rft_mujoco import surface
+
+MEDIA = rft_mujoco.MPM_VALIDATION
+
+FREE_BODIES = """
+<mujoco>
+  <option timestep="0.001" integrator="{integrator}"/>
+  <worldbody>
+    <body name="ball" pos="0 0 0">
+      <freejoint/>
+      <geom type="sphere" size="0.05" mass="1"/>
+    </body>
+    <body name="brick" pos="0.3 0 0">
+      <freejoint/>
+      <geom type="box" size="0.04 0.03 0.02" pos="0.01 0 0" euler="0.2 0.1 0" mass="0.5"/>
+      <geom type="capsule" size="0.01 0.03" pos="-0.03 0 0.02" mass="0.1"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def make(integrator="Euler"):
+    model = mujoco.MjModel.from_xml_string(FREE_BODIES.format(integrator=integrator))
+    return model, mujoco.MjData(model)
+
+
+@pytest.fixture(autouse=True)
+def _clean():
+    yield
+    rft_mujoco.detach_all()
+
+
+def random_state(model, data, rng, depth=0.05):
+    for j, body in enumerate(("ball", "brick")):
+        adr = model.jnt_qposadr[model.body(body).jntadr[0]]
+        data.qpos[adr:adr + 3] = [0.3 * j, 0.0, -depth + rng.uniform(-0.02, 0.02)]
+        q = rng.normal(size=4)
+        data.qpos[adr + 3:adr + 7] = q / np.linalg.norm(q)
+    data.qvel[:] = rng.normal(size=model.nv) * 0.3
+
+
+def expected_wrench(model, data, handle, body_name, size):
+    """Sum of element_forces over the body's elements, torque about the COM (independent path)."""
+    b = model.body(body_name).id
+    el = surface.body_elements(model, b, size)
+    rot = data.xmat[b].reshape(3, 3)
+    pos = data.xpos[b] + el.centroids @ rot.T
+    nrm = el.normals @ rot.T
+    vel6 = np.zeros(6)
+    mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, b, vel6, 0)
+    omega, v_com = vel6[:3], vel6[3:]
+    vel = v_com + np.cross(omega, pos - data.xipos[b])
+    f = rft_mujoco.element_forces(pos, nrm, el.areas, vel, MEDIA, 0.0, model.opt.gravity)
+    return f.sum(0), np.cross(pos - data.xipos[b], f).sum(0)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_wrench_is_sum_of_element_forces(seed):
+    model, data = make()
+    sand = rft_mujoco.attach(model, MEDIA, resolution=0.01, stabilize=False, passive=False)
+    rng = np.random.default_rng(seed)
+    random_state(model, data, rng)
+    mujoco.mj_forward(model, data)
+    diag = sand.diagnostics(data)
+    for i, name in enumerate(sand.body_names):
+        force, torque = expected_wrench(model, data, sand, name, 0.01)
+        assert np.linalg.norm(force) > 1.0, "the test state must load the body"
+        np.testing.assert_allclose(diag.force[i], force, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(diag.torque[i], torque, rtol=1e-9, atol=1e-9)
+        b = model.body(name).id
+        np.testing.assert_allclose(data.xfrc_applied[b], np.r_[force, torque], rtol=1e-9, atol=1e-9)
+
+
+def test_rk4_recomputes_every_stage():
+    model, data = make("RK4")
+    sand = rft_mujoco.attach(model, MEDIA, resolution=0.02)
+    data.qpos[2] = -0.03
+    mujoco.mj_forward(model, data)
+    before = sand.evaluations
+    mujoco.mj_step(model, data)
+    assert sand.evaluations - before == 4
+
+
+def test_body_above_sand_gets_exactly_zero():
+    model, data = make()
+    sand = rft_mujoco.attach(model, MEDIA, surface_height=-1.0)
+    data.qvel[:] = 1.0
+    mujoco.mj_step(model, data)
+    assert np.all(data.xfrc_applied == 0.0)
+    assert np.all(sand.diagnostics(data).force == 0.0)
+
+
+@pytest.mark.parametrize("user_action", ["leave", "zero", "assign"])
+def test_user_xfrc_is_preserved(user_action):
+    model, data = make()
+    sand = rft_mujoco.attach(model, MEDIA, bodies=["ball"], resolution=0.02, stabilize=False)
+    b = model.body("ball").id
+    user = np.array([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
+    data.xfrc_applied[b] = user
+    data.qpos[2] = -0.05
+    data.qvel[:3] = [0.1, 0.0, -0.2]
+    for _ in range(5):
+        mujoco.mj_step(model, data)
+        if user_action == "zero":
+            data.xfrc_applied[b] = 0.0
+            user = np.zeros(6)
+        elif user_action == "assign":
+            user = user + 1.0
+            data.xfrc_applied[b] = user
+    mujoco.mj_forward(model, data)
+    d = sand.diagnostics(data)
+    sand_wrench = np.r_[d.force[0], d.torque[0]]
+    assert np.linalg.norm(sand_wrench) > 1.0
+    np.testing.assert_allclose(data.xfrc_applied[b], user + sand_wrench, rtol=1e-12, atol=1e-12)
+
+
+def test_detach_restores_plain_model():
+    model, data = make()
+    plain = mujoco.MjData(model)
+    sand = rft_mujoco.attach(model, MEDIA, resolution=0.02)
+    for d in (data, plain):
+        d.qpos[2] = -0.05
+        d.qvel[:3] = [0.2, 0.0, -0.3]
+    mujoco.mj_step(model, data)
+    assert np.any(data.xfrc_applied != 0)
+    sand.detach()
+    assert np.all(data.xfrc_applied == 0.0), "detach must take the sand wrench out of xfrc_applied"
+    assert mujoco.get_mjcb_control() is None
+    mujoco.mj_step(model, plain)
+    data2 = mujoco.MjData(model)
+    data2.qpos[:] = plain.qpos
+    data2.qvel[:] = plain.qvel
+    mujoco.mj_step(model, data2)
+    mujoco.mj_step(model, plain)
+    np.testing.assert_array_equal(plain.qvel, data2.qvel)
+
+
+def test_two_models_do_not_interfere():
+    m1, d1 = make()
+    m2, d2 = make()
+    s1 = rft_mujoco.attach(m1, MEDIA, bodies=["ball"], resolution=0.02, stabilize=False)
+    s2 = rft_mujoco.attach(m2, rft_mujoco.DEM_GLASS_BEADS, bodies=["brick"], surface_height=0.5,
+                           resolution=0.02, stabilize=False)
+    for d in (d1, d2):
+        d.qpos[2] = -0.05
+        d.qvel[:] = 0.2
+    mujoco.mj_forward(m1, d1)
+    mujoco.mj_forward(m2, d2)
+    assert np.any(d1.xfrc_applied[m1.body("ball").id] != 0)
+    assert np.all(d1.xfrc_applied[m1.body("brick").id] == 0)
+    assert np.all(d2.xfrc_applied[m2.body("ball").id] == 0)
+    assert np.any(d2.xfrc_applied[m2.body("brick").id] != 0)
+    # Each equals its own handle's diagnostics.
+    np.testing.assert_array_equal(s1.diagnostics(d1).force[0], d1.xfrc_applied[m1.body("ball").id, :3])
+    np.testing.assert_array_equal(s2.diagnostics(d2).force[0], d2.xfrc_applied[m2.body("brick").id, :3])
+
+
+def test_compiling_a_model_while_attached():
+    model, data = make()
+    rft_mujoco.attach(model, MEDIA, resolution=0.02)
+    other = mujoco.MjModel.from_xml_string(FREE_BODIES.format(integrator="RK4"))
+    spec = mujoco.MjSpec.from_string(FREE_BODIES.format(integrator="Euler"))
+    spec.compile()
+    assert other.nbody == model.nbody
+    data.qpos[2] = -0.05
+    mujoco.mj_step(model, data)   # the callback is still in place
+    assert np.any(data.xfrc_applied != 0)
+
+
+def test_user_control_callback_is_chained():
+    calls = []
+    model, data = make()   # compile first: mujoco 4.0 cannot compile under a user's Python callback
+    mujoco.set_mjcb_control(lambda m, d: calls.append(1))
+    try:
+        sand = rft_mujoco.attach(model, MEDIA, resolution=0.02)
+        mujoco.mj_step(model, data)
+        assert calls
+        sand.detach()
+        assert mujoco.get_mjcb_control() is not None
+    finally:
+        mujoco.set_mjcb_control(None)
+
+
+HFIELD = """
+<mujoco>
+  <asset><hfield name="h" nrow="3" ncol="3" size="1 1 0.2 0.1"
+      elevation="0 0 0  0 1 0  0 0 0"/></asset>
+  <worldbody>
+    <geom name="terrain" type="hfield" hfield="h" contype="0" conaffinity="0"/>
+    <body name="ball" pos="0 0 0.1"><freejoint/><geom type="sphere" size="0.03"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_heightfield_depth():
+    model = mujoco.MjModel.from_xml_string(HFIELD)
+    hf = rft_mujoco.HeightfieldSurface.from_model(model, "terrain")
+    # Centre vertex is at top = 0.2 m; corners at 0; half way between: 0.1 (bilinear).
+    g = np.array([0.0, 0.0, -1.0])
+    pts = np.array([[0, 0, 0.15], [0.5, 0, 0.0], [1, 1, -0.05], [0.25, 0.25, 0.0]])
+    np.testing.assert_allclose(hf.depth(pts, g), [0.05, 0.1, 0.05, 0.2 * 0.75 * 0.75], atol=1e-12)
+    data = mujoco.MjData(model)
+    sand = rft_mujoco.attach(model, MEDIA, bodies=["ball"], surface_height=hf, stabilize=False)
+    data.qpos[2] = 0.19          # 0.01 below the peak of the surface
+    data.qvel[2] = -0.1
+    mujoco.mj_forward(model, data)
+    assert sand.diagnostics(data).force[0, 2] > 0
+    data.qpos[:3] = [0.9, 0.9, 0.05]   # above the low corner
+    mujoco.mj_forward(model, data)
+    assert sand.diagnostics(data).force[0, 2] == 0.0
+
+
+def test_sand_region_has_no_sand_outside():
+    model, data = make()
+    region = rft_mujoco.SandRegion(rft_mujoco.FlatSurface(0.0), (-0.1, 0.1), (-1, 1))
+    sand = rft_mujoco.attach(model, MEDIA, bodies=["ball", "brick"], surface_height=region,
+                             stabilize=False)
+    data.qpos[2] = -0.05
+    data.qpos[9] = -0.05
+    data.qvel[:] = -0.1
+    mujoco.mj_forward(model, data)
+    f = sand.diagnostics(data).force
+    assert np.linalg.norm(f[0]) > 0 and np.all(f[1] == 0)
+
+
+def test_bad_inputs_are_explained():
+    model, data = make()
+    with pytest.raises(ValueError, match="no body named 'nope'"):
+        rft_mujoco.attach(model, MEDIA, bodies=["nope"])
+    with pytest.raises(ValueError, match="unknown media preset"):
+        rft_mujoco.attach(model, "mud")
+    sand = rft_mujoco.attach(model, MEDIA, resolution=0.02)
+    data.qpos[2] = -0.05
+    data.qvel[0] = np.nan
+    with pytest.raises(FloatingPointError, match="ball"):
+        mujoco.mj_forward(model, data)
+    sand.detach()
