@@ -122,6 +122,7 @@ class SandHandle:
                 self._bound_center[i] = center
                 self._bound_radius[i] = np.linalg.norm(pts - center, axis=1).max() + size
         self._elem_slices = np.concatenate([[0], np.cumsum(counts)])
+        self.elem_octant = kernel.octants(self.local_centroids, self._bound_center[self.elem_body])
         self._diag: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
         self._root = model.body_rootid[self.body_ids]
         self._jacp = np.zeros((3, model.nv))
@@ -197,16 +198,22 @@ class SandHandle:
         sel = np.concatenate([np.arange(self._elem_slices[i], self._elem_slices[i + 1]) for i in cand])
         remap = np.empty(len(ids), dtype=np.int64)
         remap[cand] = np.arange(cand.size)
-        wrench, count, max_depth = kernel.body_wrenches(
+        groups, count, max_depth = kernel.body_wrenches(
             self.local_centroids[sel], self.local_normals[sel], self.areas[sel], remap[self.elem_body[sel]],
             cand.size, data.xpos[bids], xmat[cand], com, v_com, omega, self.terrain, g_hat, gravity,
-            self.media, self.guards, a_com, alpha, dt if self.stabilize else 0.0)
+            self.media, self.guards, a_com, alpha, dt if self.stabilize else 0.0, self.elem_octant[sel])
+        wrench = groups.sum(axis=1)
         diag.rft_force[cand] = wrench[:, :3]
         loaded = np.flatnonzero(np.any(wrench != 0.0, axis=1))
         if loaded.size and self.stabilize:
-            lam = self._limit(data, jac[loaded], wrench[loaded], qvel_pred, dt)
-            wrench[loaded] *= lam[:, None]
-            diag.scale[cand[loaded]] = lam
+            flat = groups.reshape(-1, 6)
+            active = np.flatnonzero(np.any(flat != 0.0, axis=1))
+            lam = self._limit(data, jac[active // kernel.GROUPS_PER_BODY], flat[active], qvel_pred, dt)
+            flat[active] *= lam[:, None]
+            new = groups.sum(axis=1)
+            rft_norm = np.linalg.norm(wrench[loaded], axis=1)
+            diag.scale[cand[loaded]] = np.linalg.norm(new[loaded], axis=1) / rft_norm
+            wrench = new
         elif loaded.size and self.passive:
             power = np.einsum("ij,ij->i", wrench[loaded, :3], v_com[loaded]) + \
                 np.einsum("ij,ij->i", wrench[loaded, 3:], omega[loaded])

@@ -13,9 +13,16 @@ Leg frame and joint conventions (those of the model; x forward, y left, z up, tr
 
 Example::
 
-    gait = TrotGait(frequency_hz=2.5, stride_m=0.10, step_height_m=0.06)
-    data.ctrl[:] = gait.stand()           # (12,) rad
-    data.ctrl[:] = gait.targets(data.time)
+    xml = importlib.resources.files("rft_mujoco.models") / "quadruped.xml"
+    model = mujoco.MjModel.from_xml_path(str(xml))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+    gait = TrotGait.from_model(model, frequency_hz=2.5, stride_m=0.10, step_height_m=0.06)
+    data.ctrl[:] = gait.stand()             # (12,) rad
+    data.ctrl[:] = gait.targets(data.time)  # each step; ~0.49 m/s on the rigid floor
+
+``TrotGait.from_model`` also reads the robot's weight and servo gains for the load compensation and
+velocity lead (see :class:`TrotGait`); a plain ``TrotGait(...)`` has both off and trots about half as fast.
 """
 
 from __future__ import annotations
@@ -39,6 +46,12 @@ SIDE = np.array([1.0, -1.0, 1.0, -1.0])
 
 TROT_PHASE = np.array([0.0, 0.5, 0.5, 0.0])
 """(4,) phase offsets (fraction of a cycle) of the trot: diagonal pairs FL+RR and FR+RL alternate."""
+
+SIDE.flags.writeable = False
+TROT_PHASE.flags.writeable = False
+
+_LEAD_DT_S = 1e-4
+"""Half-width (s) of the central difference that gives the joint velocities of the velocity lead."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,11 +128,45 @@ def leg_fk(q: np.ndarray, side: np.ndarray, geometry: LegGeometry = LegGeometry(
     return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
 
 
+def leg_jacobian(q: np.ndarray, side: np.ndarray, geometry: LegGeometry = LegGeometry()) -> np.ndarray:
+    """Jacobian of :func:`leg_fk`: d(foot position in the hip frame)/d(joint angles).
+
+    Args:
+        q: (..., 3) rad, (hip, thigh, calf) joint angles.
+        side: (...,) +1 for a left leg, -1 for a right leg.
+        geometry: the leg's link lengths.
+
+    Returns:
+        (..., 3, 3) m/rad; ``J[..., i, j] = d foot_i / d q_j``.
+    """
+    q = np.asarray(q, dtype=float)
+    if q.shape[-1:] != (3,):
+        raise ValueError(f"q must have shape (..., 3), got {q.shape}")
+    q0, q1, q2 = q[..., 0], q[..., 1], q[..., 2]
+    l1, l2 = geometry.thigh_length_m, geometry.calf_length_m
+    s0, c0 = np.sin(q0), np.cos(q0)
+    x = -l1 * np.sin(q1) - l2 * np.sin(q1 + q2)
+    h = l1 * np.cos(q1) + l2 * np.cos(q1 + q2)
+    d = np.asarray(side, dtype=float) * geometry.hip_offset_m
+    y = d * c0 + h * s0
+    z = d * s0 - h * c0
+    dx = np.stack(np.broadcast_arrays(0.0 * q0, -h, -l2 * np.cos(q1 + q2)), axis=-1)  # d x / d q
+    dh = np.stack(np.broadcast_arrays(0.0 * q0, x, -l2 * np.sin(q1 + q2)), axis=-1)   # d h / d q
+    dy = dh * s0[..., None]
+    dz = -dh * c0[..., None]
+    dy[..., 0] = -z
+    dz[..., 0] = y
+    return np.stack([dx, dy, dz], axis=-2)
+
+
 def leg_ik(foot_m: np.ndarray, side: np.ndarray, geometry: LegGeometry = LegGeometry()) -> np.ndarray:
     """Joint angles that put the foot centre at ``foot_m`` (analytic inverse of :func:`leg_fk`).
 
-    The knee is always bent backward (calf angle in (-pi, 0]). Targets out of reach are pulled onto the
-    workspace boundary (fully stretched or fully folded leg) rather than raising.
+    The knee is always bent backward (calf angle in [-pi, 0]) and the foot is taken to be below the hip
+    in the leg plane (``thigh_length cos(thigh) + calf_length cos(thigh + calf) >= 0``), which covers
+    walking; the joint ranges of the model also allow poses outside that, which this does not invert.
+    Targets out of reach are pulled onto the workspace boundary (fully stretched or fully folded leg)
+    rather than raising.
 
     Args:
         foot_m: (..., 3) m, foot centre relative to the hip joint, trunk-aligned axes.
@@ -168,7 +215,22 @@ class TrotGait:
         stance_width_m: extra lateral foot placement outboard of the thigh plane, m.
         ramp_time_s: the stride and step height grow linearly from 0 over this time from t = 0, s
             (0 disables the ramp), so a robot standing still starts smoothly.
+        load_n: weight the stance feet carry, N (the robot's mass times |g|); 0 disables the load
+            compensation. Position servos yield under load (``tau = kp * (target - q)``); with a
+            compliant knee-backward leg that yield is a backward step of the trunk at every
+            touchdown, a drift of ~0.1 m/s when marching in place. Stance-leg targets are therefore
+            offset by ``-J^T f / kp`` with ``f = (0, 0, load_n / n_stance)``, the share of the weight
+            on each stance foot (``J`` from :func:`leg_jacobian`).
+        servo_kp_nm_per_rad: the position servos' stiffness used by the load compensation and the
+            velocity lead, N m/rad.
+        servo_kd_nm_s_per_rad: the velocity-proportional resistance each joint meets (the servo's
+            ``kv`` plus the joint's damping), N m s/rad; 0 disables the velocity lead. A position servo
+            with damping lags a moving target by ``kd / kp * dq/dt`` (a late, short swing: the feet
+            land behind their targets and the trot loses ~20% of its speed), so the targets lead by
+            that much: ``q_target = q_ik + kd / kp * dq_ik/dt``.
         geometry: the leg's link lengths (:meth:`LegGeometry.from_model` reads them from a model).
+
+    :meth:`from_model` fills ``geometry``, ``load_n`` and ``servo_kp_nm_per_rad`` from a compiled model.
     """
 
     frequency_hz: float = 2.5
@@ -179,7 +241,27 @@ class TrotGait:
     foot_x_offset_m: float = 0.0
     stance_width_m: float = 0.0
     ramp_time_s: float = 0.5
+    load_n: float = 0.0
+    servo_kp_nm_per_rad: float = 80.0
+    servo_kd_nm_s_per_rad: float = 0.0
     geometry: LegGeometry = dataclasses.field(default_factory=LegGeometry)
+
+    @classmethod
+    def from_model(cls, model, **kwargs) -> "TrotGait":
+        """A gait for a compiled MjModel of the bundled quadruped: leg geometry, weight (total mass
+        times |gravity|), servo stiffness (the actuators' ``kp``) and resistance (``kv`` plus joint
+        damping) are read from the model, where all 12 servos must be alike; ``kwargs`` set the other
+        fields (and may override these)."""
+        kp = np.asarray(model.actuator_gainprm[:, 0], dtype=float)
+        kd = -np.asarray(model.actuator_biasprm[:, 2], dtype=float)
+        kd = kd + model.dof_damping[model.jnt_dofadr[model.actuator_trnid[:, 0]]]
+        if model.nu != 12 or not (np.allclose(kp, kp[0]) and np.allclose(kd, kd[0])):
+            raise ValueError(f"expected 12 alike position actuators, got nu={model.nu}, kp={kp.tolist()}, "
+                             f"kv + joint damping={kd.tolist()}")
+        defaults = dict(geometry=LegGeometry.from_model(model),
+                        load_n=float(np.sum(model.body_mass) * np.linalg.norm(model.opt.gravity)),
+                        servo_kp_nm_per_rad=float(kp[0]), servo_kd_nm_s_per_rad=float(kd[0]))
+        return cls(**{**defaults, **kwargs})
 
     def __post_init__(self) -> None:
         def check(name, ok, expected):
@@ -195,6 +277,9 @@ class TrotGait:
         check("foot_x_offset_m", lambda v: True, "a finite length in m")
         check("stance_width_m", lambda v: True, "a finite length in m")
         check("ramp_time_s", lambda v: v >= 0, "a finite time >= 0 s")
+        check("load_n", lambda v: v >= 0, "a finite weight >= 0 N")
+        check("servo_kp_nm_per_rad", lambda v: v > 0, "a finite stiffness > 0 N m/rad")
+        check("servo_kd_nm_s_per_rad", lambda v: v >= 0, "a finite damping >= 0 N m s/rad")
         if not isinstance(self.geometry, LegGeometry):
             raise ValueError(f"geometry must be a LegGeometry, got {type(self.geometry).__name__}")
         g = self.geometry
@@ -215,8 +300,7 @@ class TrotGait:
         """Forward trunk speed if stance feet do not slip, m/s."""
         return self.stride_m * self.frequency_hz / self.duty_factor
 
-    def feet(self, t: float) -> np.ndarray:
-        """Foot-centre targets at time ``t`` (s), (4, 3) m in each leg's hip frame, :data:`LEGS` order."""
+    def _feet_and_stance(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         t = float(t)
         ramp = 1.0 if self.ramp_time_s == 0 else min(max(t / self.ramp_time_s, 0.0), 1.0)
         stride, height = ramp * self.stride_m, ramp * self.step_height_m
@@ -230,12 +314,32 @@ class TrotGait:
         x = np.where(stance, x_stance, x_swing) + self.foot_x_offset_m
         z = np.where(stance, 0.0, z_swing) - self.hip_height_m
         y = SIDE * (self.geometry.hip_offset_m + self.stance_width_m)
-        return np.stack([x, y, z], axis=-1)
+        return np.stack([x, y, z], axis=-1), stance
+
+    def feet(self, t: float) -> np.ndarray:
+        """Foot-centre targets at time ``t`` (s), (4, 3) m in each leg's hip frame, :data:`LEGS` order."""
+        return self._feet_and_stance(t)[0]
+
+    def stance(self, t: float) -> np.ndarray:
+        """Which feet are in stance at time ``t`` (s): (4,) bool, :data:`LEGS` order."""
+        return self._feet_and_stance(t)[1]
 
     def targets(self, t: float) -> np.ndarray:
         """Joint targets at time ``t`` (s): (12,) rad in actuator order (:data:`ACTUATOR_NAMES`)."""
-        return leg_ik(self.feet(t), SIDE, self.geometry).reshape(12)
+        feet, stance = self._feet_and_stance(t)
+        q = leg_ik(feet, SIDE, self.geometry)                                   # (4, 3)
+        if self.servo_kd_nm_s_per_rad > 0:
+            h = _LEAD_DT_S
+            dq_dt = (leg_ik(self.feet(t + h), SIDE, self.geometry)
+                     - leg_ik(self.feet(t - h), SIDE, self.geometry)) / (2.0 * h)
+            q = q + (self.servo_kd_nm_s_per_rad / self.servo_kp_nm_per_rad) * dq_dt
+        if self.load_n > 0 and stance.any():
+            f_z = np.where(stance, self.load_n / np.count_nonzero(stance), 0.0)    # (4,) N on each foot
+            jac = leg_jacobian(q, SIDE, self.geometry)                          # (4, 3, 3)
+            q = q - jac[:, 2, :] * (f_z / self.servo_kp_nm_per_rad)[:, None]
+        return q.reshape(12)
 
     def stand(self) -> np.ndarray:
-        """The standing pose with all feet at the loop centre: (12,) rad in actuator order."""
+        """The standing pose with all feet at the loop centre (load-compensated like :meth:`targets`):
+        (12,) rad in actuator order."""
         return dataclasses.replace(self, stride_m=0.0, step_height_m=0.0).targets(0.0)

@@ -11,6 +11,17 @@ from . import law
 from .law import Guards
 from .media import Media
 
+GROUPS_PER_BODY = 8
+"""Each body's elements are split into the 8 octants of its body frame (about its bounding-box centre).
+The impulse limiter scales each octant's wrench separately, so the sand can supply any wrench inside the
+cone of its octant wrenches (up to their RFT values) and can stop translation and rotation together."""
+
+
+def octants(local_centroids: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """Octant index 0..7 of each (E, 3) body-frame centroid relative to ``center`` (3,)."""
+    rel = local_centroids - center
+    return ((rel[:, 0] > 0).astype(np.int64) + 2 * (rel[:, 1] > 0) + 4 * (rel[:, 2] > 0))
+
 
 def element_states(local_centroids, local_normals, elem_body, body_pos, body_mat, body_com, v_com, omega):
     """World positions, unit normals and velocities of elements attached to rigid bodies.
@@ -37,8 +48,8 @@ def element_states(local_centroids, local_normals, elem_body, body_pos, body_mat
 
 def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, body_pos, body_mat, body_com,
                   v_com, omega, terrain, g_hat, gravity, media: Media, guards: Guards,
-                  a_com=None, alpha=None, dt=0.0):
-    """3D-RFT wrench about each body's centre of mass.
+                  a_com=None, alpha=None, dt=0.0, elem_octant=None):
+    """3D-RFT wrench about each body's centre of mass, split by body-frame octant.
 
     The motion direction of each element is its velocity ``v``; when ``dt > 0`` and free accelerations
     are given, the direction is ``v + w a dt`` with ``w = (|a| dt)^2 / (|v|^2 + (|a| dt)^2)``: at
@@ -51,19 +62,20 @@ def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, bo
         g_hat: (3,) unit gravity direction; gravity: (3,) m/s^2.
         a_com, alpha: (B, 3) free linear (m/s^2) and angular (rad/s^2) accelerations, or None.
         dt: the step in s used for the predicted direction (0 disables it).
+        elem_octant: (E,) int in 0..7 (see :func:`octants`), or None (all in octant 0).
     Returns:
-        wrench (B, 6) [force N, torque N m about the COM], submerged leading element count (B,) int,
-        maximum depth (B,) m (0 if none submerged).
+        wrench (B, 8, 6) [force N, torque N m about the body's COM] per octant (sum over axis 1 for the
+        body), submerged leading element count (B,) int, maximum depth (B,) m (0 if none submerged).
     """
     pos, nrm, arm, vel = element_states(local_centroids, local_normals, elem_body, body_pos, body_mat,
                                         body_com, v_com, omega)
     depth = terrain.depth(pos, g_hat)
-    wrench = np.zeros((n_bodies, 6))
+    wrench = np.zeros((n_bodies * GROUPS_PER_BODY, 6))
     count = np.zeros(n_bodies, dtype=np.int64)
     max_depth = np.zeros(n_bodies)
     sub = np.flatnonzero(depth > 0.0)
     if sub.size == 0:
-        return wrench, count, max_depth
+        return wrench.reshape(n_bodies, GROUPS_PER_BODY, 6), count, max_depth
     v = vel[sub]
     if dt > 0.0 and a_com is not None:
         b = elem_body[sub]
@@ -82,18 +94,20 @@ def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, bo
     leading = np.einsum("ij,ij->i", n_hat, v_hat) >= -law.LEADING_TOL
     sub, v_hat, n_hat = sub[leading], v_hat[leading], n_hat[leading]
     if sub.size == 0:
-        return wrench, count, max_depth
+        return wrench.reshape(n_bodies, GROUPS_PER_BODY, 6), count, max_depth
     alpha_s = law.stress_per_depth(n_hat, v_hat, media, gravity, guards)
     f = alpha_s * (depth[sub] * areas[sub])[:, None]
     b = elem_body[sub]
+    grp = b * GROUPS_PER_BODY + (0 if elem_octant is None else elem_octant[sub])
+    n_groups = n_bodies * GROUPS_PER_BODY
     for k in range(3):
-        wrench[:, k] = np.bincount(b, weights=f[:, k], minlength=n_bodies)
+        wrench[:, k] = np.bincount(grp, weights=f[:, k], minlength=n_groups)
     tau = np.cross(arm[sub], f)
     for k in range(3):
-        wrench[:, 3 + k] = np.bincount(b, weights=tau[:, k], minlength=n_bodies)
+        wrench[:, 3 + k] = np.bincount(grp, weights=tau[:, k], minlength=n_groups)
     count[:] = np.bincount(b, minlength=n_bodies)
     np.maximum.at(max_depth, b, depth[sub])
-    return wrench, count, max_depth
+    return wrench.reshape(n_bodies, GROUPS_PER_BODY, 6), count, max_depth
 
 
 def limit_impulses(G: np.ndarray, h: np.ndarray, iterations: int = 30) -> np.ndarray:

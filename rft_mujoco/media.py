@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 STANDARD_GRAVITY = 9.81
 """|g| in m/s^2 used by :attr:`Media.xi_n` (the paper's value)."""
@@ -25,7 +26,8 @@ def f_hat(mu_int: float) -> float:
 
 
 def _check_range(name: str, value: float, low: float, high: float, hint: str) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and low <= value <= high):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (
+            math.isfinite(value) and low <= value <= high):
         raise ValueError(f"{name} must be a finite number in [{low}, {high}], got {value!r}. {hint}")
 
 

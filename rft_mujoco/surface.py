@@ -505,9 +505,11 @@ def geom_elements(model, geom_id: int, size: float) -> Elements:
 
 
 def body_elements(model, body_id: int, size: float) -> Elements:
-    """Surface elements of all geoms of one body (collidable or not), in the BODY frame.
+    """Surface elements of the geoms of one body, in the BODY frame.
 
-    Each geom's elements are placed by ``model.geom_pos`` / ``model.geom_quat``. Plane and hfield geoms
+    When a body has both collidable geoms (``contype`` or ``conaffinity`` non-zero) and visual-only
+    geoms, only the collidable ones are used (a visual mesh over collision primitives would otherwise
+    count the same surface twice); a body with only visual geoms uses all of them. Each geom's elements are placed by ``model.geom_pos`` / ``model.geom_quat``. Plane and hfield geoms
     are skipped (terrain, not intruders); sdf geoms are skipped with a UserWarning. A body without
     surface geoms gives zero elements.
 
@@ -520,7 +522,11 @@ def body_elements(model, body_id: int, size: float) -> Elements:
     if not 0 <= b < model.nbody:
         raise ValueError(f"body_id must be in 0..{model.nbody - 1}, got {body_id}")
     parts = []
-    for g in np.flatnonzero(np.asarray(model.geom_bodyid) == b):
+    geoms = np.flatnonzero(np.asarray(model.geom_bodyid) == b)
+    collidable = (model.geom_contype[geoms] != 0) | (model.geom_conaffinity[geoms] != 0)
+    if collidable.any() and not collidable.all():
+        geoms = geoms[collidable]
+    for g in geoms:
         t = int(model.geom_type[g])
         if t in _TERRAIN_TYPES:
             continue
