@@ -320,7 +320,7 @@ PRIMS_XML = """
       <freejoint/>
       <geom name="sph" type="sphere" size="0.02" pos="0.1 -0.05 0.02"/>
       <geom name="ell" type="ellipsoid" size="0.03 0.02 0.01" pos="0 0 -0.1" euler="0 90 0"/>
-      <geom name="box" type="box" size="0.03 0.02 0.01" pos="0 0.1 0" euler="30 0 45" contype="0" conaffinity="0"/>
+      <geom name="box" type="box" size="0.03 0.02 0.01" pos="0 0.1 0" euler="30 0 45"/>
       <geom name="cyl" type="cylinder" size="0.01 0.02"/>
       <geom name="cap" type="capsule" size="0.01 0.02" pos="-0.1 0 0" quat="0.7071068 0.7071068 0 0"/>
     </body>
@@ -388,3 +388,16 @@ def test_unsupported_geom_raises_with_name_and_types():
         surface.geom_elements(model, 0, 0.01)
     with pytest.raises(ValueError, match="geom_id must be in"):
         surface.geom_elements(model, model.ngeom, 0.01)
+
+
+def test_body_elements_skip_visual_geoms_over_collision_geoms():
+    xml = """<mujoco><worldbody><body name="b">
+      <geom type="sphere" size="0.02"/>
+      <geom type="sphere" size="0.025" contype="0" conaffinity="0" group="1"/>
+    </body><body name="v" pos="1 0 0"><geom type="sphere" size="0.02" contype="0" conaffinity="0"/></body>
+    </worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    only_collision = surface.body_elements(model, model.body("b").id, 0.01)
+    assert only_collision.area() == pytest.approx(4 * np.pi * 0.02**2)
+    only_visual = surface.body_elements(model, model.body("v").id, 0.01)
+    assert only_visual.area() == pytest.approx(4 * np.pi * 0.02**2)
