@@ -129,6 +129,7 @@ class SandHandle:
         self._jacr = np.zeros((3, model.nv))
         self.attached = False
         self.evaluations = 0
+        self._replaced: list[tuple[int, int, int]] = []
 
     # --- public -------------------------------------------------------------------------------------
     def detach(self) -> None:
@@ -136,9 +137,25 @@ class SandHandle:
         if not self.attached:
             return
         DISPATCHER.unregister(self)
+        for gid, contype, conaffinity in self._replaced:
+            self.model.geom_contype[gid] = contype
+            self.model.geom_conaffinity[gid] = conaffinity
+        self._replaced.clear()
         for data in DISPATCHER.datas_of(self.model):
             DISPATCHER.remove_sand(self.model, data, self.body_ids)
         self.attached = False
+
+    def replace_rigid(self, geoms: Sequence[str | int]) -> None:
+        """Switch off collisions of rigid geoms the sand replaces (e.g. the floor plane) until detach."""
+        for g in geoms:
+            gid = g if isinstance(g, (int, np.integer)) else mujoco.mj_name2id(
+                self.model, mujoco.mjtObj.mjOBJ_GEOM, g)
+            if gid < 0 or gid >= self.model.ngeom:
+                raise ValueError(f"no geom named {g!r} to replace by sand")
+            self._replaced.append((int(gid), int(self.model.geom_contype[gid]),
+                                   int(self.model.geom_conaffinity[gid])))
+            self.model.geom_contype[gid] = 0
+            self.model.geom_conaffinity[gid] = 0
 
     def diagnostics(self, data) -> Diagnostics:
         """Per-body force, torque, submerged element count and max depth of the latest evaluation."""

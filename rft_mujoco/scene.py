@@ -1,0 +1,101 @@
+"""Sand declared in the MJCF itself, through ``<custom>`` fields, attached with one call.
+
+A scene file says which bodies touch which sand::
+
+    <custom>
+      <text    name="rft/media"          data="li_loose_glass_beads"/>  <!-- a preset name, or: -->
+      <numeric name="rft/media"          data="1450 0.4 0.4"/>          <!-- rho_c kg/m^3, mu_int, mu_surf -->
+      <text    name="rft/bodies"         data="FL_foot FR_foot RL_foot RR_foot"/>  <!-- default: all -->
+      <numeric name="rft/surface_height" data="0"/>                     <!-- m (flat surface) -->
+      <text    name="rft/heightfield"    data="terrain"/>               <!-- hfield geom as the surface -->
+      <numeric name="rft/region"         data="-1 1 -0.5 0.5"/>         <!-- xmin xmax ymin ymax, m -->
+      <numeric name="rft/resolution"     data="0.01"/>                  <!-- m, or text preset name -->
+      <text    name="rft/replaces"       data="floor"/>                 <!-- rigid geoms the sand replaces -->
+    </custom>
+
+Several sands: put a name between ``rft`` and the key (``rft/beach/media``, ``rft/beach/bodies``, ...);
+each named group is one :class:`~rft_mujoco.SandHandle`. The geoms listed in ``replaces`` stop
+colliding while the sand is attached (their ``contype``/``conaffinity`` are set to 0 on the MjModel and
+restored at detach): that is how a rigid floor becomes a sand bed.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from .coupling import SandHandle, attach
+from .media import Media, get_media
+from .terrain import FlatSurface, HeightfieldSurface, SandRegion
+
+PREFIX = "rft/"
+KEYS = ("media", "bodies", "surface_height", "heightfield", "region", "resolution", "replaces")
+
+
+def _custom_fields(model) -> dict[str, dict[str, object]]:
+    groups: dict[str, dict[str, object]] = {}
+    raw = bytes(model.text_data)
+    items = [(model.numeric(i).name, np.array(model.numeric(i).data, dtype=float)) for i in range(model.nnumeric)]
+    for i in range(model.ntext):
+        adr, size = int(model.text_adr[i]), int(model.text_size[i])
+        items.append((mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_TEXT, i) or "",
+                      raw[adr:adr + size].rstrip(b"\0").decode().strip()))
+    for name, value in items:
+        if not name.startswith(PREFIX):
+            continue
+        parts = name[len(PREFIX):].split("/")
+        group, key = ("default", parts[0]) if len(parts) == 1 else (parts[0], parts[1])
+        if key not in KEYS or len(parts) > 2:
+            raise ValueError(f"unknown sand field {name!r} in <custom>; valid keys: "
+                             f"{[PREFIX + k for k in KEYS]} (optionally rft/<group>/<key>)")
+        groups.setdefault(group, {})[key] = value
+    return groups
+
+
+def _media(value, where: str) -> Media:
+    if isinstance(value, str):
+        return get_media(value)
+    if value.size not in (2, 3):
+        raise ValueError(f"{where}: numeric media must be 'rho_c mu_int [mu_surf]', got {value.tolist()}")
+    return Media(float(value[0]), float(value[1]), float(value[2]) if value.size == 3 else None)
+
+
+def attach_scene(model, **kwargs) -> list[SandHandle]:
+    """Attach every sand declared in the model's ``<custom>`` fields; returns one handle per sand.
+
+    Keyword arguments are passed to :func:`rft_mujoco.attach` (e.g. ``stabilize``, ``guards``).
+    Raises ValueError if the model declares no sand.
+    """
+    groups = _custom_fields(model)
+    if not groups:
+        raise ValueError("the model declares no sand: add <custom><text name=\"rft/media\" "
+                         "data=\"li_loose_glass_beads\"/></custom> (see rft_mujoco.scene)")
+    handles = []
+    try:
+        for name, f in groups.items():
+            where = f"sand {name!r}"
+            if "media" not in f:
+                raise ValueError(f"{where} has no rft/media field; give a preset name or 'rho_c mu_int mu_surf'")
+            media = _media(f["media"], where)
+            bodies = f["bodies"].split() if "bodies" in f else None
+            if "heightfield" in f:
+                surf = HeightfieldSurface.from_model(model, f["heightfield"])
+            else:
+                h = f.get("surface_height", np.zeros(1))
+                surf = FlatSurface(float(np.atleast_1d(h)[0]))
+            if "region" in f:
+                r = np.atleast_1d(f["region"])
+                if r.size != 4:
+                    raise ValueError(f"{where}: rft/region must be 'xmin xmax ymin ymax', got {r.tolist()}")
+                surf = SandRegion(surf, (r[0], r[1]), (r[2], r[3]))
+            res = f.get("resolution", "default")
+            res = res if isinstance(res, str) else float(np.atleast_1d(res)[0])
+            handle = attach(model, media, bodies, surf, res, **kwargs)
+            if "replaces" in f:
+                handle.replace_rigid(f["replaces"].split())
+            handles.append(handle)
+    except Exception:
+        for h in handles:
+            h.detach()
+        raise
+    return handles
