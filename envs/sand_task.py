@@ -1,0 +1,84 @@
+"""Base class of the native sand tasks: a bundled MJCF model, edited by the task, on a sand bed.
+
+A task subclass sets its arguments, then calls :meth:`SandTaskEnv.__init__`, which
+
+1. loads ``models/<xml_file>`` into an ``MjSpec``, lets the task edit it (:meth:`SandTaskEnv._edit_spec`:
+   timestep, loads, joints) and compiles it (compiling works while other sand envs run: the library's
+   dispatcher suspends its callback around compilation);
+2. turns the floor into sand (optionally over a rigid bottom) and attaches 3D-RFT to the task's bodies
+   (:class:`~.sand_bed.SandBed`);
+3. keeps ``cfrc_ext`` free of sand after each step and draws a new medium at each reset when asked.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+import os
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+from gymnasium.envs.mujoco import MujocoEnv
+
+from rft_mujoco.media import Media
+
+from .sand_bed import FEATURES_PER_BODY, MediaRanges, SandBed, compile_sand_model
+
+
+def model_path(xml_file: str) -> str:
+    """Absolute path of a bundled model (``rft_mujoco/models/<xml_file>``), or ``xml_file`` if it is a path."""
+    if os.sep in xml_file or xml_file.startswith("."):
+        return xml_file
+    path = importlib.resources.files("rft_mujoco.models") / xml_file
+    if not path.is_file():
+        names = sorted(p.name for p in importlib.resources.files("rft_mujoco.models").iterdir()
+                       if p.name.endswith(".xml"))
+        raise ValueError(f"no bundled model {xml_file!r}; bundled models are {names}")
+    return str(path)
+
+
+class SandTaskEnv(MujocoEnv):
+    """A MujocoEnv whose model is a bundled MJCF on sand. Subclasses set ``self._sand_*`` first."""
+
+    def __init__(self, xml_file: str, frame_skip: int, *, media: Media | str, resolution: str | float,
+                 sand_bodies: str | Sequence[str | int], bed_depth_m: float | None,
+                 media_ranges: MediaRanges | None, include_sand_in_observation: bool, **kwargs):
+        self.sand = None
+        self._include_sand_in_observation = bool(include_sand_in_observation)
+        self._bed_depth_m = bed_depth_m
+        MujocoEnv.__init__(self, model_path(xml_file), frame_skip, observation_space=None, **kwargs)
+        self.sand = SandBed(self.model, media, bodies=sand_bodies, resolution=resolution,
+                            surface=self._surface_geoms, media_ranges=media_ranges)
+
+    # --- model -----------------------------------------------------------------------------------
+    def _edit_spec(self, spec: mujoco.MjSpec) -> None:
+        """Task-specific changes to the model before compilation (default: none)."""
+
+    def _initialize_simulation(self):
+        model, self._surface_geoms = compile_sand_model(self.fullpath, self._bed_depth_m, self._edit_spec)
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
+        return model, mujoco.MjData(model)
+
+    # --- sand ------------------------------------------------------------------------------------
+    def _step_mujoco_simulation(self, ctrl, n_frames):
+        self.data.ctrl[:] = ctrl
+        mujoco.mj_step(self.model, self.data, nstep=n_frames)
+        self.sand.post_constraint(self.data)
+
+    def _sand_obs(self) -> np.ndarray:
+        """Per-body sand force (N) and sinkage (m), or an empty array when not observed."""
+        if not self._include_sand_in_observation:
+            return np.zeros(0)
+        return self.sand.features(self.data)
+
+    def _sand_obs_size(self) -> int:
+        return FEATURES_PER_BODY * self.sand.n_bodies if self._include_sand_in_observation else 0
+
+    def _randomize_media(self) -> None:
+        self.sand.randomize(self.np_random)
+
+    def close(self):
+        if self.sand is not None:
+            self.sand.close()
+        super().close()

@@ -1,0 +1,331 @@
+"""The Gymnasium sand tasks (envs/, installed as rft_mujoco.envs): API, determinism, physics sanity."""
+
+import copy
+import os
+import warnings
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gymnasium  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from gymnasium.utils.env_checker import check_env  # noqa: E402
+
+import rft_mujoco  # noqa: E402
+import rft_mujoco.envs  # noqa: E402
+from rft_mujoco.envs import ENV_IDS, MediaRanges, make_sand_env  # noqa: E402
+from rft_mujoco.envs.sand_swimmer_v0 import serpenoid_action  # noqa: E402
+
+NATIVE_IDS = ["rft_mujoco/SandSwimmer-v0", "rft_mujoco/SandQuadruped-v0", "rft_mujoco/SandWheel-v0"]
+WRAPPED_IDS = ["rft_mujoco/SandAnt-v0", "rft_mujoco/SandHalfCheetah-v0", "rft_mujoco/SandHopper-v0",
+               "rft_mujoco/SandWalker2d-v0", "rft_mujoco/SandHumanoid-v0"]
+
+RANDOM_STEPS = {env_id: 1000 for env_id in ENV_IDS}
+RANDOM_STEPS.update({"rft_mujoco/SandWalker2d-v0": 300, "rft_mujoco/SandHumanoid-v0": 300})
+"""Random steps per id in the NaN test: 1000, except 300 for Walker2d and Humanoid (slowest per step,
+and their wrapper path is the same code as Ant/HalfCheetah/Hopper, which run the full 1000)."""
+
+SWIMMER_MIN_SPEED_M_S = 0.01
+"""The serpenoid gait must move the swimmer's centre of mass forward at least this fast (m/s)."""
+
+ALLOWED_CHECK_ENV_WARNINGS = ("is probably too low", "is probably too high")
+"""check_env warnings every unbounded-observation MuJoCo env gets (Gymnasium's own Ant included)."""
+
+
+@pytest.fixture(autouse=True)
+def _detach_everything():
+    yield
+    rft_mujoco.detach_all()
+
+
+def rollout(env, seed, steps):
+    """Observations (steps + 1, n) and rewards (steps,) under seeded random actions (no resets)."""
+    obs, _ = env.reset(seed=seed)
+    env.action_space.seed(seed)
+    observations, rewards = [obs], []
+    for _ in range(steps):
+        obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+        observations.append(obs)
+        rewards.append(reward)
+        if terminated or truncated:
+            break
+    return np.array(observations), np.array(rewards)
+
+
+# --- API -------------------------------------------------------------------------------------------
+def test_all_ids_registered():
+    assert set(NATIVE_IDS + WRAPPED_IDS) == set(ENV_IDS)
+    for env_id in ENV_IDS:
+        assert env_id in gymnasium.registry
+
+
+def test_library_does_not_import_gymnasium():
+    import subprocess
+    import sys
+
+    code = "import sys, rft_mujoco, rft_mujoco.coupling; sys.exit('gymnasium' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+@pytest.mark.parametrize("env_id", list(ENV_IDS))
+def test_check_env(env_id):
+    env = gymnasium.make(env_id)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped, skip_render_check=True)  # "human" needs a display
+    env.close()
+    other = [str(w.message) for w in caught if not any(a in str(w.message) for a in ALLOWED_CHECK_ENV_WARNINGS)
+             and "settotalmass" not in str(w.message)]
+    assert not other, other
+
+
+@pytest.mark.parametrize("env_id", list(ENV_IDS))
+def test_random_steps_finite(env_id):
+    env = gymnasium.make(env_id)
+    obs, _ = env.reset(seed=1)
+    env.action_space.seed(1)
+    assert env.observation_space.contains(obs)
+    for _ in range(RANDOM_STEPS[env_id]):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+        assert np.all(np.isfinite(info["sand_force"])) and np.all(info["sand_sinkage"] >= 0)
+        if terminated or truncated:
+            obs, _ = env.reset()
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", NATIVE_IDS + ["rft_mujoco/SandAnt-v0"])
+def test_same_seed_same_rollout(env_id):
+    kwargs = {"media_ranges": MediaRanges()}
+    a, b = gymnasium.make(env_id, **kwargs), gymnasium.make(env_id, **kwargs)   # two envs, one process
+    obs_a, rew_a = rollout(a, 7, 60)
+    obs_b, rew_b = rollout(b, 7, 60)
+    media_a, media_b = a.unwrapped.sand.media, b.unwrapped.sand.media
+    obs_c, _ = rollout(a, 8, 60)
+    a.close()
+    b.close()
+    np.testing.assert_array_equal(obs_a, obs_b)
+    np.testing.assert_array_equal(rew_a, rew_b)
+    assert media_a == media_b
+    assert obs_c.shape != obs_a.shape or not np.array_equal(obs_c, obs_a)
+
+
+def test_render_rgb_array():
+    env = gymnasium.make("rft_mujoco/SandSwimmer-v0", render_mode="rgb_array", width=96, height=64)
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+    try:
+        frame = env.render()
+    except Exception as exc:  # no GL on this machine
+        env.close()
+        pytest.skip(f"offscreen rendering unavailable: {exc}")
+    env.close()
+    assert frame.shape == (64, 96, 3) and frame.dtype == np.uint8 and frame.std() > 0
+
+
+@pytest.mark.parametrize("env_id, n_bodies", [("rft_mujoco/SandSwimmer-v0", 7), ("rft_mujoco/SandQuadruped-v0", 4),
+                                              ("rft_mujoco/SandWheel-v0", 1), ("rft_mujoco/SandHopper-v0", 1)])
+def test_sand_observation_option(env_id, n_bodies):
+    plain = gymnasium.make(env_id)
+    env = gymnasium.make(env_id, include_sand_in_observation=True)
+    assert env.observation_space.shape[0] == plain.observation_space.shape[0] + 4 * n_bodies
+    plain.close()
+    obs, _ = env.reset(seed=0)
+    for _ in range(20):
+        obs, *_, info = env.step(env.action_space.sample())
+    sand = obs[-4 * n_bodies:].reshape(n_bodies, 4)
+    np.testing.assert_allclose(sand[:, :3], info["sand_force"])
+    np.testing.assert_allclose(sand[:, 3], info["sand_sinkage"])
+    env.close()
+
+
+def test_media_randomization_in_ranges():
+    ranges = MediaRanges(rho_c=(1200.0, 1300.0), mu_int=(0.3, 0.35), mu_surf=(0.1, 0.5))
+    env = gymnasium.make("rft_mujoco/SandWheel-v0", media_ranges=ranges)
+    seen = set()
+    for seed in range(4):
+        env.reset(seed=seed)
+        media = env.unwrapped.sand.media
+        assert env.unwrapped.sand.handle.media is media
+        assert 1200 <= media.rho_c <= 1300 and 0.3 <= media.mu_int <= 0.35
+        assert 0.1 <= media.mu_surf <= media.mu_int
+        seen.add(media.rho_c)
+    env.close()
+    assert len(seen) == 4
+    with pytest.raises(ValueError, match="rho_c"):
+        MediaRanges(rho_c=(10.0, 20.0))
+
+
+def test_bad_arguments_say_what_is_wrong():
+    with pytest.raises(ValueError, match="drive"):
+        gymnasium.make("rft_mujoco/SandWheel-v0", drive="speed")
+    with pytest.raises(ValueError, match="reward_weights"):
+        gymnasium.make("rft_mujoco/SandQuadruped-v0", reward_weights={"speed": 1.0})
+    with pytest.raises(ValueError, match="bed_depth_m"):
+        gymnasium.make("rft_mujoco/SandAnt-v0", bed_depth_m=-0.1)
+    with pytest.raises(ValueError, match="not a MuJoCo env"):
+        make_sand_env("CartPole-v1")
+
+
+# --- the wrapper -----------------------------------------------------------------------------------
+@pytest.mark.parametrize("base_id, feet", [("Ant-v5", None), ("HalfCheetah-v5", ["bshin", "bfoot", "fshin", "ffoot"]),
+                                           ("Hopper-v5", ["foot"])])
+def test_wrapper_puts_env_on_sand(base_id, feet):
+    base = gymnasium.make(base_id)
+    env = make_sand_env(base_id)
+    u = env.unwrapped
+    assert env.observation_space == base.observation_space and env.action_space == base.action_space
+    assert env.spec.max_episode_steps == base.spec.max_episode_steps
+    base.close()
+    if feet is not None:
+        assert u.sand.body_names == feet
+    else:   # Ant: the four unnamed lower legs, the leaves of the tree
+        assert len(u.sand.body_ids) == 4 and all(u.model.body_parentid[b] not in (0, 1) for b in u.sand.body_ids)
+    floor = u.model.geom("floor").id
+    assert u.model.geom_contype[floor] == 0 and u.model.geom_conaffinity[floor] == 0
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    loaded = False
+    for _ in range(60):
+        _, _, terminated, _, info = env.step(env.action_space.sample())
+        loaded |= bool(np.any(info["sand_sinkage"] > 0) and np.any(info["sand_force"][:, 2] > 0))
+        if terminated:
+            break
+    assert loaded, "the feet never sank into the sand"
+    assert floor not in u.data.contact.geom[:u.data.ncon].ravel()
+    env.close()
+
+
+def test_wrapper_rigid_bottom():
+    env = make_sand_env("Hopper-v5", bed_depth_m=0.05)
+    u = env.unwrapped
+    bottom = u.model.geom("sand_bottom0").id
+    assert u.model.geom_pos[bottom][2] == pytest.approx(-0.05) and u.model.geom_rgba[bottom][3] == 0
+    assert u.model.geom_contype[bottom] == 1
+    env.close()
+
+
+def cfrc_ext_without_sand(model, data):
+    """Reference: cfrc_ext recomputed on a copy of the data with no applied body wrench at all."""
+    ref = copy.copy(data)
+    ref.xfrc_applied[:] = 0.0
+    mujoco.mj_rnePostConstraint(model, ref)
+    return ref.cfrc_ext.copy()
+
+
+def test_sand_does_not_leak_into_cfrc_ext():
+    """Ant-v5 observes cfrc_ext and charges a contact cost on it: with the default
+    ``sand_in_contact_forces=False`` both must see rigid contacts only, and the dynamics must not change."""
+    kwargs = dict(bed_depth_m=0.03, contact_cost_weight=5e-4, contact_force_range=(-1e3, 1e3))
+    clean = gymnasium.make("rft_mujoco/SandAnt-v0", **kwargs)
+    leaky = gymnasium.make("rft_mujoco/SandAnt-v0", sand_in_contact_forces=True, **kwargs)
+    uc, ul = clean.unwrapped, leaky.unwrapped
+    clean.reset(seed=3)
+    leaky.reset(seed=3)
+    clean.action_space.seed(3)
+    n_cfrc = uc.data.cfrc_ext[1:].size
+    sand_seen = contacts_seen = False
+    for _ in range(80):
+        action = clean.action_space.sample()
+        obs_c, rew_c, term_c, _, info_c = clean.step(action)
+        obs_l, rew_l, term_l, _, info_l = leaky.step(action)
+        np.testing.assert_array_equal(uc.data.qpos, ul.data.qpos)   # same dynamics
+        expected = cfrc_ext_without_sand(uc.model, uc.data)
+        np.testing.assert_allclose(uc.data.cfrc_ext, expected, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(obs_c[-n_cfrc:], expected[1:].ravel(), rtol=1e-9, atol=1e-9)
+        cost = 5e-4 * np.sum(np.square(np.clip(expected, -1e3, 1e3)))
+        assert info_c["reward_contact"] == pytest.approx(-cost, rel=1e-9, abs=1e-12)
+        # The sand wrench is still applied (and the coupling still recognises its rows).
+        sand = np.abs(info_c["sand_force"]).sum() > 0
+        if sand:
+            sand_seen = True
+            rows = uc.sand.body_ids
+            assert np.abs(uc.data.xfrc_applied[rows]).sum() > 0
+            assert not np.allclose(ul.data.cfrc_ext[rows], uc.data.cfrc_ext[rows])
+        contacts_seen |= uc.data.ncon > 0 and np.abs(expected).sum() > 0
+        if term_c or term_l:
+            break
+    clean.close()
+    leaky.close()
+    assert sand_seen and contacts_seen
+
+
+# --- the native tasks --------------------------------------------------------------------------------
+def swim(wave_direction, seconds=2.0):
+    env = gymnasium.make("rft_mujoco/SandSwimmer-v0", reset_noise_scale=0.0)
+    _, info = env.reset(seed=0)
+    x0 = info["x_position"]
+    dt = env.unwrapped.dt
+    steps = int(round(seconds / dt))
+    for i in range(steps):
+        _, _, _, _, info = env.step(serpenoid_action(i * dt, waves_per_body=wave_direction).astype(np.float32))
+    env.close()
+    return (info["x_position"] - x0) / (steps * dt)
+
+
+def test_swimmer_serpenoid_swims_forward():
+    """A head-to-tail travelling wave swims forward (+x); the tail-to-head wave swims backward."""
+    forward = swim(+1.0)
+    backward = swim(-1.0)
+    assert forward > SWIMMER_MIN_SPEED_M_S
+    assert backward < -SWIMMER_MIN_SPEED_M_S
+
+
+def test_quadruped_command_and_termination():
+    env = gymnasium.make("rft_mujoco/SandQuadruped-v0")
+    obs, info = env.reset(seed=0, options={"command": (0.4, 0.0, 0.1)})
+    np.testing.assert_array_equal(obs[46:49], [0.4, 0.0, 0.1])
+    np.testing.assert_array_equal(info["command"], [0.4, 0.0, 0.1])
+    _, _, _, _, info = env.step(np.zeros(12, np.float32))
+    names = {"tracking_lin_vel", "tracking_ang_vel", "upright", "healthy", "lin_vel_z", "ang_vel_xy", "ctrl",
+             "action_rate", "sinkage"}
+    assert {f"reward_{n}" for n in names} <= set(info)
+    u = env.unwrapped
+    qpos = u.data.qpos.copy()
+    qpos[3:7] = [0.0, 1.0, 0.0, 0.0]           # upside down
+    u.set_state(qpos, u.data.qvel.copy())
+    *_, terminated, _, _ = env.step(np.zeros(12, np.float32))
+    env.close()
+    assert terminated
+    with pytest.raises(ValueError, match="command"):
+        gymnasium.make("rft_mujoco/SandQuadruped-v0").reset(options={"command": (1.0, 2.0)})
+
+
+def test_wheel_slip_drive_holds_slip_and_reports_pull():
+    env = gymnasium.make("rft_mujoco/SandWheel-v0", drive="slip", resolution="coarse")
+    env.reset(seed=0)
+    for _ in range(100):
+        _, _, _, _, info = env.step(np.array([0.3], np.float32))
+    env.close()
+    assert info["slip"] == pytest.approx(0.3, abs=0.03)
+    assert info["sinkage_m"] > 0 and info["wheel_torque_nm"] > 0
+    assert np.isfinite(info["drawbar_pull_n"])
+    # In steady state the carriage holds what the sand pushes: pull ~ sand force along x.
+    assert info["drawbar_pull_n"] == pytest.approx(info["sand_force"][0, 0], abs=0.5)
+
+
+def test_wheel_torque_drive_carries_the_load():
+    env = gymnasium.make("rft_mujoco/SandWheel-v0", drawbar_load_n=4.0, resolution="coarse")
+    env.reset(seed=0)
+    for _ in range(50):
+        _, _, _, _, info = env.step(np.zeros(1, np.float32))   # no torque: the load drags the wheel back
+    env.close()
+    assert info["drawbar_load_n"] == 4.0 and info["x_position"] <= 1e-3
+
+
+def test_compiling_and_two_env_kinds_in_one_process():
+    """mujoco 4 refuses to compile while a Python callback is installed; the library works around it."""
+    ant = gymnasium.make("rft_mujoco/SandAnt-v0")
+    swimmer = gymnasium.make("rft_mujoco/SandSwimmer-v0")   # compiled while Ant's sand is attached
+    mujoco.MjModel.from_xml_string("<mujoco><worldbody><body><freejoint/><geom size='0.1'/></body></worldbody>"
+                                   "</mujoco>")
+    ant.reset(seed=0)
+    swimmer.reset(seed=0)
+    for _ in range(5):
+        ant.step(ant.action_space.sample())
+        swimmer.step(swimmer.action_space.sample())
+    ant.close()
+    swimmer.step(swimmer.action_space.sample())
+    swimmer.close()
+    assert not rft_mujoco.coupling.DISPATCHER.handles
