@@ -132,6 +132,18 @@ class SandHandle:
         self._replaced: list[tuple[int, int, int]] = []
 
     # --- public -------------------------------------------------------------------------------------
+    @property
+    def media(self) -> Media:
+        """The granular medium; may be replaced between steps (e.g. per-episode randomization)."""
+        return self._media
+
+    @media.setter
+    def media(self, value: Media) -> None:
+        if not isinstance(value, Media):
+            raise TypeError(f"media must be a rft_mujoco.Media, got {type(value).__name__}; "
+                            "use rft_mujoco.get_media(name) for a preset")
+        self._media = value
+
     def detach(self) -> None:
         """Remove the sand: later steps are the plain model; sand wrenches are taken out of xfrc_applied."""
         if not self.attached:
