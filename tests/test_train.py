@@ -1,0 +1,262 @@
+"""Tests of ``python -m train``: CLI help, config resolution and round trip, and a smoke run that trains,
+saves, reloads from ``config.yaml`` alone and evaluates.
+
+The smoke run uses ``rft_mujoco/SandSwimmer-v0`` when it is registered (100-step episodes through the
+``max_episode_steps`` env kwarg of ``gymnasium.make``), else ``Pendulum-v1`` with a warning.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # ``train/`` is a top-level folder run as ``python -m train``, not installed
+    sys.path.insert(0, str(ROOT))
+
+pytest.importorskip("stable_baselines3")
+gym = pytest.importorskip("gymnasium")
+
+from train import config as cfg  # noqa: E402
+from train.cli import main  # noqa: E402
+from train.environments import check_env_id, sand_env_ids  # noqa: E402
+
+SAND_ID = "rft_mujoco/SandSwimmer-v0"
+SAND_IDS = ("rft_mujoco/SandSwimmer-v0", "rft_mujoco/SandAnt-v0", "rft_mujoco/SandHalfCheetah-v0",
+            "rft_mujoco/SandQuadruped-v0")
+
+
+def _smoke_env_id() -> str:
+    sand_env_ids()  # registers the sand tasks if the package provides them
+    if SAND_ID in gym.registry:
+        return SAND_ID
+    warnings.warn(f"{SAND_ID} is not registered: the training smoke test falls back to Pendulum-v1",
+                  stacklevel=2)
+    return "Pendulum-v1"
+
+
+# --- command line -------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("command", [[], ["train"], ["evaluate"], ["plot"]])
+def test_help(command):
+    result = subprocess.run([sys.executable, "-m", "train", *command, "--help"], cwd=ROOT,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("usage: python -m train")
+    expected = {(): "evaluate", ("train",): "--hyperparams", ("evaluate",): "--episodes",
+                ("plot",): "--window"}[tuple(command)]
+    assert expected in result.stdout
+
+
+def test_unknown_algo_is_a_clear_error(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--algo", "dqn", "--env", "Pendulum-v1"])
+    assert exit_info.value.code == 2
+    assert "invalid choice: 'dqn'" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="algo must be one of ppo, sac, got 'dqn'"):
+        cfg.check_algo("dqn")
+
+
+def test_unknown_env_id_lists_sand_ids(capsys):
+    with pytest.raises(ValueError, match="unknown env id 'NoSuchEnv-v0'") as err:
+        check_env_id("NoSuchEnv-v0")
+    sand = sand_env_ids()
+    assert all(env_id in str(err.value) for env_id in sand)
+    if not sand:
+        assert "none" in str(err.value)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--algo", "ppo", "--env", "NoSuchEnv-v0"])
+    assert exit_info.value.code == 2
+    assert "unknown env id 'NoSuchEnv-v0'" in capsys.readouterr().err
+
+
+def test_env_id_without_namespace_suggests_the_sand_id():
+    sand_env_ids()
+    if SAND_ID not in gym.registry:
+        pytest.skip(f"{SAND_ID} is not registered")
+    with pytest.raises(ValueError, match=f"close matches: {SAND_ID}"):
+        check_env_id("SandSwimmer-v0")
+
+
+# --- configuration ------------------------------------------------------------------------------
+
+def test_overrides_parse_as_yaml_with_dotted_keys():
+    assert cfg.parse_overrides(["learning_rate=1e-3", "n_steps=64", "policy_kwargs.net_arch=[32, 32]",
+                                "normalize=false", "ent_coef=auto"]) == {
+        "learning_rate": 1e-3, "n_steps": 64, "policy_kwargs": {"net_arch": [32, 32]},
+        "normalize": False, "ent_coef": "auto"}
+    with pytest.raises(ValueError, match="key=value, got 'learning_rate'"):
+        cfg.parse_overrides(["learning_rate"])
+
+
+def test_resolution_order():
+    config = cfg.resolve_config(algo="PPO", env_id=SAND_ID, seed=3, n_envs=2,
+                                hyperparams=["learning_rate=1e-3", "policy_kwargs.net_arch.pi=[32]",
+                                             "n_timesteps=5000"],
+                                env_kwargs=["max_episode_steps=100"])
+    assert config.algo == "ppo"
+    assert config.hyperparams_entries == ["default", SAND_ID]
+    assert config.hyperparams["gamma"] == 0.9999  # the env entry over the default
+    assert config.hyperparams["learning_rate"] == 1e-3  # --hyperparams over the YAML
+    assert config.hyperparams["policy_kwargs"]["net_arch"] == {"pi": [32], "vf": [64, 64]}
+    assert config.n_envs == 2 and config.n_timesteps == 5000 and isinstance(config.n_timesteps, int)
+    assert config.env_kwargs == {"max_episode_steps": 100}
+    assert config.normalize["gamma"] == 0.9999  # VecNormalize discounts with the algorithm's gamma
+    assert "n_timesteps" not in config.hyperparams and "normalize" not in config.hyperparams
+    explicit = cfg.resolve_config(algo="ppo", env_id=SAND_ID, timesteps=1e4,
+                                  hyperparams=["n_timesteps=5000"])
+    assert explicit.n_timesteps == 10_000  # --timesteps over everything
+    unlisted = cfg.resolve_config(algo="sac", env_id="Pendulum-v1")
+    assert unlisted.hyperparams_entries == ["default"] and unlisted.normalize is None
+
+
+def test_config_round_trip(tmp_path):
+    config = cfg.resolve_config(algo="sac", env_id=SAND_ID, seed=7, timesteps=1234,
+                                hyperparams=["learning_rate=lin_1e-3", "normalize=true",
+                                             "policy_kwargs.activation_fn=relu"],
+                                env_kwargs=["max_episode_steps=50", "label=1e-3"],
+                                command="python -m train train --algo sac")
+    path = cfg.save_config(config, tmp_path / "run")
+    assert path == tmp_path / "run" / "config.yaml"
+    loaded = cfg.load_config(tmp_path / "run")
+    assert loaded == config
+    assert cfg.load_config(path) == config
+    assert loaded.versions["stable_baselines3"] == cfg.package_versions()["stable_baselines3"]
+    kwargs = cfg.algo_kwargs(loaded)
+    assert kwargs["learning_rate"](1.0) == pytest.approx(1e-3) and kwargs["learning_rate"](0.0) == 0.0
+    import torch
+
+    assert kwargs["policy_kwargs"]["activation_fn"] is torch.nn.ReLU
+    assert loaded.hyperparams["policy_kwargs"]["activation_fn"] == "relu"  # the saved config stays plain
+
+
+def test_load_config_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no config.yaml"):
+        cfg.load_config(tmp_path)
+    (tmp_path / "config.yaml").write_text("algo: ppo\nsurprise: 1\n")
+    with pytest.raises(ValueError, match=r"unknown keys \['surprise'\]"):
+        cfg.load_config(tmp_path)
+
+
+@pytest.mark.parametrize("algo", cfg.ALGOS)
+def test_hyperparams_files_cover_the_sand_tasks(algo):
+    table = cfg.load_yaml(cfg.hyperparams_path(algo))
+    assert {"default", *SAND_IDS} <= set(table)
+    import inspect
+
+    accepted = set(inspect.signature(cfg.algo_class(algo).__init__).parameters)
+    for env_id in table:
+        config = cfg.resolve_config(algo=algo, env_id=env_id)
+        assert set(cfg.algo_kwargs(config)) <= accepted, (env_id, set(config.hyperparams) - accepted)
+
+
+def test_unknown_hyperparameter_is_a_clear_error(tmp_path):
+    from train.experiment import train
+
+    config = cfg.resolve_config(algo="ppo", env_id="Pendulum-v1", timesteps=64,
+                                hyperparams=["learnin_rate=1e-3"])
+    with pytest.raises(ValueError, match=r"PPO does not accept \['learnin_rate'\]"):
+        train(config, tmp_path / "run", progress_bar=False, verbose=0)
+
+
+# --- learning curves ----------------------------------------------------------------------------
+
+def test_monitor_files_merge_by_end_time(tmp_path):
+    from train.plot import load_monitor, moving_average, plot
+
+    (tmp_path / "monitor").mkdir()
+    (tmp_path / "monitor" / "0.monitor.csv").write_text(
+        '#{"t_start": 100.0, "env_id": "x"}\nr,l,t\n1.0,10,1.0\n3.0,10,3.0\n')
+    (tmp_path / "monitor" / "1.monitor.csv").write_text(
+        '#{"t_start": 101.0, "env_id": "x"}\nr,l,t\n2.0,5,1.0\n')
+    data = load_monitor(tmp_path)
+    assert data["returns"].tolist() == [1.0, 2.0, 3.0]
+    assert data["timesteps"].tolist() == [10, 15, 25]
+    assert data["time_s"].tolist() == [1.0, 2.0, 3.0]
+    assert moving_average(data["returns"], 2).tolist() == [1.0, 1.5, 2.5]
+    assert plot([tmp_path], tmp_path / "curve.png").is_file()
+    with pytest.raises(ValueError, match="no finished episodes"):
+        plot([tmp_path / "empty"], tmp_path / "none.png")
+
+
+# --- smoke runs ---------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def ppo_run(tmp_path_factory):
+    """2048 PPO steps (2 envs x n_steps 256) with VecNormalize and checkpoints, through the CLI."""
+    env_id = _smoke_env_id()
+    runs = tmp_path_factory.mktemp("runs")
+    start = time.perf_counter()
+    code = main(["train", "--algo", "ppo", "--env", env_id, "--timesteps", "2048", "--n-envs", "2",
+                 "--seed", "1", "--hyperparams", "n_steps=256", "batch_size=128", "n_epochs=2",
+                 "--env-kwargs", "max_episode_steps=100", "--save-freq", "1024", "--runs-dir", str(runs),
+                 "--no-progress-bar", "--verbose", "0"])
+    assert code == 0
+    (run,) = runs.iterdir()
+    return env_id, run, time.perf_counter() - start
+
+
+@pytest.mark.slow
+def test_ppo_smoke_run_writes_the_run_directory(ppo_run):
+    env_id, run, seconds = ppo_run
+    assert run.name.startswith(f"{env_id.replace('/', '-')}_ppo_1_")
+    for name in ("config.yaml", "model.zip", "vecnormalize.pkl", "checkpoints/model_1024_steps.zip",
+                 "checkpoints/model_vecnormalize_2048_steps.pkl", "monitor/0.monitor.csv",
+                 "monitor/1.monitor.csv"):
+        assert (run / name).is_file(), name
+    assert list((run / "tb").glob("PPO_1/events.out.tfevents.*"))
+    config = cfg.load_config(run)
+    assert (config.algo, config.env_id, config.seed, config.n_envs, config.n_timesteps) == (
+        "ppo", env_id, 1, 2, 2048)
+    assert config.hyperparams["n_steps"] == 256 and config.env_kwargs == {"max_episode_steps": 100}
+    assert config.command.startswith("python -m train train --algo ppo")
+    print(f"PPO smoke training on {env_id}: {seconds:.1f} s")
+
+
+@pytest.mark.slow
+def test_ppo_smoke_run_evaluates_from_config_alone(ppo_run, tmp_path):
+    from train.evaluate import evaluate
+
+    env_id, run, _ = ppo_run
+    start = time.perf_counter()
+    results = evaluate(run, episodes=2, out_dir=tmp_path, max_video_frames=20)
+    seconds = time.perf_counter() - start
+    assert set(results["policies"]) == {"trained", "random", "zero"}
+    assert results["seeds"] == [10_001, 10_002]  # training seed + 10000 + i
+    for summary in results["policies"].values():
+        assert len(summary["returns"]) == 2 and summary["lengths"] == [100, 100]
+    if env_id == SAND_ID:
+        assert results["speed_key"] == "x_velocity"
+        assert all(s["speed_mean"] is not None for s in results["policies"].values())
+    assert results["video"] is not None or results["video_message"].startswith("video skipped")
+    assert json.loads((tmp_path / "eval.json").read_text())["policies"].keys() == results["policies"].keys()
+    assert (tmp_path / "eval.png").is_file()
+    # same seeds, same numbers: the evaluation is reproducible
+    again = evaluate(run, episodes=1, out_dir=tmp_path / "again", video=False)
+    for name in ("trained", "random", "zero"):
+        assert again["policies"][name]["returns"][0] == pytest.approx(results["policies"][name]["returns"][0])
+    checkpoint = evaluate(run, episodes=1, out_dir=tmp_path / "checkpoint", video=False,
+                          model_path=run / "checkpoints" / "model_1024_steps.zip")
+    assert checkpoint["model"].endswith("model_1024_steps.zip")
+    print(f"evaluation on {env_id}: {seconds:.1f} s")
+
+
+def test_sac_smoke_run_on_pendulum(tmp_path, capsys):
+    code = main(["train", "--algo", "sac", "--env", "Pendulum-v1", "--timesteps", "300",
+                 "--hyperparams", "learning_starts=100", "batch_size=32", "policy_kwargs.net_arch=[32,32]",
+                 "--save-freq", "0", "--runs-dir", str(tmp_path), "--run-name", "sac", "--no-progress-bar",
+                 "--verbose", "0"])
+    assert code == 0
+    run = tmp_path / "sac"
+    assert (run / "model.zip").is_file() and not (run / "vecnormalize.pkl").exists()
+    assert not (run / "checkpoints").exists()
+    assert main(["evaluate", "--run", str(run), "--episodes", "1", "--no-video"]) == 0
+    out = capsys.readouterr().out
+    assert "trained" in out and "zero" in out and "no forward speed" in out
+    assert json.loads((run / "eval" / "eval.json").read_text())["speed_key"] is None

@@ -1,0 +1,32 @@
+"""Training and evaluation of stable-baselines3 agents on the sand tasks (and any gymnasium id).
+
+A thin command line (``python -m train {train,evaluate,plot} --help``) over a few modules:
+
+- ``config``       the run configuration: YAML hyperparameters keyed by env id, CLI overrides, and the
+                   ``config.yaml`` saved beside every model (the one source ``evaluate`` rebuilds from);
+- ``environments`` env-id checks (unknown ids list the registered ``rft_mujoco/`` tasks) and env factories;
+- ``experiment``   one training run: vectorized envs, optional VecNormalize, TensorBoard, checkpoints;
+- ``evaluate``     reload a run from its ``config.yaml``; trained vs random vs zero-action baselines,
+                   JSON, bar chart + learning curve, and a video where offscreen rendering works;
+- ``plot``         learning curves (episode return vs timesteps) from the Monitor CSVs of runs.
+
+A run directory ``runs/<env>_<algo>_<seed>_<timestamp>/`` holds::
+
+    config.yaml          exact resolved configuration (algo, env id and kwargs, hyperparameters, ...)
+    model.zip            final model
+    vecnormalize.pkl     VecNormalize statistics (only when the run normalizes)
+    checkpoints/         model_<steps>_steps.zip (+ model_vecnormalize_<steps>_steps.pkl)
+    monitor/             <rank>.monitor.csv, one per training env (episode return, length, time)
+    tb/                  TensorBoard logs (``tensorboard --logdir runs``)
+    eval/                written by ``evaluate``: eval.json, eval.png, video.mp4
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+# Offscreen rendering for videos on headless Linux. MuJoCo reads MUJOCO_GL when it is first imported
+# and only fails when a GL context is actually created, so this default is harmless elsewhere.
+if sys.platform.startswith("linux"):
+    os.environ.setdefault("MUJOCO_GL", "egl")

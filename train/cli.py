@@ -1,0 +1,126 @@
+"""Command line: ``python -m train {train,evaluate,plot}`` (``--help`` on each).
+
+Examples (from the repository root)::
+
+    python -m train train --algo ppo --env rft_mujoco/SandSwimmer-v0 --timesteps 200000 --n-envs 4 --seed 0
+    python -m train train --algo sac --env Pendulum-v1 --timesteps 20000 --hyperparams learning_rate=1e-3
+    python -m train evaluate --run runs/rft_mujoco-SandSwimmer-v0_ppo_0_20250101-120000 --episodes 10
+    python -m train plot runs/*SandSwimmer* --out swimmer_curves.png
+    tensorboard --logdir runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from train.config import ALGOS, VEC_ENVS
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m train", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", metavar="{train,evaluate,plot}")
+
+    tr = sub.add_parser("train", help="train PPO or SAC; writes runs/<env>_<algo>_<seed>_<timestamp>/",
+                        description="Train an SB3 agent. Hyperparameters come from train/hyperparams/<algo>.yml "
+                        "(the 'default' entry updated by the env id's entry), then --hyperparams, then the "
+                        "explicit flags. The resolved configuration is saved as config.yaml in the run "
+                        "directory, beside model.zip, vecnormalize.pkl, checkpoints/, monitor/ and tb/.")
+    tr.add_argument("--algo", required=True, type=str.lower, choices=ALGOS, help="algorithm")
+    tr.add_argument("--env", required=True, dest="env_id",
+                    help="gymnasium env id, e.g. rft_mujoco/SandSwimmer-v0 or Pendulum-v1")
+    tr.add_argument("--timesteps", type=float, default=None,
+                    help="total env steps over all envs (default: n_timesteps from the YAML)")
+    tr.add_argument("--n-envs", type=int, default=None, help="parallel training envs (default: YAML n_envs, else 1)")
+    tr.add_argument("--seed", type=int, default=0, help="seed of the model and of env i (seed + i) (default 0)")
+    tr.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="override hyperparameters; values are YAML, dotted keys nest, e.g. "
+                    "learning_rate=1e-3 n_steps=256 normalize=false policy_kwargs.net_arch=[64,64]")
+    tr.add_argument("--env-kwargs", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="keyword arguments of gymnasium.make (YAML values), on top of the YAML env_kwargs")
+    tr.add_argument("--hyperparams-file", default=None,
+                    help="YAML of hyperparameters keyed by env id (default train/hyperparams/<algo>.yml)")
+    tr.add_argument("--runs-dir", default="runs", help="parent folder of run directories (default runs)")
+    tr.add_argument("--run-name", default=None, help="run directory name (default <env>_<algo>_<seed>_<timestamp>)")
+    tr.add_argument("--save-freq", type=int, default=100_000,
+                    help="checkpoint every this many total steps; 0 disables (default 100000)")
+    tr.add_argument("--vec-env", choices=VEC_ENVS, default="dummy",
+                    help="dummy: envs in this process (fastest on few cores); subproc: one process each")
+    tr.add_argument("--device", default="auto", help="torch device: auto, cpu, cuda (default auto)")
+    tr.add_argument("--num-threads", type=int, default=1,
+                    help="torch CPU threads; 0: torch's default (default 1, the fastest for small MLPs)")
+    tr.add_argument("--no-progress-bar", action="store_true", help="no tqdm/rich progress bar")
+    tr.add_argument("--verbose", type=int, default=1, choices=(0, 1, 2), help="SB3 verbosity (default 1)")
+
+    ev = sub.add_parser("evaluate", help="reload a run from its config.yaml; trained vs random vs zero action",
+                        description="Rebuild env and model from RUN/config.yaml alone and report the mean and "
+                        "standard deviation of the return over N episodes for the trained policy and for "
+                        "random and zero-action baselines on the same seeds, plus the mean forward speed when "
+                        "the env's info has 'x_velocity' or 'forward_speed'. Writes eval.json, eval.png "
+                        "(bar charts and learning curve) and video.mp4 into RUN/eval/.")
+    ev.add_argument("--run", required=True, help="run directory (holding config.yaml and model.zip)")
+    ev.add_argument("--episodes", type=int, default=10, help="episodes per policy (default 10)")
+    ev.add_argument("--seed", type=int, default=None,
+                    help="episode i resets with seed + i (default: the training seed + 10000)")
+    ev.add_argument("--model", default=None, help="a checkpoint to evaluate instead of RUN/model.zip")
+    ev.add_argument("--out", default=None, help="output folder (default RUN/eval)")
+    ev.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic policy")
+    ev.add_argument("--no-video", action="store_true", help="do not render a video")
+    ev.add_argument("--video-frames", type=int, default=1000, help="frame cap of the video (default 1000)")
+    ev.add_argument("--window", type=int, default=10, help="moving-average window of the learning curve")
+
+    pl = sub.add_parser("plot", help="learning curves (episode return vs steps) from Monitor CSVs",
+                        description="Plot episode return vs environment steps from the Monitor CSVs of one "
+                        "or more runs (RUN/monitor/*.monitor.csv), one curve per run.")
+    pl.add_argument("runs", nargs="+", help="run directories, monitor folders or monitor CSV files")
+    pl.add_argument("--out", default=None, help="image path (default RUN/learning_curve.png for one run, "
+                    "else learning_curves.png)")
+    pl.add_argument("--window", type=int, default=10, help="moving-average window (default 10)")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        if args.command == "train":
+            from train.config import command_line, resolve_config
+            from train.environments import check_env_id
+            from train.experiment import new_run_dir, train
+
+            check_env_id(args.env_id)
+            config = resolve_config(
+                algo=args.algo, env_id=args.env_id, seed=args.seed, timesteps=args.timesteps,
+                n_envs=args.n_envs, hyperparams=args.hyperparams, env_kwargs=args.env_kwargs,
+                hyperparams_file=args.hyperparams_file, vec_env=args.vec_env, save_freq=args.save_freq,
+                device=args.device, num_threads=args.num_threads, command=command_line(argv),
+            )
+            train(config, new_run_dir(config, args.runs_dir, args.run_name),
+                  progress_bar=not args.no_progress_bar, verbose=args.verbose)
+        elif args.command == "evaluate":
+            from train.evaluate import evaluate
+
+            evaluate(args.run, episodes=args.episodes, seed=args.seed, model_path=args.model,
+                     out_dir=args.out, deterministic=not args.stochastic, video=not args.no_video,
+                     max_video_frames=args.video_frames, window=args.window)
+        else:
+            from pathlib import Path
+
+            from train.plot import plot
+
+            out = args.out or (Path(args.runs[0]) / "learning_curve.png" if len(args.runs) == 1
+                               and Path(args.runs[0]).is_dir() else "learning_curves.png")
+            print(f"wrote {plot(args.runs, out, window=args.window)}")
+    except (ValueError, FileNotFoundError) as err:
+        parser.exit(2, f"python -m train {args.command}: error: {err}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

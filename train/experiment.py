@@ -1,0 +1,93 @@
+"""One training run: config -> run directory with config.yaml, model, VecNormalize stats, logs.
+
+The run directory is written in this order so that an interrupted run still documents itself:
+``config.yaml`` first, then Monitor CSVs, TensorBoard logs and checkpoints while training, then
+``model.zip`` and ``vecnormalize.pkl``. Ctrl-C stops training early and still saves the model.
+"""
+
+from __future__ import annotations
+
+import inspect
+import time
+from pathlib import Path
+
+from train.config import (
+    MODEL_FILENAME,
+    VECNORMALIZE_FILENAME,
+    RunConfig,
+    algo_class,
+    algo_kwargs,
+    save_config,
+    set_num_threads,
+)
+from train.environments import check_env_id, make_vec_env
+
+CHECKPOINT_PREFIX = "model"
+
+
+def new_run_dir(config: RunConfig, runs_dir: str | Path = "runs", name: str | None = None) -> Path:
+    """``runs_dir/<env>_<algo>_<seed>_<timestamp>`` (or ``runs_dir/name``), made unique with ``-2``, ..."""
+    base = Path(runs_dir) / (name or config.run_name())
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f"{base.name}-{n}")
+    return path
+
+
+def _check_hyperparams(cls: type, kwargs: dict, config: RunConfig) -> None:
+    accepted = set(inspect.signature(cls.__init__).parameters) - {"self", "env"}
+    unknown = sorted(set(kwargs) - accepted)
+    if unknown:
+        raise ValueError(
+            f"{cls.__name__} does not accept {unknown} (from {config.hyperparams_file} entries "
+            f"{config.hyperparams_entries} and overrides {config.overrides}); accepted: {sorted(accepted)}"
+        )
+
+
+def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, verbose: int = 1) -> Path:
+    """Train ``config.algo`` on ``config.env_id`` for ``config.n_timesteps`` steps; returns the model path."""
+    from stable_baselines3.common.callbacks import CheckpointCallback
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    check_env_id(config.env_id)
+    run_dir = Path(run_dir)
+    cls = algo_class(config.algo)
+    kwargs = algo_kwargs(config)
+    _check_hyperparams(cls, kwargs, config)
+    save_config(config, run_dir)
+    set_num_threads(config)
+
+    env = make_vec_env(config, monitor_dir=run_dir / "monitor")
+    if config.normalize is not None:
+        env = VecNormalize(env, **config.normalize)
+    try:
+        model = cls(env=env, seed=config.seed, device=config.device, verbose=verbose,
+                    tensorboard_log=str(run_dir / "tb"), **kwargs)
+        callbacks = []
+        if config.save_freq > 0:
+            callbacks.append(CheckpointCallback(
+                save_freq=max(config.save_freq // config.n_envs, 1),  # counted in calls to env.step
+                save_path=str(run_dir / "checkpoints"),
+                name_prefix=CHECKPOINT_PREFIX,
+                save_vecnormalize=True,
+                verbose=verbose,
+            ))
+        print(f"training {config.algo.upper()} on {config.env_id}: {config.n_timesteps} steps, "
+              f"{config.n_envs} env(s), seed {config.seed} -> {run_dir}", flush=True)
+        start = time.perf_counter()
+        try:
+            model.learn(total_timesteps=config.n_timesteps, callback=callbacks,
+                        progress_bar=progress_bar, tb_log_name=config.algo.upper())
+        except KeyboardInterrupt:
+            print(f"interrupted at {model.num_timesteps} steps: saving the model so far", flush=True)
+        elapsed = time.perf_counter() - start
+        model_path = run_dir / MODEL_FILENAME
+        model.save(model_path)
+        if isinstance(env, VecNormalize):
+            env.save(str(run_dir / VECNORMALIZE_FILENAME))
+    finally:
+        env.close()
+    print(f"{model.num_timesteps} steps in {elapsed:.1f} s ({model.num_timesteps / max(elapsed, 1e-9):.0f} "
+          f"steps/s); saved {model_path}\nevaluate with: python -m train evaluate --run {run_dir}", flush=True)
+    return model_path
