@@ -12,9 +12,9 @@ surface, with area ``dA``, feels the force ``dF = alpha(n, v, g) |z| dA`` where
 
 Conventions this module fixes (each one tested in tests/test_law.py):
 
-* Leading edge: ``n.v >= -LEADING_TOL`` on unit vectors, i.e. the paper's ``n.v >= 0`` with elements
-  moving parallel to their own plane (the top of a box sliding sideways) counted as leading, robustly
-  under round-off.
+* Leading edge: ``n.v >= -LEADING_TOL`` (1e-4) on unit vectors, i.e. the paper's ``n.v >= 0`` with
+  elements moving parallel to their own plane (the top of a box sliding sideways) counted as leading,
+  robustly under round-off and float32 mesh vertices.
 * Elements at speeds below ``ZERO_SPEED`` (m/s) get exactly zero force (the direction is undefined).
 * Elements at or above the free surface (depth <= 0) get exactly zero force.
 * By default nothing is cleaned up: the published fit's artefacts (tensile normal stress, tangential
@@ -31,10 +31,11 @@ import numpy as np
 from .media import Media
 
 # --- tolerances: one place -------------------------------------------------------------------------
-LEADING_TOL = 1e-9
-"""Unit-vector n.v above -LEADING_TOL counts as leading (round-off robust form of n.v >= 0)."""
-VERTICAL_TOL = 1e-12
-"""|g.n| at or below this (unit vectors) is an exactly vertical element: the n'.v >= 0 tie-break."""
+LEADING_TOL = 1e-4
+"""Unit-vector n.v above -LEADING_TOL counts as leading (the paper's n.v >= 0, robust to the ~1e-8..1e-5
+tilt that float32 mesh vertices give flat faces: MuJoCo stores mesh_vert in float32)."""
+VERTICAL_TOL = 1e-4
+"""|g.n| at or below this (unit vectors) is a vertical element: the n'.v >= 0 tie-break (same reason)."""
 ZERO_SPEED = 1e-12
 """Speeds (m/s) at or below this give zero force: the motion direction is undefined."""
 
@@ -124,7 +125,7 @@ def alpha_gen(normals: np.ndarray, directions: np.ndarray, g_hat: np.ndarray) ->
     """
     gn = normals @ g_hat
     vn = np.einsum("ij,ij->i", normals, directions)
-    sign = np.where(np.abs(gn) > VERTICAL_TOL, np.sign(gn), np.where(vn >= 0.0, 1.0, -1.0))
+    sign = np.where(np.abs(gn) > VERTICAL_TOL, np.sign(gn), np.where(vn >= -LEADING_TOL, 1.0, -1.0))
     n_prime = normals * sign[:, None]
     x1 = directions @ g_hat
     x2 = gn * sign

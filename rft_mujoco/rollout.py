@@ -77,6 +77,7 @@ def kinematic_rollout(handle: SandHandle, data, body: str, velocity: Vec, angula
         t = i * dt
         v = _vector(velocity, t, "velocity")
         w = _vector(angular_velocity, t, "angular_velocity")
+        data.time = t
         mujoco.mj_kinematics(model, data)
         rot = data.xmat[b].reshape(3, 3)
         # Free joint: linear velocity of the joint origin (body frame origin) in world, angular in body frame.

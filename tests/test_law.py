@@ -189,7 +189,7 @@ def random_units(rng, k):
     return x / np.linalg.norm(x, axis=1)[:, None]
 
 
-def random_leading(rng, k, g_hat=G_HAT, margin=1e-6):
+def random_leading(rng, k, g_hat=G_HAT, margin=1e-3):
     """k random (normal, direction) pairs, uniform on the sphere, leading (n.v > margin), not vertical."""
     n, v = random_units(rng, 4 * k + 100), random_units(rng, 4 * k + 100)
     keep = (np.einsum("ij,ij->i", n, v) > margin) & (np.abs(n @ g_hat) > margin)
@@ -304,7 +304,7 @@ def test_stress_matches_reference_vertical_velocity():
     rng = np.random.default_rng(11)
     for v_dir in ((0.0, 0.0, -1.0), (0.0, 0.0, 1.0)):
         n = random_units(rng, 2000)
-        n = n[(n @ np.array(v_dir) > 1e-6) & (np.abs(n[:, 2]) > 1e-6)][:500]
+        n = n[(n @ np.array(v_dir) > 1e-3) & (np.abs(n[:, 2]) > 1e-3)][:500]
         n = np.vstack([n, [[0.0, 0.0, v_dir[2]]]])                # the plate itself
         v = np.tile(v_dir, (len(n), 1))
         fast = stress_per_depth(n, v, MEDIA, G)
@@ -318,7 +318,7 @@ def test_stress_matches_reference_exactly_vertical_elements():
     phi = rng.uniform(-math.pi, math.pi, 500)
     n = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=1)
     v = random_units(rng, 500)
-    v = v[np.abs(np.einsum("ij,ij->i", n, v)) > 1e-6]
+    v = v[np.abs(np.einsum("ij,ij->i", n, v)) > 1e-3]
     n = n[:len(v)]
     fast = alpha_gen(n, v, G_HAT)
     slow = np.array([ref_alpha_gen(tuple(a), tuple(b), tuple(G_HAT)) for a, b in zip(n, v)])
@@ -328,7 +328,7 @@ def test_stress_matches_reference_exactly_vertical_elements():
 @PROPERTY
 @given(n=unit_vectors, v=unit_vectors)
 def test_stress_matches_reference_property(n, v):
-    assume(abs(n[2]) > 1e-6 and abs(n @ v) > 1e-9)
+    assume(abs(n[2]) > 1e-3 and abs(n @ v) > 1e-3)
     assert_rows_close(stress_per_depth(n[None], v[None], MEDIA, G), ref_stress(tuple(n), tuple(v), MEDIA),
                       rtol=1e-9)
 
@@ -339,7 +339,7 @@ def test_element_forces_match_reference():
     n = random_units(rng, k) * rng.uniform(0.2, 3.0, (k, 1))             # any positive length
     v = random_units(rng, k) * rng.uniform(1e-4, 10.0, (k, 1))
     cos = np.einsum("ij,ij->i", n, v) / np.linalg.norm(n, axis=1) / np.linalg.norm(v, axis=1)
-    keep = (np.abs(cos) > 1e-6) & (np.abs(n[:, 2]) > 1e-6)
+    keep = (np.abs(cos) > 1e-3) & (np.abs(n[:, 2]) > 1e-3)
     n, v = n[keep], v[keep]
     k = len(n)
     v[::17] = 0.0                                                        # some at rest
@@ -405,7 +405,7 @@ def test_extraction_plate_sanity():
 @PROPERTY
 @given(n=unit_vectors, v=unit_vectors, g=unit_vectors, q=quaternions)
 def test_global_rotation_invariance(n, v, g, q):
-    assume(abs(g @ n) > 1e-6)                              # the n' tie-break flips at vertical elements
+    assume(abs(g @ n) > 1e-3)                              # the n' tie-break flips at vertical elements
     R = rotation(q)
     gravity = 9.81 * g
     a = stress_per_depth(n[None], v[None], MEDIA, gravity)[0]
@@ -416,7 +416,7 @@ def test_global_rotation_invariance(n, v, g, q):
 @PROPERTY
 @given(n=unit_vectors, v=unit_vectors, q=quaternions, depth=st.floats(0.001, 1.0))
 def test_element_forces_rotation_invariance(n, v, q, depth):
-    assume(abs(n[2]) > 1e-6 and n @ v > 1e-6)
+    assume(abs(n[2]) > 1e-3 and n @ v > 1e-3)
     R = rotation(q)
     c = np.array([[0.01, -0.02, -depth]])
     f = element_forces(c, n[None], [1e-3], 0.2 * v[None], MEDIA, 0.0, G)[0]
@@ -471,7 +471,7 @@ def test_vertical_motion_symmetry(beta, psi, sign):
 @PROPERTY
 @given(n=unit_vectors, v=unit_vectors, depth=st.floats(1e-3, 1.0), k=st.floats(0.01, 100.0))
 def test_linear_in_depth_area_and_xi_n(n, v, depth, k):
-    assume(n @ v > 1e-6)
+    assume(n @ v > 1e-3)
     c = np.array([[0.1, 0.2, -depth]])
     base = element_forces(c, n[None], [2e-4], v[None], MEDIA)[0]
     assert np.linalg.norm(base) > 0.0
@@ -490,7 +490,7 @@ def test_linear_in_depth_area_and_xi_n(n, v, depth, k):
 @PROPERTY
 @given(n=unit_vectors, v=unit_vectors, speed=st.floats(1e-6, 1e6), power=st.integers(-30, 30))
 def test_independent_of_speed(n, v, speed, power):
-    assume(n @ v > 1e-6)
+    assume(n @ v > 1e-3)
     c, a = [[0.0, 0.0, -0.2]], [1e-3]
     ref = element_forces(c, n[None], a, v[None], MEDIA)
     np.testing.assert_array_equal(element_forces(c, n[None], a, (2.0 ** power) * v[None], MEDIA), ref)
@@ -509,7 +509,7 @@ def test_zero_above_surface_exactly(n, v, height):
 @PROPERTY
 @given(n=unit_vectors, v=unit_vectors)
 def test_zero_for_trailing_elements_exactly(n, v):
-    assume(n @ v < -1e-8)
+    assume(n @ v < -2 * law.LEADING_TOL)
     out = element_forces([[0.0, 0.0, -0.3]], n[None], [1e-3], v[None], MEDIA)
     np.testing.assert_array_equal(out, 0.0)
 
@@ -626,12 +626,12 @@ def test_vertical_element_tie_break():
     # below VERTICAL_TOL counts as vertical
     tiny = alpha_gen(np.array([[1.0, 0.0, law.VERTICAL_TOL / 2]]), np.array([[1.0, 0.0, 0.0]]), G_HAT)
     assert_rows_close(tiny, alpha_gen(np.array([[1.0, 0.0, 0.0]]), np.array([[1.0, 0.0, 0.0]]), G_HAT),
-                      rtol=1e-10)
+                      rtol=1e-3)
 
 
 def test_drag_jump_across_vertical():
     """The fit's n' flips across vertical: a vertical plate dragged sideways jumps ~20% in drag."""
-    eps = 1e-6
+    eps = 10 * law.VERTICAL_TOL
     v = np.array([[0.1, 0.0, 0.0]])
     c = [[0.0, 0.0, -0.2]]
     down = element_forces(c, [[1.0, 0.0, -eps]], [1e-3], v, MEDIA)[0]     # facing slightly down
@@ -640,7 +640,7 @@ def test_drag_jump_across_vertical():
     jump = up[0] / down[0] - 1.0
     print(f"drag jump across vertical (v = +x): {jump:+.1%}  (drag {-down[0]:.4g} N -> {-up[0]:.4g} N)")
     assert 0.05 < jump < 0.40
-    assert_rows_close(exact, down, rtol=1e-4)                             # tie-break side: n'.v >= 0
+    assert_rows_close(exact, down, rtol=1e-2)                             # tie-break side: n'.v >= 0
 
 
 # =================================================================================================
