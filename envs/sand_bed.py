@@ -199,8 +199,10 @@ class SandBed:
             ids = auto_sand_bodies(model) if bodies == "auto" else [bodies]
         else:
             ids = list(bodies)
+        # monitor=False: random exploration leaves the quasi-static range all the time; a validity warning
+        # per environment instance would be noise (the library's monitor is for scripted scenes).
         self.handle = rft_mujoco.attach(model, self.base_media, bodies=ids, surface_height=surface,
-                                        resolution=resolution, stabilize=stabilize)
+                                        resolution=resolution, stabilize=stabilize, monitor=False)
         self.body_ids = self.handle.body_ids
         self.body_names = [n or f"body{b}" for n, b in zip(self.handle.body_names, self.body_ids)]
         self.n_bodies = len(self.body_ids)

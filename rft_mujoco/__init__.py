@@ -16,11 +16,13 @@ from .media import (DEM_GLASS_BEADS, LI_LOOSE_GLASS_BEADS, MALADEN_GLASS_BEADS, 
                     Media, get_media)
 from .terrain import FlatSurface, HeightfieldSurface, SandRegion
 from .coupling import Diagnostics, SandHandle, attach, detach_all
+from .monitor import RFTValidityWarning, ValidityMonitor
 from .scene import attach_scene
 
 __all__ = [
     "Media", "PRESETS", "get_media", "MPM_VALIDATION", "DEM_GLASS_BEADS", "LI_LOOSE_GLASS_BEADS",
     "MALADEN_GLASS_BEADS", "element_forces", "stress_per_depth", "Guards", "PUBLISHED",
     "FlatSurface", "HeightfieldSurface", "SandRegion", "attach", "attach_scene", "detach_all", "SandHandle", "Diagnostics",
+    "RFTValidityWarning", "ValidityMonitor",
 ]
 __version__ = "0.1.0"

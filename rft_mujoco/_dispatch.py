@@ -24,6 +24,8 @@ import weakref
 import mujoco
 import numpy as np
 
+from . import fastkernel
+
 _COMPILE_ENTRY_POINTS = (
     (mujoco.MjModel, "from_xml_string", True),
     (mujoco.MjModel, "from_xml_path", True),
@@ -36,7 +38,7 @@ _COMPILE_ENTRY_POINTS = (
 class _DataBook:
     """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
 
-    __slots__ = ("added", "written", "rows", "model", "__weakref__")
+    __slots__ = ("added", "written", "rows", "model", "nonzero", "sand", "sand_dirty", "user", "__weakref__")
 
     def __init__(self, model) -> None:
         nbody = model.nbody
@@ -44,6 +46,10 @@ class _DataBook:
         self.added = np.zeros((nbody, 6))
         self.written = np.zeros((nbody, 6))
         self.rows = np.zeros(0, dtype=np.int64)
+        self.nonzero = False                 # whether ``added`` has a non-zero entry
+        self.sand = np.zeros((nbody, 6))     # the handles' sum of this evaluation (reused buffer)
+        self.sand_dirty = False
+        self.user = np.zeros((nbody, 6))      # the user's part of xfrc_applied (reused buffer)
 
 
 class Dispatcher:
@@ -52,6 +58,7 @@ class Dispatcher:
         self._chained = None
         self._originals: dict = {}
         self._books: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+        self._routes: dict = {}              # id(model) -> (model, handles, rows), rebuilt on (un)register
         self._lock = threading.RLock()
 
     # --- registration ---------------------------------------------------------------------------
@@ -60,11 +67,13 @@ class Dispatcher:
             if not self._handles:
                 self._install()
             self._handles.append(handle)
+            self._routes.clear()
 
     def unregister(self, handle) -> None:
         with self._lock:
             if handle in self._handles:
                 self._handles.remove(handle)
+            self._routes.clear()
             if not self._handles:
                 self._uninstall()
 
@@ -123,26 +132,60 @@ class Dispatcher:
         return user
 
     # --- the callback -----------------------------------------------------------------------------
+    def _route(self, model):
+        """(handles of ``model``, their body rows) -- cached until a handle is (un)registered."""
+        route = self._routes.get(id(model))
+        if route is None or route[0] is not model:
+            handles = tuple(h for h in self._handles if h.model is model)
+            rows = np.unique(np.concatenate([h.body_ids for h in handles])) if handles else None
+            route = self._routes[id(model)] = (model, handles, rows)
+        return route[1], route[2]
+
     def __call__(self, model, data) -> None:
         if self._chained is not None:
             self._chained(model, data)
-        handles = [h for h in self._handles if h.model is model]
+        handles, rows = self._route(model)
         if not handles:
             return
-        book = self.book(model, data)
-        user = self.user_xfrc(model, data)
-        sand = np.zeros((model.nbody, 6))
+        book = self._books.get(data)
+        if book is None or book.added.shape[0] != model.nbody:
+            book = self.book(model, data)
+        # With nothing added last time, the user's part is the whole row (read-only for the handles).
+        fast = fastkernel.ready()
+        xfrc = data.xfrc_applied
+        if not book.nonzero:
+            user = xfrc
+        elif fast:
+            user = book.user
+            fastkernel.user_part(xfrc, book.written, book.added, book.rows, user)
+        else:
+            user = self.user_xfrc(model, data)
+        sand = book.sand
+        if book.sand_dirty:
+            sand[:] = 0.0
+        book.sand_dirty = True
+        any_sand = False
         for h in handles:
-            h._evaluate(data, user, sand)
-        rows = np.unique(np.concatenate([h.body_ids for h in handles]))
-        stale = np.setdiff1d(book.rows, rows)           # rows of handles detached since the last call
-        if stale.size:
-            data.xfrc_applied[stale] = user[stale]
-        data.xfrc_applied[rows] = user[rows] + sand[rows]
-        book.added[:] = 0.0
-        book.added[rows] = sand[rows]
-        book.written[rows] = data.xfrc_applied[rows]
+            if h._evaluate(data, user, sand) is not False:
+                any_sand = True
+        if not any_sand and not book.nonzero:
+            # Fast path (every body above the sand, as before): xfrc_applied already is the user's.
+            book.sand_dirty = False
+            book.rows = rows
+            return
+        if book.rows is not rows:
+            stale = np.setdiff1d(book.rows, rows)
+            if stale.size:                               # rows of handles detached since the last call
+                xfrc[stale] = user[stale]
+        if fast:
+            fastkernel.commit(xfrc, user, sand, rows, book.added, book.written)
+        else:
+            xfrc[rows] = user[rows] + sand[rows]
+            book.added[:] = 0.0
+            book.added[rows] = sand[rows]
+            book.written[rows] = xfrc[rows]
         book.rows = rows
+        book.nonzero = any_sand
 
     def remove_sand(self, model, data, rows: np.ndarray) -> None:
         """Take the sand part out of ``data.xfrc_applied`` rows (used at detach)."""

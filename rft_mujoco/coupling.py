@@ -3,28 +3,45 @@
 Each physics evaluation (every integrator stage: once per step for Euler/implicitfast, four times for
 RK4) the dispatcher calls :meth:`SandHandle._evaluate`, which
 
-1. skips bodies whose bounding sphere is above the highest point of the sand (broadphase);
-2. for the rest, takes element positions, normals and velocities from ``xpos``/``xmat``/``cvel``
+1. skips bodies whose bounding sphere is above the highest point of the sand (broadphase), and finds
+   the bodies that touch the sand (an element with depth > 0); nothing else runs when none does (no
+   Jacobians, no limiter, the diagnostics are zeroed once);
+2. for the touching ones, takes element positions, normals and velocities from ``xpos``/``xmat``/``cvel``
    (``cvel``'s linear part refers to ``subtree_com`` of the root, converted to each body's COM);
 3. computes the RFT force of every submerged leading element and the wrench about the body's COM
    (``xipos``, where ``xfrc_applied`` acts);
-4. with ``stabilize=True`` (default), makes the force implicit in the motion direction and limits the
-   impulse so the sand can stop a body but never reverse or accelerate it (see :mod:`rft_mujoco.kernel`
-   and the README's "Stability" section);
-5. adds the wrenches to ``data.xfrc_applied`` on top of the user's own wrench.
+4. with ``stabilize=True`` (default), regularizes low speeds: the motion direction is blended with the
+   predicted one below ``|a_free| dt``, and below the speed change of one full RFT impulse
+   (``|F_rft| dt / m``) the octant wrenches are scaled (and mixed with the RFT resistances to the motion
+   left after the step) to minimize the kinetic energy after the step, so the sand can stop a body but
+   never reverse or accelerate it, and bodies come to exact rest. Above both speeds the published force
+   is applied unchanged unless it would add energy (see :meth:`SandHandle._limit`,
+   :func:`rft_mujoco.kernel.limit_impulses` and :mod:`rft_mujoco.stability` for the measurements);
+5. adds the wrenches to ``data.xfrc_applied`` on top of the user's own wrench;
+6. every ``monitor.every`` evaluations, checks the loaded bodies against the validity range of 3D-RFT
+   (:mod:`rft_mujoco.monitor`; ``attach(monitor=False)`` switches it off).
+
+Steps 1-3 and the bookkeeping of 4-5 run in the numba-compiled kernels of :mod:`rft_mujoco.fastkernel`
+(``attach(backend="numba")``, the default when numba imports and supports the terrain) on per-MjData
+buffers, or in the numpy reference :mod:`rft_mujoco.kernel` (``backend="numpy"``); both give the same
+wrenches to round-off (tests/test_fastkernel.py). Costs are measured by ``python -m rft_mujoco bench``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import warnings
 import weakref
 from collections.abc import Sequence
 
 import mujoco
 import numpy as np
 
-from . import kernel, surface
+from . import fastkernel, kernel, surface
+from .monitor import ValidityMonitor
 from ._dispatch import DISPATCHER
+from . import law
 from .law import PUBLISHED, Guards, gravity_direction
 from .media import Media, get_media
 from .terrain import FlatSurface, Terrain, as_terrain
@@ -56,6 +73,46 @@ class Diagnostics:
                    np.ones(n), np.zeros((n, 3)))
 
 
+def _clear(diag: Diagnostics) -> None:
+    diag.force[:] = 0.0
+    diag.torque[:] = 0.0
+    diag.submerged[:] = 0
+    diag.max_depth[:] = 0.0
+    diag.scale[:] = 1.0
+    diag.rft_force[:] = 0.0
+
+
+_NO_ROWS = np.zeros((0, 6))
+"""Empty (0, 6) float array: "no accelerations" / "no limiter result" for the compiled kernel."""
+BACKENDS = ("auto", "numba", "numpy")
+"""Kernel backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.fastkernel`) or numpy
+(:mod:`rft_mujoco.kernel`, the readable reference); "auto" is numba when it imports and supports the
+terrain, numpy otherwise."""
+
+
+class _Workspace:
+    """Per-MjData buffers of one handle (datas may be stepped in different threads): the diagnostics,
+    and rows 0..k-1 of the touching bodies' poses, velocities and octant wrenches."""
+
+    __slots__ = ("diag", "clean", "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "groups",
+                 "count", "max_depth", "col_groups", "col_count", "col_max_depth", "scratch")
+
+    def __init__(self, n_bodies: int, compiled: bool) -> None:
+        b = n_bodies
+        self.diag = Diagnostics.zeros(b)
+        self.clean = True
+        self.touch = np.zeros(b, dtype=np.int64)
+        self.body_pos, self.body_com, self.v_com, self.omega = (np.zeros((b, 3)) for _ in range(4))
+        self.body_mat = np.zeros((b, 9))
+        self.groups = np.zeros((b, kernel.GROUPS_PER_BODY, 6))
+        self.count = np.zeros(b, dtype=np.int64)
+        self.max_depth = np.zeros(b)
+        self.col_groups = np.zeros((b, kernel.GROUPS_PER_BODY, 6))
+        self.col_count = np.zeros(b, dtype=np.int64)
+        self.col_max_depth = np.zeros(b)
+        self.scratch = np.zeros((11, fastkernel.CLUSTER_SIZE)) if compiled else None
+
+
 def _body_id(model, name) -> int:
     if isinstance(name, (int, np.integer)):
         if not 0 < int(name) < model.nbody:
@@ -68,6 +125,24 @@ def _body_id(model, name) -> int:
     if bid == 0:
         raise ValueError("the world body cannot be a sand intruder")
     return bid
+
+
+MAX_ELEMENTS_PER_BODY = 1_000_000
+"""Most surface elements one body may be cut into (memory and time guard against absurd resolutions)."""
+
+
+def _check_element_count(model, body_id: int, name: str, size: float) -> None:
+    """Raise before tessellating if ``size`` would cut the body into more than MAX_ELEMENTS_PER_BODY."""
+    geoms = np.flatnonzero(model.geom_bodyid == body_id)
+    area = sum(4.0 * np.pi * float(model.geom_rbound[g]) ** 2 for g in geoms
+               if model.geom_type[g] not in (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD))
+    estimate = area / size**2
+    if estimate > MAX_ELEMENTS_PER_BODY:
+        coarsest = math.sqrt(area / MAX_ELEMENTS_PER_BODY)
+        raise ValueError(f"resolution {size:g} m would cut body {name!r} (surface ~{area:.3g} m^2) into about "
+                         f"{estimate:.3g} surface elements (limit {MAX_ELEMENTS_PER_BODY}); use an element "
+                         f"size of at least {coarsest:.3g} m, or a preset name "
+                         f"{dict(surface.RESOLUTIONS)}")
 
 
 class SandHandle:
@@ -83,7 +158,11 @@ class SandHandle:
     """
 
     def __init__(self, model, media: Media, body_ids: Sequence[int], terrain: Terrain, size: float,
-                 guards: Guards, stabilize: bool, passive: bool):
+                 guards: Guards, stabilize: bool, passive: bool, monitor: bool | ValidityMonitor = True,
+                 backend: str = "auto"):
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        self._backend_request = None
         self.model = model
         self.media = media
         self.terrain = terrain
@@ -95,9 +174,17 @@ class SandHandle:
         self.body_names = [model.body(int(b)).name for b in self.body_ids]
         parts, counts = [], []
         for b, name in zip(self.body_ids, self.body_names):
-            el = surface.body_elements(model, int(b), size)
-            if len(el) and model.body_subtreemass[b] <= 0:
-                raise ValueError(f"body {name!r} has zero mass (subtree mass {model.body_subtreemass[b]}); "
+            _check_element_count(model, int(b), name, size)
+            try:
+                el = surface.body_elements(model, int(b), size)
+            except ValueError as exc:
+                raise ValueError(f"cannot cut body {name!r} into surface elements: {exc}. Check the sizes of "
+                                 "its geoms (each needs a surface with a non-zero area) or leave the body "
+                                 "out of bodies=") from None
+            # The sand wrench acts on the body's weld group (the body and everything welded to it).
+            mass = model.body_subtreemass[model.body_weldid[b]]
+            if len(el) and mass <= 0:
+                raise ValueError(f"body {name!r} has zero mass (mass of its weld group {mass}); "
                                  "sand forces on a massless body have nothing to act on: give it a mass "
                                  "or leave it out of bodies=")
             parts.append(el)
@@ -123,13 +210,25 @@ class SandHandle:
                 self._bound_radius[i] = np.linalg.norm(pts - center, axis=1).max() + size
         self._elem_slices = np.concatenate([[0], np.cumsum(counts)])
         self.elem_octant = kernel.octants(self.local_centroids, self._bound_center[self.elem_body])
-        self._diag: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+        self._work: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
         self._root = model.body_rootid[self.body_ids]
         self._jacp = np.zeros((3, model.nv))
         self._jacr = np.zeros((3, model.nv))
         self.attached = False
         self.evaluations = 0
+        self.monitor = (monitor if isinstance(monitor, ValidityMonitor) else
+                        ValidityMonitor() if monitor else None)
         self._replaced: list[tuple[int, int, int]] = []
+        # Per-evaluation constants and the compiled kernel's inputs.
+        self._elem_slices = np.ascontiguousarray(self._elem_slices, dtype=np.int64)
+        self._root64 = np.ascontiguousarray(self._root, dtype=np.int64)
+        self._opt = model.opt
+        self._opt_gravity = model.opt.gravity            # a live view: gravity changes are seen
+        self._gravity_seen = None
+        self._fast_checked = None
+        self._tol = fastkernel.tolerances()
+        self._backend_request = backend
+        self._select_backend()
 
     # --- public -------------------------------------------------------------------------------------
     @property
@@ -171,7 +270,53 @@ class SandHandle:
 
     def diagnostics(self, data) -> Diagnostics:
         """Per-body force, torque, submerged element count and max depth of the latest evaluation."""
-        return self._diag.get(data) or Diagnostics.zeros(len(self.body_ids))
+        work = self._work.get(data)
+        return work.diag if work is not None else Diagnostics.zeros(len(self.body_ids))
+
+    @property
+    def terrain(self) -> Terrain:
+        """The free surface; may be replaced between steps."""
+        return self._terrain
+
+    @terrain.setter
+    def terrain(self, value: Terrain) -> None:
+        self._terrain = value
+        self._max_height = float(value.max_height)
+        if self._backend_request is not None:
+            self._select_backend()
+
+    @property
+    def backend(self) -> str:
+        """The kernel in use: "numba" (:mod:`rft_mujoco.fastkernel`) or "numpy" (:mod:`rft_mujoco.kernel`)."""
+        return "numpy" if self._fast is None else "numba"
+
+    def _select_backend(self) -> None:
+        request, terrain = self._backend_request, self._terrain
+        spec = fastkernel.terrain_spec(terrain) if fastkernel.AVAILABLE and request != "numpy" else None
+        if request == "numba" and not fastkernel.AVAILABLE:
+            raise ValueError(f"backend='numba' needs numba, which failed to import ({fastkernel.IMPORT_ERROR}); "
+                             "use backend='auto' or 'numpy'")
+        if request == "numba" and spec is None:
+            raise ValueError("backend='numba' supports FlatSurface, HeightfieldSurface and SandRegion "
+                             f"terrains, got {type(terrain).__name__}; use backend='auto' (numpy for this "
+                             "terrain) or 'numpy'")
+        self._fast = None
+        if spec is None:
+            return
+        try:
+            fastkernel.ensure_compiled()
+        except Exception as exc:  # a broken numba/LLVM install must not break the simulation
+            if request == "numba":
+                raise
+            warnings.warn(f"rft_mujoco: the numba kernel failed to compile ({type(exc).__name__}: {exc}); "
+                          "using the numpy kernel (slower). Pass backend='numpy' to silence this.",
+                          RuntimeWarning, stacklevel=3)
+            return
+        kind, tp, heights = spec
+        if getattr(self, "_packed", None) is None:
+            self._packed = fastkernel.pack(self.local_centroids, self.local_normals, self.areas, self.elem_body,
+                                           len(self.body_ids), self.elem_octant)
+        self._fast = (self._packed.arrays(), kind, tp, heights)
 
     def __enter__(self) -> "SandHandle":
         return self
@@ -181,79 +326,176 @@ class SandHandle:
 
     def __repr__(self) -> str:
         return (f"SandHandle(media={self.media.name!r}, bodies={self.body_names}, "
-                f"elements={self.n_elements}, element_size={self.element_size} m, attached={self.attached})")
+                f"elements={self.n_elements}, element_size={self.element_size} m, backend={self.backend!r}, "
+                f"attached={self.attached})")
 
     # --- per evaluation -----------------------------------------------------------------------------
-    def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray) -> None:
-        """Add this handle's wrenches (nbody, 6) into ``sand_out``."""
-        m = self.model
+    def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray) -> bool:
+        """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero."""
         self.evaluations += 1
-        diag = self._diag.get(data)
-        if diag is None:
-            diag = self._diag[data] = Diagnostics.zeros(len(self.body_ids))
-        diag.force[:] = 0.0
-        diag.torque[:] = 0.0
-        diag.submerged[:] = 0
-        diag.max_depth[:] = 0.0
-        diag.scale[:] = 1.0
-        diag.rft_force[:] = 0.0
-        gravity = m.opt.gravity
-        g_hat, _ = gravity_direction(gravity)
+        work = self._work.get(data)
+        if work is None:
+            work = self._work[data] = _Workspace(len(self.body_ids), self._fast is not None)
+        diag = work.diag
+        g_hat = self._gravity()
+        # 1. Broadphase and depth pre-pass: the bodies with at least one submerged element.
+        touch = self._touching_fast(data, g_hat, work) if self._fast is not None else \
+            self._touching_numpy(data, g_hat, work)
+        if touch.size == 0:
+            if not work.clean:                        # nothing touches the sand: zero diagnostics, once
+                _clear(diag)
+                work.clean = True
+            return False
+        work.clean = False
+        k = touch.size
+        bids = self.body_ids[touch]
+        v_com, omega = work.v_com[:k], work.omega[:k]
+        dt = self._opt.timestep
+        acc = None
+        if self.stabilize:
+            jac, qvel_pred, qacc_free = self._free_motion(data, bids, user_xfrc, dt)
+            acc = jac @ qacc_free                      # (k, 6): [linear at COM, angular]
+        # 2. RFT octant wrenches (k, 8, 6) of the touching bodies.
+        groups, count, max_depth, loaded = self._wrenches(work, touch, v_com, omega, acc, dt, g_hat,
+                                                          work.groups, work.count, work.max_depth)
+        # 3. Impulse limiter (stabilize) and diagnostics.
+        limited = None
+        if loaded and self.stabilize:
+            def column(v_lin, v_ang):
+                # RFT octant wrenches (k, 8, 6) for the element motions of body twists (no blend).
+                return self._wrenches(work, touch, np.ascontiguousarray(v_lin), np.ascontiguousarray(v_ang),
+                                      None, 0.0, g_hat, work.col_groups, work.col_count,
+                                      work.col_max_depth)[0].copy()
+            limited = self._limit(data, jac, groups, qvel_pred, dt, self._bound_radius[touch], column)
+        if self._fast is not None:
+            status = fastkernel.finish(groups, count, max_depth, v_com, omega,
+                                       _NO_ROWS if limited is None else np.ascontiguousarray(limited),
+                                       self.passive and not self.stabilize, touch, k, self.body_ids,
+                                       diag.force, diag.torque, diag.submerged, diag.max_depth, diag.scale,
+                                       diag.rft_force, sand_out)
+        else:
+            status = self._finish_numpy(diag, groups, count, max_depth, v_com, omega, limited, touch,
+                                        sand_out)
+        if status < 0:
+            bad = [self.body_names[i] for i in touch
+                   if not (np.all(np.isfinite(diag.force[i])) and np.all(np.isfinite(diag.torque[i])))]
+            raise FloatingPointError(f"non-finite sand wrench on bodies {bad}; nothing was written to "
+                                     "xfrc_applied. Check the model's inputs (ctrl, qfrc_applied, "
+                                     "xfrc_applied, masses) for NaN/inf")
+        if self.monitor is not None and self.evaluations % self.monitor.every == 0:
+            self.monitor.check(self, data, touch, v_com, omega, max_depth)
+        return bool(status)
+
+    def _gravity(self) -> np.ndarray:
+        """Unit gravity direction (3,), recomputed only when ``model.opt.gravity`` changed."""
+        g = self._opt_gravity.tolist()
+        if g != self._gravity_seen:
+            g_hat, self._g_mag = gravity_direction(g)
+            self._g_hat = np.ascontiguousarray(g_hat)
+            self._gravity_vec = np.array(g)
+            self._gravity_seen = g
+        return self._g_hat
+
+    def _touching_numpy(self, data, g_hat, work) -> np.ndarray:
+        """Numpy broadphase and depth pre-pass: indices (k,) into ``body_ids`` of the bodies with a
+        submerged element; fills rows 0..k-1 of the workspace's pose and velocity buffers."""
         ids = self.body_ids
-        # Broadphase: lowest point of each bounding sphere against the highest sand.
         xmat = data.xmat[ids].reshape(-1, 3, 3)
         centers = data.xpos[ids] + np.einsum("bij,bj->bi", xmat, self._bound_center)
         low = -(centers @ g_hat) - self._bound_radius
         cand = np.flatnonzero(low < self.terrain.max_height)
         if cand.size == 0:
-            return
+            return cand
         if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
-            bad = [m.body(int(b)).name for b in ids[cand]]
+            bad = [self.body_names[i] for i in cand]
             raise FloatingPointError(
                 f"non-finite qpos/qvel while computing sand forces on bodies {bad}: the simulation already "
                 "diverged (check timestep, actuator gains and masses; keep stabilize=True)")
-        bids = ids[cand]
-        cvel = data.cvel[bids]
-        omega = cvel[:, :3]
-        com = data.xipos[bids]
-        v_com = cvel[:, 3:] + np.cross(omega, com - data.subtree_com[self._root[cand]])
-        dt = m.opt.timestep
-        a_com = alpha = None
-        if self.stabilize:
-            jac, qvel_pred, qacc_free = self._free_motion(data, bids, user_xfrc, dt)
-            acc = jac @ qacc_free                      # (k, 6): [linear at COM, angular]
-            a_com, alpha = acc[:, :3], acc[:, 3:]
-        # Elements of the candidate bodies.
         sel = np.concatenate([np.arange(self._elem_slices[i], self._elem_slices[i + 1]) for i in cand])
         remap = np.empty(len(ids), dtype=np.int64)
         remap[cand] = np.arange(cand.size)
-        groups, count, max_depth = kernel.body_wrenches(
+        b = remap[self.elem_body[sel]]
+        pos = data.xpos[ids[cand]][b] + np.einsum("eij,ej->ei", xmat[cand][b], self.local_centroids[sel])
+        hit = np.bincount(b, weights=self.terrain.depth(pos, g_hat) > 0.0, minlength=cand.size) > 0
+        touch = cand[hit]
+        k, bids = touch.size, ids[touch]
+        work.body_pos[:k] = data.xpos[bids]
+        work.body_mat[:k] = data.xmat[bids]
+        work.body_com[:k] = data.xipos[bids]
+        omega = work.omega[:k]
+        omega[:] = data.cvel[bids, :3]
+        work.v_com[:k] = data.cvel[bids, 3:] + np.cross(omega, data.xipos[bids] - data.subtree_com[
+            self._root[touch]])
+        return touch
+
+    def _touching_fast(self, data, g_hat, work) -> np.ndarray:
+        """Compiled :meth:`_touching_numpy` (same result) straight from the MjData arrays."""
+        _, kind, tp, heights = self._fast
+        packed = self._packed
+        if self._gravity_seen is not self._fast_checked:
+            self._fast_checked = self._gravity_seen
+            self._fast_gravity_ok = (kind == fastkernel.FLAT and tp[6] == 0.0) or g_hat[2] <= -1.0 + 1e-9
+        if not self._fast_gravity_ok:                 # tilted gravity on a heightfield: numpy explains
+            return self._touching_numpy(data, g_hat, work)
+        k = fastkernel.touching(self.body_ids, self._root64, data.xpos, data.xmat, data.xipos, data.cvel,
+                                data.subtree_com, data.qpos, data.qvel, self._bound_center,
+                                self._bound_radius, packed.centroids, packed.cluster_start,
+                                packed.cluster_center, packed.cluster_radius, packed.body_clusters, g_hat,
+                                self._max_height, kind, tp, heights, work.touch, work.body_pos,
+                                work.body_mat, work.body_com, work.v_com, work.omega)
+        if k < 0:
+            return self._touching_numpy(data, g_hat, work)  # raises the non-finite state error
+        return work.touch[:k]
+
+    def _wrenches(self, work, touch, v_com, omega, acc, dt, g_hat, groups, count, max_depth):
+        """RFT octant wrenches (k, 8, 6), counts (k,), max depths (k,) of the touching bodies (rows of
+        the workspace pose buffers), and whether any is non-zero. ``acc`` (k, 6) or None."""
+        k = touch.size
+        media, guards = self._media, self.guards
+        if self._fast is not None:
+            arrays, kind, tp, heights = self._fast
+            n = fastkernel.wrenches(
+                touch, k, *arrays, work.body_pos, work.body_mat, work.body_com, v_com, omega,
+                _NO_ROWS if acc is None else acc, dt if self.stabilize else 0.0, g_hat, self._max_height,
+                kind, tp, heights, media.xi_n_at(self._g_mag), law.COEFFICIENTS, media.mu_surf,
+                guards.no_tension, guards.no_forward_tangential, guards.no_positive_power, self._tol,
+                work.scratch, groups, count, max_depth)
+            return groups[:k], count[:k], max_depth[:k], n > 0
+        sel = np.concatenate([np.arange(self._elem_slices[i], self._elem_slices[i + 1]) for i in touch])
+        remap = np.empty(len(self.body_ids), dtype=np.int64)
+        remap[touch] = np.arange(k)
+        out = kernel.body_wrenches(
             self.local_centroids[sel], self.local_normals[sel], self.areas[sel], remap[self.elem_body[sel]],
-            cand.size, data.xpos[bids], xmat[cand], com, v_com, omega, self.terrain, g_hat, gravity,
-            self.media, self.guards, a_com, alpha, dt if self.stabilize else 0.0, self.elem_octant[sel])
+            k, work.body_pos[:k], work.body_mat[:k].reshape(k, 3, 3), work.body_com[:k], v_com, omega,
+            self.terrain, g_hat, self._gravity_vec, media, guards, None if acc is None else acc[:, :3],
+            None if acc is None else acc[:, 3:], dt if self.stabilize else 0.0, self.elem_octant[sel])
+        return (*out, bool(np.any(out[0] != 0.0)))
+
+    def _finish_numpy(self, diag, groups, count, max_depth, v_com, omega, limited, touch, sand_out) -> int:
+        """Numpy reference of :func:`rft_mujoco.fastkernel.finish`: applied wrenches and diagnostics.
+        Returns 1 when a wrench is non-zero, 0 when none, -1 when one is not finite (nothing written)."""
+        _clear(diag)
         wrench = groups.sum(axis=1)
-        diag.rft_force[cand] = wrench[:, :3]
+        diag.rft_force[touch] = wrench[:, :3]
         loaded = np.flatnonzero(np.any(wrench != 0.0, axis=1))
-        if loaded.size and self.stabilize:
-            flat = groups.reshape(-1, 6)
-            active = np.flatnonzero(np.any(flat != 0.0, axis=1))
-            lam = self._limit(data, jac[active // kernel.GROUPS_PER_BODY], flat[active], qvel_pred, dt)
-            flat[active] *= lam[:, None]
-            new = groups.sum(axis=1)
+        if loaded.size and limited is not None:
             rft_norm = np.linalg.norm(wrench[loaded], axis=1)
-            diag.scale[cand[loaded]] = np.linalg.norm(new[loaded], axis=1) / rft_norm
-            wrench = new
-        elif loaded.size and self.passive:
+            diag.scale[touch[loaded]] = np.linalg.norm(limited[loaded], axis=1) / rft_norm
+            wrench = limited
+        elif loaded.size and self.passive and not self.stabilize:
             power = np.einsum("ij,ij->i", wrench[loaded, :3], v_com[loaded]) + \
                 np.einsum("ij,ij->i", wrench[loaded, 3:], omega[loaded])
             pos = power > 0.0
             wrench[loaded[pos]] = 0.0
-            diag.scale[cand[loaded[pos]]] = 0.0
-        diag.force[cand] = wrench[:, :3]
-        diag.torque[cand] = wrench[:, 3:]
-        diag.submerged[cand] = count
-        diag.max_depth[cand] = max_depth
-        sand_out[bids] += wrench
+            diag.scale[touch[loaded[pos]]] = 0.0
+        diag.force[touch] = wrench[:, :3]
+        diag.torque[touch] = wrench[:, 3:]
+        diag.submerged[touch] = count
+        diag.max_depth[touch] = max_depth
+        if not np.all(np.isfinite(wrench)):
+            return -1
+        sand_out[self.body_ids[touch]] += wrench
+        return int(np.any(wrench != 0.0))
 
     def _free_motion(self, data, bids, user_xfrc, dt):
         """Body Jacobians at the COM (k, 6, nv), predicted qvel (nv,) and free qacc (nv,) without sand.
@@ -275,21 +517,93 @@ class SandHandle:
                               data.xipos[b].copy(), int(b), qfrc)
         qacc = np.empty(m.nv)
         mujoco.mj_solveM(m, data, qacc.reshape(1, -1), qfrc.reshape(1, -1))
+        if not np.all(np.isfinite(qacc)):
+            names = [m.body(int(b)).name for b in bids]
+            raise FloatingPointError(
+                f"non-finite acceleration without sand while computing sand forces on bodies {names}: "
+                "data.ctrl, data.qfrc_applied or data.xfrc_applied holds NaN/inf (or the model's "
+                "actuators produce it); fix the input before stepping")
         return jac, data.qvel + dt * qacc, qacc
 
-    def _limit(self, data, jac, wrench, qvel_pred, dt):
-        """Impulse-limiter factors (k,) in [0, 1]: see :func:`rft_mujoco.kernel.limit_impulses`."""
-        q = np.einsum("kin,ki->kn", jac, wrench)         # generalized forces J^T W, (k, nv)
-        minv_q = np.empty_like(q)
-        mujoco.mj_solveM(self.model, data, minv_q, np.ascontiguousarray(q))
-        G = dt * dt * (q @ minv_q.T)
-        h = dt * (q @ qvel_pred)
-        return kernel.limit_impulses(G, h)
+    def _limit(self, data, jac, groups, qvel_pred, dt, radius, column):
+        """Stabilized wrenches (k, 6) of the candidate bodies from their RFT octant wrenches (k, 8, 6).
+
+        A body is in the low-speed regime when its predicted speed (without sand) is below the speed
+        change the full RFT impulse of one step would cause. Its octant wrenches get factors in [0, 1]
+        that minimize the kinetic energy after the step (:func:`rft_mujoco.kernel.limit_impulses`): the
+        sand stops it at most, never reverses or accelerates it. A body in flow gets the published force
+        (every factor 1), unless that would add kinetic energy to the step; then every body is limited
+        (passivity always holds). When the limiter binds on a low-speed body, up to
+        ``kernel.REST_COLUMNS - 1`` more columns are added: the octant wrenches of the RFT resistance to
+        the motion the body would still have after the step, sharing each octant's capacity with the
+        first (convex combination). The sand can then supply any wrench
+        of the convex hull of its resistances to several motions, which is what holds a tilted body at
+        rest (one motion direction alone often cannot cancel both the weight and the sideways push).
+
+        Args:
+            jac: (k, 6, nv) body Jacobians at the COM; groups: (k, 8, 6) RFT octant wrenches;
+            qvel_pred: (nv,) velocity after the step without sand; dt: step in s;
+            radius: (k,) m, bounding radii (angular speeds count as ``radius * |omega|``);
+            column: ``(v_lin (k, 3), v_ang (k, 3)) -> (k, 8, 6)`` RFT octant wrenches for body twists.
+        """
+        m = self.model
+        n_groups = kernel.GROUPS_PER_BODY
+        k = jac.shape[0]
+
+        def minv(q):
+            out = np.empty_like(q)
+            mujoco.mj_solveM(m, data, out, np.ascontiguousarray(q))
+            return out
+
+        def speed(twist):
+            return np.linalg.norm(twist[:, :3], axis=1) + radius * np.linalg.norm(twist[:, 3:], axis=1)
+
+        flat = groups.reshape(-1, 6)
+        group = np.flatnonzero(np.any(flat != 0.0, axis=1))       # (body, octant) of each column entry
+        wrench = flat[group]
+        q = np.einsum("kin,ki->kn", jac[group // n_groups], wrench)   # generalized forces J^T W
+        minv_q = minv(q)
+        G, h = dt * dt * (q @ minv_q.T), dt * (q @ qvel_pred)
+        # Low-speed regime: the full RFT impulse of one step changes the body's speed by more than its
+        # predicted speed. Those bodies get the energy-minimizing factors; bodies in flow keep the
+        # published force (factor 1) unless it would add kinetic energy to the step, then all are limited.
+        low = speed(jac @ qvel_pred) < speed(jac @ (dt * minv_q.sum(axis=0)))
+        free = low[group // n_groups]
+        lam = kernel.limit_impulses(G, h, group, free=free, ensure_passive=False) if free.any() else \
+            np.ones(group.size)
+        if 0.5 * lam @ G @ lam + h @ lam > 0.0:
+            free[:] = True
+            lam = kernel.limit_impulses(G, h, group)
+        for _ in range(kernel.REST_COLUMNS - 1):
+            refine = np.zeros(k, dtype=bool)
+            refine[group[lam < 1.0 - 1e-12] // n_groups] = True
+            refine &= low
+            twist = jac @ (qvel_pred + dt * (minv_q.T @ lam))          # after the step, (k, 6)
+            refine &= speed(twist) > kernel.REST_SPEED
+            if not refine.any():
+                break
+            twist[~refine] = 0.0
+            extra = column(twist[:, :3], twist[:, 3:]).reshape(-1, 6)
+            new = np.flatnonzero(np.any(extra != 0.0, axis=1))
+            if new.size == 0:
+                break
+            q_new = np.einsum("kin,ki->kn", jac[new // n_groups], extra[new])
+            group = np.concatenate([group, new])
+            wrench = np.concatenate([wrench, extra[new]])
+            q = np.concatenate([q, q_new])
+            minv_q = np.concatenate([minv_q, minv(q_new)])
+            free = np.concatenate([free, np.ones(new.size, dtype=bool)])
+            lam = kernel.limit_impulses(dt * dt * (q @ minv_q.T), dt * (q @ qvel_pred), group,
+                                        np.concatenate([lam, np.zeros(new.size)]), free)
+        out = np.zeros((k, 6))
+        np.add.at(out, group // n_groups, wrench * lam[:, None])
+        return out
 
 
 def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
            surface_height: float | Terrain = 0.0, resolution: str | float = "default", *,
-           guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True) -> SandHandle:
+           guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True,
+           monitor: bool | ValidityMonitor = True, backend: str = "auto") -> SandHandle:
     """Attach 3D-RFT sand to ``model``: from now on ``mujoco.mj_step(model, data)`` includes it.
 
     Args:
@@ -300,10 +614,19 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             :class:`HeightfieldSurface`, :class:`SandRegion`).
         resolution: element size: a preset name (``rft_mujoco.surface.RESOLUTIONS``) or metres.
         guards: clean-ups of the fit's artefacts (default none: the published law).
-        stabilize: implicit motion direction and impulse limiting, which gives real rest on sand and
-            guarantees the sand never does positive work in a step (default True). False applies the
-            published force at every element's current velocity (the naive coupling).
+        stabilize: low-speed regularization and impulse limiting, which gives real rest on sand and
+            guarantees the sand never adds kinetic energy in a step (default True); the published force
+            is recovered to ``(|a_free| dt / v)^3`` at speeds ``v`` above ``|F_rft| dt / m``
+            (:mod:`rft_mujoco.stability`). False applies the published force at every element's current
+            velocity (the naive coupling: bodies chatter instead of resting).
         passive: with ``stabilize=False``, zero a body's wrench whenever it would do positive work.
+        monitor: warn (:class:`rft_mujoco.RFTValidityWarning`, once per reason) when a loaded body leaves
+            the quasi-static regime or the validated depth (:mod:`rft_mujoco.monitor`); a
+            :class:`ValidityMonitor` to set the check interval; False switches it off.
+        backend: the per-evaluation kernel: "numba" (compiled, :mod:`rft_mujoco.fastkernel`; compiled
+            once per machine and cached), "numpy" (:mod:`rft_mujoco.kernel`, the readable reference), or
+            "auto" (default: numba when it imports and supports the terrain, else numpy). Both give the
+            same forces to round-off.
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """
@@ -326,7 +649,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     if not ids:
         raise ValueError("no bodies to attach sand to: the model has no body with surface geoms")
     gravity_direction(model.opt.gravity)  # raises on zero gravity
-    handle = SandHandle(model, media, ids, terrain, size, guards, stabilize, passive)
+    handle = SandHandle(model, media, ids, terrain, size, guards, stabilize, passive, monitor, backend)
     DISPATCHER.register(handle)
     handle.attached = True
     return handle

@@ -63,7 +63,8 @@ def test_primitive_converges_with_outward_unit_normals(name):
         err = (abs(el.area() / area - 1), abs(el.enclosed_volume() / volume - 1))
         if prev is not None:
             for e, p in zip(err, prev):
-                assert e <= max(p, ROUNDOFF), (name, h, err, prev)
+                # (equal up to round-off where the minimum tessellation sets both meshes)
+                assert e <= max(p * (1 + 1e-9), ROUNDOFF), (name, h, err, prev)
         if h <= surface.RESOLUTIONS["fine"]:
             assert max(err) < FINE_TOL, (name, h, err)
         prev = err

@@ -1,0 +1,157 @@
+"""Validity monitor: tells the user (once) when a scene leaves the range where 3D-RFT is validated.
+
+3D-RFT is a quasi-static, rate-independent model fitted to slow intrusions at moderate depth (Agarwal,
+Goldman & Kamrin, PNAS 2023). Outside that range it still returns numbers; this monitor says so. Per loaded
+body (at least one submerged leading element) it estimates:
+
+* the macro-inertial number ``I_mac = v sqrt(rho_g / (xi_n L))``: inertial against frictional stress
+  at the body scale; valid below :data:`I_MAC_MAX` = 0.15;
+* the micro-inertial number ``I = gamma_dot d sqrt(rho_g / P)`` of the grains, with the estimates
+  ``gamma_dot ~ v / L`` (shear rate: the body speed over its size) and ``P ~ xi_n max(z, d)`` (the RFT
+  stress scale at the deepest loaded element's depth ``z``, but at least one grain deep: shallower, the
+  continuum pressure estimate means nothing); valid below :data:`I_MICRO_MAX` = 0.01; needs
+  ``Media.grain_diameter`` ``d`` (skipped when it is ``None``);
+* the depth-to-size ratio ``z / L``; valid below :data:`DEPTH_RATIO_MAX` = 10.
+
+Here ``v = |v_com| + R |omega|`` bounds the speed of the body's surface points (m/s), ``L = 2 R`` is the
+diameter of the body's element bounding sphere (m), ``rho_g = Media.grain_density`` (kg/m^3) and
+``xi_n = Media.xi_n_at(|g|)`` (N/m^3).
+
+The check is cheap (a few array operations on the loaded bodies) and runs every
+:data:`CHECK_EVERY` evaluations. It warns with :class:`RFTValidityWarning`, at most once per sand handle
+for each of the two reasons (quasi-static regime, depth), with the numbers; ``monitor.worst`` keeps the
+largest values seen. Switch it off with ``attach(..., monitor=False)``; silence it with
+``warnings.simplefilter("ignore", rft_mujoco.RFTValidityWarning)``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from .media import Media
+
+I_MAC_MAX = 0.15
+"""Largest macro-inertial number of the quasi-static regime (Agarwal et al. 2023)."""
+I_MICRO_MAX = 0.01
+"""Largest micro-inertial number of the quasi-static regime."""
+DEPTH_RATIO_MAX = 10.0
+"""Largest depth, in body sizes, of the validated range."""
+CHECK_EVERY = 10
+"""Evaluations between two checks (RK4 evaluates four times per step)."""
+
+
+class RFTValidityWarning(UserWarning):
+    """A sand scene left the range where 3D-RFT is validated (quasi-static, at most ~10 body sizes deep)."""
+
+
+def validity_numbers(speed, length, depth, media: Media, gravity: float = 9.81):
+    """Macro-inertial number, micro-inertial number and depth-to-size ratio (all dimensionless).
+
+    Args:
+        speed: (n,) m/s, speed scale of each body (surface points).
+        length: (n,) m, size of each body.
+        depth: (n,) m, depth of each body's deepest loaded element.
+        media: the granular medium (``grain_density``; ``grain_diameter`` for the micro number).
+        gravity: |g| in m/s^2.
+    Returns:
+        i_mac (n,), i_micro (n,) (NaN where the grain diameter is unknown or the depth is 0; the
+        pressure is taken at least one grain deep),
+        depth_ratio (n,).
+    """
+    speed = np.asarray(speed, dtype=float)
+    length = np.asarray(length, dtype=float)
+    depth = np.asarray(depth, dtype=float)
+    xi_n = media.xi_n_at(gravity)
+    rho_g = media.grain_density
+    i_mac = speed * np.sqrt(rho_g / (xi_n * length))
+    if media.grain_diameter is None:
+        i_micro = np.full(speed.shape, np.nan)
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pressure = xi_n * np.maximum(depth, media.grain_diameter)
+            i_micro = np.where(depth > 0.0, speed / length * media.grain_diameter
+                               * np.sqrt(rho_g / pressure), np.nan)
+    return i_mac, i_micro, depth / length
+
+
+class ValidityMonitor:
+    """Checks one sand handle's loaded bodies every ``every`` evaluations; warns once per reason.
+
+    Attributes:
+        every: evaluations between checks.
+        worst: largest values seen: ``{"i_mac": (value, body, time_s), "i_micro": ..., "depth_ratio": ...}``.
+        warned: the reasons already warned about (``"quasi-static"``, ``"depth"``).
+    """
+
+    def __init__(self, every: int = CHECK_EVERY):
+        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+            raise ValueError(f"every must be a positive int (evaluations between checks), got {every!r}")
+        self.every = int(every)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the worst values and the warnings already given (warn again on the next violation)."""
+        self.worst: dict[str, tuple[float, str, float]] = {}
+        self.warned: set[str] = set()
+
+    def observe(self, names, speed, length, depth, media: Media, gravity: float, time: float, *,
+                stacklevel: int = 2) -> None:
+        """Check bodies (lists/arrays over the loaded bodies) and warn if one is outside the valid range.
+        ``stacklevel`` is passed to :func:`warnings.warn`."""
+        if len(names) == 0:
+            return
+        i_mac, i_micro, ratio = validity_numbers(speed, length, depth, media, gravity)
+        for key, values in (("i_mac", i_mac), ("i_micro", i_micro), ("depth_ratio", ratio)):
+            if np.all(np.isnan(values)):
+                continue
+            j = int(np.nanargmax(values))
+            if key not in self.worst or values[j] > self.worst[key][0]:
+                self.worst[key] = (float(values[j]), names[j], float(time))
+        fast = (i_mac > I_MAC_MAX) | (np.nan_to_num(i_micro) > I_MICRO_MAX)
+        if fast.any() and "quasi-static" not in self.warned:
+            j = int(np.flatnonzero(fast)[np.argmax(i_mac[fast])])
+            self.warned.add("quasi-static")
+            micro = ("n/a (media.grain_diameter unknown)" if math.isnan(i_micro[j]) else
+                     f"{i_micro[j]:.3g} (limit {I_MICRO_MAX}; d = {media.grain_diameter:g} m, "
+                     f"P ~ xi_n max(z, d) = {media.xi_n_at(gravity) * max(depth[j], media.grain_diameter):.3g} Pa)")
+            warnings.warn(
+                f"3D-RFT is outside its quasi-static range on body {names[j]!r} at t = {time:.4g} s: "
+                f"macro-inertial number I_mac = {i_mac[j]:.3g} (limit {I_MAC_MAX}; v = {speed[j]:.3g} m/s, "
+                f"L = {length[j]:.3g} m, rho_g = {media.grain_density:g} kg/m^3, "
+                f"xi_n = {media.xi_n_at(gravity):.3g} N/m^3), micro-inertial number I = {micro}. "
+                "The forces are extrapolated (inertial effects of the grains are missing); slow the body "
+                "down to stay in the validated range. Warned once per sand handle; "
+                "handle.monitor.worst keeps the largest values.", RFTValidityWarning, stacklevel=stacklevel)
+        deep = ratio > DEPTH_RATIO_MAX
+        if deep.any() and "depth" not in self.warned:
+            j = int(np.flatnonzero(deep)[np.argmax(ratio[deep])])
+            self.warned.add("depth")
+            warnings.warn(
+                f"3D-RFT is outside its validated depth range on body {names[j]!r} at t = {time:.4g} s: "
+                f"depth {depth[j]:.3g} m is {ratio[j]:.3g} body sizes (limit {DEPTH_RATIO_MAX}; "
+                f"L = {length[j]:.3g} m). The linear depth scaling of RFT is not validated that deep; "
+                "the body is probably sinking through the bed (too heavy for this medium). Warned once "
+                "per sand handle; handle.monitor.worst keeps the largest values.",
+                RFTValidityWarning, stacklevel=stacklevel)
+
+    def check(self, handle, data, rows, v_com, omega, max_depth) -> None:
+        """Observe the candidate bodies ``rows`` (indices into ``handle.body_ids``) of one evaluation.
+
+        Args:
+            handle: the :class:`rft_mujoco.SandHandle`.
+            data: its MjData (for the time).
+            rows: (k,) int, candidate rows; v_com, omega: (k, 3) m/s, rad/s; max_depth: (k,) m.
+        """
+        loaded = np.flatnonzero(np.asarray(max_depth) > 0.0)
+        if loaded.size == 0:
+            return
+        r = np.asarray(rows)[loaded]
+        radius = handle._bound_radius[r]
+        speed = np.linalg.norm(v_com[loaded], axis=1) + radius * np.linalg.norm(omega[loaded], axis=1)
+        names = [handle.body_names[i] for i in r]
+        # stacklevel 5: observe < check < SandHandle._evaluate < the dispatcher < the caller of mj_step
+        self.observe(names, speed, 2.0 * radius, np.asarray(max_depth)[loaded], handle.media,
+                     float(np.linalg.norm(handle.model.opt.gravity)), float(data.time), stacklevel=5)

@@ -1,0 +1,291 @@
+"""Stability at the extremes (issue 5): drops come to rest, the sand never adds energy, flow keeps the
+published force, bad input is explained, and the validity monitor warns once."""
+
+import dataclasses
+import math
+import warnings
+
+import mujoco
+import numpy as np
+import pytest
+
+import rft_mujoco
+from rft_mujoco import kernel, stability
+from rft_mujoco.stability import Case
+
+MEDIA = rft_mujoco.MPM_VALIDATION
+
+
+@pytest.fixture(autouse=True)
+def _clean():
+    yield
+    rft_mujoco.detach_all()
+
+
+# --- the drop matrix, a representative subset ----------------------------------------------------------
+DROPS = [Case("drop", shape, mass, dt, integ)
+         for shape in stability.SHAPES
+         for mass in (0.01, 100.0)
+         for dt, integ in ((0.001, "Euler"), (0.005, "implicitfast"), (0.005, "RK4"))]
+DROPS += [Case("drop", "capsule", 1.0, 0.00025, "RK4", height=0.3),
+          Case("drop", "box", 10.0, 0.002, "Euler", height=0.0, media="maladen_glass_beads"),
+          Case("drop", "sphere", 0.1, 0.002, "implicitfast", media="dem_glass_beads")]
+
+
+@pytest.mark.parametrize("case", DROPS, ids=lambda c: c.label.replace(" ", ""))
+def test_drop_comes_to_rest_without_energy_gain(case):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rft_mujoco.RFTValidityWarning)
+        res = stability.run_case(case)
+    assert not res.nan
+    assert res.max_gain_rel <= stability.GAIN_RTOL, f"the sand added {res.max_gain} J in a step"
+    assert res.t_rest <= stability.REST_DEADLINE, f"still moving at {res.jitter} m/s"
+    assert res.jitter < 1e-6 and res.creep < 1e-6          # real rest, not slow chatter
+    assert res.sinkage_ratio >= 0.9, "the sand held the body above its static depth"
+    assert res.failures == ()
+
+
+def test_naive_coupling_chatters_where_the_stabilized_one_rests():
+    case = Case("drop", "capsule", 1.0, 0.002, "RK4")
+    naive = stability.run_case(dataclasses.replace(case, stabilize=False))
+    stab = stability.run_case(case)
+    assert naive.jitter > 1e-3 and naive.t_rest == math.inf
+    assert stab.jitter < 1e-9
+
+
+def test_static_depth_bisection():
+    # A 5 cm sphere at the static depth carries its weight with straight-down RFT.
+    depth = stability.static_depth("sphere", 1.0, "mpm_validation")
+    assert 0.0 < depth < 0.05
+    heavier = stability.static_depth("sphere", 10.0, "mpm_validation")
+    assert heavier > depth
+
+
+# --- flow: the published force once the speed is well above the regularization speed -------------------
+FREE = "<mujoco><option timestep='{dt}'/><worldbody><body name='b'><freejoint/><geom type='{geom}' " \
+       "size='{size}' mass='{mass}'/></body></worldbody></mujoco>"
+
+
+def make_free(geom="sphere", size="0.05", mass=1.0, dt=0.001):
+    model = mujoco.MjModel.from_xml_string(FREE.format(dt=dt, geom=geom, size=size, mass=mass))
+    return model, mujoco.MjData(model)
+
+
+@pytest.mark.parametrize("geom,size", [("sphere", "0.05"), ("box", "0.05 0.04 0.03"),
+                                       ("capsule", "0.02 0.03")])
+@pytest.mark.parametrize("mass,dt", [(1.0, 0.001), (100.0, 0.001), (1.0, 0.01)])
+def test_flow_recovers_published_force_within_one_percent(geom, size, mass, dt):
+    model, data = make_free(geom, size, mass, dt)
+    sand = rft_mujoco.attach(model, MEDIA, monitor=False)
+    rng = np.random.default_rng(1)
+    data.qpos[2] = -0.05
+    q = rng.normal(size=4)
+    data.qpos[3:7] = q / np.linalg.norm(q)
+    for direction in ([1.0, 0.0, 0.0], [0.3, -0.2, -1.0], [1.0, 0.5, -0.4], [0.0, 1.0, 0.2]):
+        u = np.array(direction) / np.linalg.norm(direction)
+        # Regularization speed: the larger of |a_free| dt and |F_rft| dt / m.
+        data.qvel[:] = 0.0
+        data.qvel[:3] = u
+        mujoco.mj_forward(model, data)
+        pub, _ = stability.published_wrench(sand, data)
+        v_reg = max(np.linalg.norm(model.opt.gravity), np.linalg.norm(pub[:3]) / mass) * dt
+        for ratio in (10.0, 100.0):
+            data.qvel[:3] = ratio * v_reg * u
+            mujoco.mj_forward(model, data)
+            diag = sand.diagnostics(data)
+            pub, _ = stability.published_wrench(sand, data)
+            assert np.linalg.norm(pub[:3]) > 0.1
+            err = np.linalg.norm(diag.force[0] - pub[:3]) / np.linalg.norm(pub[:3])
+            assert err < 0.01, f"v = {ratio} v_reg along {direction}: force off by {err:.2%}"
+            assert np.linalg.norm(diag.torque[0] - pub[3:]) <= 0.01 * np.linalg.norm(pub[:3]) * 0.05 + 1e-12
+
+
+# --- passivity -----------------------------------------------------------------------------------------
+def sand_energy_gain(model, data, sand):
+    """dE = J.v+ - 0.5 J M^-1 J of the last Euler step (J the sand's generalized impulse)."""
+    diag = sand.diagnostics(data)
+    q = np.zeros(model.nv)
+    mujoco.mj_applyFT(model, data, diag.force[0].copy(), diag.torque[0].copy(), data.xipos[1].copy(), 1, q)
+    j = model.opt.timestep * q
+    minv_j = np.zeros(model.nv)
+    mujoco.mj_solveM(model, data, minv_j.reshape(1, -1), j.reshape(1, -1))
+    power, quad = float(j @ data.qvel), 0.5 * float(j @ minv_j)
+    return power - quad, abs(power) + quad
+
+
+@pytest.mark.parametrize("stabilize", [True, False])
+def test_passivity_sand_never_adds_energy_in_a_step(stabilize):
+    gains = []
+    for seed in range(60):
+        rng = np.random.default_rng(seed)
+        mass = 10.0 ** rng.uniform(-2, 2)
+        model, data = make_free("box", "0.05 0.04 0.03", mass, 10.0 ** rng.uniform(-3.5, -2))
+        sand = rft_mujoco.attach(model, MEDIA, stabilize=stabilize, passive=False, monitor=False)
+        data.qpos[2] = -rng.uniform(0.0, 0.08)
+        q = rng.normal(size=4)
+        data.qpos[3:7] = q / np.linalg.norm(q)
+        data.qvel[:] = rng.normal(size=6) * 10.0 ** rng.uniform(-4, 0)
+        mujoco.mj_step(model, data)
+        gain, scale = sand_energy_gain(model, data, sand)
+        gains.append(gain / scale if scale > 0 else 0.0)
+        sand.detach()
+    if stabilize:
+        assert max(gains) <= stability.GAIN_RTOL
+    else:
+        assert max(gains) > 1e-3, "the naive coupling should gain energy somewhere in this sample"
+
+
+def test_passivity_effect_on_drag_accuracy():
+    """Dragged fast (flow), the stabilized force is the published one; slow, the limiter takes over."""
+    fast = stability.run_case(Case("drag", "capsule", 0.1, 0.002, "implicitfast", load=1.0, group="drag"))
+    assert fast.force_err_flow < 1e-3 and fast.max_gain_rel <= stability.GAIN_RTOL and not fast.nan
+    held = stability.run_case(Case("drag", "sphere", 10.0, 0.002, "implicitfast", load=0.1, group="drag"))
+    assert held.held and held.jitter < 1e-9       # a pull below the sand's capacity is held at rest
+
+
+# --- the limiter's QP ----------------------------------------------------------------------------------
+def random_qp(rng, k_groups=6, columns=3, rank=6):
+    group = np.repeat(np.arange(k_groups), columns)
+    a = rng.normal(size=(rank, group.size))
+    G = a.T @ a
+    h = a.T @ rng.normal(size=rank) * 3.0
+    return G, h, group
+
+
+def brute_force(G, h, group):
+    from scipy.optimize import minimize
+    k = h.size
+    cons = [{"type": "ineq", "fun": (lambda x, g=g: 1.0 - x[group == g].sum())} for g in np.unique(group)]
+    best = None
+    for start in (np.zeros(k), np.full(k, 1.0 / 3.0)):
+        r = minimize(lambda x: 0.5 * x @ G @ x + h @ x, start, jac=lambda x: G @ x + h, method="SLSQP",
+                     bounds=[(0.0, 1.0)] * k, constraints=cons, options={"ftol": 1e-14, "maxiter": 1000})
+        if best is None or r.fun < best.fun:
+            best = r
+    return best.fun
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_limit_impulses_solves_the_qp(seed):
+    rng = np.random.default_rng(seed)
+    G, h, group = random_qp(rng)
+    lam = kernel.limit_impulses(G, h, group, start=np.tile([1.0, 0.0, 0.0], 6))
+    slow = kernel.limit_impulses(G, h, group, start=np.tile([1.0, 0.0, 0.0], 6), compiled=False)
+    np.testing.assert_allclose(lam, slow, atol=1e-12)            # compiled = plain loops
+    assert np.all(lam >= 0.0)
+    assert np.all(np.bincount(group, weights=lam) <= 1.0 + 1e-12)
+    obj = 0.5 * lam @ G @ lam + h @ lam
+    assert obj <= 0.0
+    assert obj <= brute_force(G, h, group) + 1e-6 * (1.0 + abs(obj))
+
+
+def test_limit_impulses_box_case_and_fixed_variables():
+    G = np.array([[2.0, 0.0], [0.0, 1.0]])
+    h = np.array([-1.0, 3.0])
+    np.testing.assert_allclose(kernel.limit_impulses(G, h), [0.5, 0.0])
+    lam = kernel.limit_impulses(G, h, free=np.array([True, False]), ensure_passive=False)
+    np.testing.assert_allclose(lam, [0.5, 1.0])
+    # with passivity, the fixed variable's energy gain is scaled away
+    lam = kernel.limit_impulses(G, h, free=np.array([True, False]))
+    assert 0.5 * lam @ G @ lam + h @ lam <= 0.0
+
+
+# --- bad input never reaches MuJoCo as NaN -------------------------------------------------------------
+def test_non_finite_state_and_inputs_name_the_body():
+    model, data = make_free()
+    rft_mujoco.attach(model, MEDIA, monitor=False)
+    data.qpos[2] = -0.03
+    data.qvel[0] = np.nan
+    with pytest.raises(FloatingPointError, match="'b'"):
+        mujoco.mj_forward(model, data)
+    data.qvel[:] = 0.0
+    data.xfrc_applied[1, 0] = np.inf
+    with pytest.raises(FloatingPointError, match="xfrc_applied"):
+        mujoco.mj_forward(model, data)
+    assert np.all(np.isfinite(data.qacc[np.isfinite(data.qacc)]))
+
+
+def test_massless_bodies():
+    static = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><body name='plate'><geom size='.1' mass='0'/></body></worldbody></mujoco>")
+    with pytest.raises(ValueError, match="'plate' has zero mass"):
+        rft_mujoco.attach(static, MEDIA)
+    # A massless body welded to a massive one is fine: the sand acts on the weld group.
+    welded = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><body name='leg'><freejoint/><geom size='.05' mass='1'/>"
+        "<body name='foot' pos='0 0 -0.06'><geom size='.02' mass='0'/></body></body></worldbody></mujoco>")
+    sand = rft_mujoco.attach(welded, MEDIA, bodies=["foot"], monitor=False)
+    data = mujoco.MjData(welded)
+    data.qpos[2] = -0.01
+    data.qvel[2] = -0.1
+    mujoco.mj_step(welded, data)
+    assert sand.diagnostics(data).force[0, 2] > 0.0 and np.all(np.isfinite(data.qacc))
+
+
+def test_zero_area_elements_name_the_body():
+    model = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><body name='speck'><freejoint/><inertial pos='0 0 0' mass='1' "
+        "diaginertia='1 1 1'/><geom type='sphere' size='1e-200' mass='0'/></body></worldbody></mujoco>")
+    with pytest.raises(ValueError, match="body 'speck'.*area"):
+        rft_mujoco.attach(model, MEDIA)
+
+
+@pytest.mark.parametrize("resolution,match", [(1e-6, "surface elements"), (-0.01, "positive"),
+                                              (float("nan"), "positive"), ("superfine", "unknown resolution")])
+def test_absurd_resolution(resolution, match):
+    model, _ = make_free()
+    with pytest.raises(ValueError, match=match):
+        rft_mujoco.attach(model, MEDIA, resolution=resolution)
+
+
+@pytest.mark.parametrize("kwargs", [dict(rho_c=-1.0, mu_int=0.4), dict(rho_c=1500.0, mu_int=float("nan")),
+                                    dict(rho_c=1e9, mu_int=0.4), dict(rho_c=1500.0, mu_int=0.4, mu_surf=2.0)])
+def test_absurd_media(kwargs):
+    with pytest.raises(ValueError, match="must be"):
+        rft_mujoco.Media(**kwargs)
+
+
+# --- the validity monitor ------------------------------------------------------------------------------
+def test_validity_numbers():
+    media = rft_mujoco.DEM_GLASS_BEADS
+    i_mac, i_micro, ratio = rft_mujoco.monitor.validity_numbers([0.1], [0.05], [0.02], media)
+    xi = media.xi_n_at(9.81)
+    assert i_mac[0] == pytest.approx(0.1 * math.sqrt(2500.0 / (xi * 0.05)))
+    assert i_micro[0] == pytest.approx(0.1 / 0.05 * 3e-3 * math.sqrt(2500.0 / (xi * 0.02)))
+    shallow = rft_mujoco.monitor.validity_numbers([0.1], [0.05], [1e-4], media)[1]
+    assert shallow[0] == pytest.approx(0.1 / 0.05 * 3e-3 * math.sqrt(2500.0 / (xi * 3e-3)))  # one grain deep
+    assert ratio[0] == pytest.approx(0.4)
+    _, no_d, _ = rft_mujoco.monitor.validity_numbers([0.1], [0.05], [0.02], MEDIA)
+    assert math.isnan(no_d[0])
+
+
+def test_monitor_warns_once_with_the_numbers():
+    model, data = make_free(mass=1.0)
+    sand = rft_mujoco.attach(model, rft_mujoco.DEM_GLASS_BEADS, monitor=rft_mujoco.ValidityMonitor(every=1))
+    data.qpos[2] = 0.06
+    data.qvel[2] = -3.0                                  # hits the sand fast: I_mac ~ 0.4
+    with pytest.warns(rft_mujoco.RFTValidityWarning, match=r"I_mac = [0-9.]+ \(limit 0.15") as record:
+        for _ in range(300):
+            mujoco.mj_step(model, data)
+    assert sum(issubclass(w.category, rft_mujoco.RFTValidityWarning) for w in record) == 1
+    assert sand.monitor.worst["i_mac"][0] > 0.15 and sand.monitor.worst["i_mac"][1] == "b"
+
+
+def test_monitor_depth_warning_and_switch_off():
+    model, data = make_free("capsule", "0.01 0.01", mass=100.0, dt=0.002)
+    rft_mujoco.attach(model, MEDIA, monitor=rft_mujoco.ValidityMonitor(every=5))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", rft_mujoco.RFTValidityWarning)
+        for _ in range(1000):
+            mujoco.mj_step(model, data)
+    depth = [w for w in caught if "body sizes" in str(w.message)]
+    assert len(depth) == 1 and issubclass(depth[0].category, rft_mujoco.RFTValidityWarning)
+    rft_mujoco.detach_all()
+    model, data = make_free(mass=1.0)
+    rft_mujoco.attach(model, MEDIA, monitor=False)
+    data.qpos[2] = 0.06
+    data.qvel[2] = -3.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rft_mujoco.RFTValidityWarning)
+        for _ in range(100):
+            mujoco.mj_step(model, data)
