@@ -114,6 +114,22 @@ def make_sand_floor(spec: mujoco.MjSpec, bed_depth_m: float | None = None) -> li
     return names
 
 
+def initialize_sand_simulation(env, bed_depth_m: float | None, edit=None):
+    """``MujocoEnv._initialize_simulation`` for a sand env: the compiled sand model (offscreen buffer at
+    least the env's render size), its MjData, and the names of the surface geoms stored on ``env``."""
+    model, env._surface_geoms = compile_sand_model(env.fullpath, bed_depth_m, edit)
+    model.vis.global_.offwidth = max(model.vis.global_.offwidth, env.width)
+    model.vis.global_.offheight = max(model.vis.global_.offheight, env.height)
+    return model, mujoco.MjData(model)
+
+
+def step_with_sand(env, ctrl, n_frames: int, include_sand: bool = False) -> None:
+    """``MujocoEnv._step_mujoco_simulation`` for a sand env: step, then keep cfrc_ext free of sand."""
+    env.data.ctrl[:] = ctrl
+    mujoco.mj_step(env.model, env.data, nstep=n_frames)
+    env.sand.post_constraint(env.data, include_sand=include_sand)
+
+
 def compile_sand_model(xml_path: str, bed_depth_m: float | None = None, edit=None):
     """Load ``xml_path`` into an MjSpec, apply ``edit(spec)`` (if given) and :func:`make_sand_floor`, compile.
 

@@ -22,7 +22,7 @@ from gymnasium.envs.mujoco import MujocoEnv
 
 from rft_mujoco.media import Media
 
-from .sand_bed import FEATURES_PER_BODY, MediaRanges, SandBed, compile_sand_model
+from .sand_bed import FEATURES_PER_BODY, MediaRanges, SandBed, initialize_sand_simulation, step_with_sand
 
 
 def model_path(xml_file: str) -> str:
@@ -55,16 +55,11 @@ class SandTaskEnv(MujocoEnv):
         """Task-specific changes to the model before compilation (default: none)."""
 
     def _initialize_simulation(self):
-        model, self._surface_geoms = compile_sand_model(self.fullpath, self._bed_depth_m, self._edit_spec)
-        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
-        model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
-        return model, mujoco.MjData(model)
+        return initialize_sand_simulation(self, self._bed_depth_m, self._edit_spec)
 
     # --- sand ------------------------------------------------------------------------------------
     def _step_mujoco_simulation(self, ctrl, n_frames):
-        self.data.ctrl[:] = ctrl
-        mujoco.mj_step(self.model, self.data, nstep=n_frames)
-        self.sand.post_constraint(self.data)
+        step_with_sand(self, ctrl, n_frames)
 
     def _sand_obs(self) -> np.ndarray:
         """Per-body sand force (N) and sinkage (m), or an empty array when not observed."""

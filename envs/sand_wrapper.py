@@ -15,7 +15,6 @@ import dataclasses
 from collections.abc import Sequence
 
 import gymnasium
-import mujoco
 import numpy as np
 from gymnasium import utils
 from gymnasium.envs.mujoco import MujocoEnv
@@ -29,7 +28,7 @@ from gymnasium.spaces import Box
 
 from rft_mujoco.media import Media
 
-from .sand_bed import FEATURES_PER_BODY, MediaRanges, SandBed, compile_sand_model
+from .sand_bed import FEATURES_PER_BODY, MediaRanges, SandBed, initialize_sand_simulation, step_with_sand
 
 DEFAULT_MEDIA = "li_loose_glass_beads"
 """Loose 3 mm glass beads (Li, Zhang & Goldman 2013, legged locomotion on granular media)."""
@@ -110,15 +109,10 @@ class _SandEnv:
                 self.observation_structure = {**self.observation_structure, "sand": extra}
 
     def _initialize_simulation(self):
-        model, self._surface_geoms = compile_sand_model(self.fullpath, self._bed_depth_m)
-        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
-        model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
-        return model, mujoco.MjData(model)
+        return initialize_sand_simulation(self, self._bed_depth_m)
 
     def _step_mujoco_simulation(self, ctrl, n_frames):
-        self.data.ctrl[:] = ctrl
-        mujoco.mj_step(self.model, self.data, nstep=n_frames)
-        self.sand.post_constraint(self.data, include_sand=self._sand_in_contact_forces)
+        step_with_sand(self, ctrl, n_frames, include_sand=self._sand_in_contact_forces)
 
     def _get_obs(self):
         obs = super()._get_obs()

@@ -44,7 +44,7 @@ from ._dispatch import DISPATCHER
 from . import law
 from .law import PUBLISHED, Guards, gravity_direction
 from .media import Media, get_media
-from .terrain import FlatSurface, Terrain, as_terrain
+from .terrain import Terrain, as_terrain
 
 
 @dataclasses.dataclass
