@@ -24,7 +24,10 @@ RK4) the dispatcher calls :meth:`SandHandle._evaluate`, which
 Steps 1-3 and the bookkeeping of 4-5 run in the numba-compiled kernels of :mod:`rft_mujoco.fastkernel`
 (``attach(backend="numba")``, the default when numba imports and supports the terrain) on per-MjData
 buffers, or in the numpy reference :mod:`rft_mujoco.kernel` (``backend="numpy"``); both give the same
-wrenches to round-off (tests/test_fastkernel.py). Costs are measured by ``python -m rft_mujoco bench``.
+wrenches to round-off (tests/test_fastkernel.py). With the numba backend, step 4 (Jacobians, free motion,
+the impulse limiter) is compiled too (:mod:`rft_mujoco.fastlimit`, warm-started from the previous step;
+tests/test_fastlimit.py compares it with :meth:`SandHandle._limit`). Costs are measured by
+``python -m rft_mujoco bench``.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from . import fastkernel, kernel, surface
+from . import fastkernel, fastlimit, kernel, surface
 from .monitor import ValidityMonitor
 from ._dispatch import DISPATCHER
 from . import law
@@ -95,9 +98,10 @@ class _Workspace:
     and rows 0..k-1 of the touching bodies' poses, velocities and octant wrenches."""
 
     __slots__ = ("diag", "clean", "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "groups",
-                 "count", "max_depth", "col_groups", "col_count", "col_max_depth", "scratch")
+                 "count", "max_depth", "col_groups", "col_count", "col_max_depth", "scratch", "col_v", "col_w",
+                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "last_time")
 
-    def __init__(self, n_bodies: int, compiled: bool) -> None:
+    def __init__(self, n_bodies: int, compiled: bool, nv: int = 0, rest_columns: int = kernel.REST_COLUMNS) -> None:
         b = n_bodies
         self.diag = Diagnostics.zeros(b)
         self.clean = True
@@ -111,6 +115,18 @@ class _Workspace:
         self.col_count = np.zeros(b, dtype=np.int64)
         self.col_max_depth = np.zeros(b)
         self.scratch = np.zeros((11, fastkernel.CLUSTER_SIZE)) if compiled else None
+        # The compiled stabilized path (fastlimit): Jacobians, free acceleration, M^-1, limiter output and
+        # the previous evaluation's limiter factors (its warm start).
+        self.col_v, self.col_w = np.zeros((b, 3)), np.zeros((b, 3))
+        self.jac = np.zeros((b, 6, nv))
+        self.qacc = np.zeros(nv)
+        self.minv = np.zeros((nv, nv))
+        self.eye = np.eye(nv)
+        self.limited = np.zeros((b, 6))
+        r = rest_columns
+        self.warm = np.zeros((b, kernel.GROUPS_PER_BODY, r, r))
+        self.warm_rounds = np.zeros(b, dtype=np.int64)
+        self.last_time = -math.inf
 
 
 def _body_id(model, name) -> int:
@@ -227,6 +243,16 @@ class SandHandle:
         self._gravity_seen = None
         self._fast_checked = None
         self._tol = fastkernel.tolerances()
+        self._solver = fastlimit.solver_settings()
+        self._tree = tuple(np.ascontiguousarray(a, dtype=np.int64) for a in (
+            model.body_rootid, model.body_dofnum, model.body_dofadr, model.body_parentid, model.dof_parentid))
+        self.warm_start = True
+        """Compiled stabilized path: start the limiter from the previous evaluation's factors (False: from
+        the published force every time, as the numpy reference does)."""
+        self.compiled_limiter = True
+        """With the numba backend and stabilize=True: the free motion and the limiter run compiled
+        (:mod:`rft_mujoco.fastlimit`); False runs :meth:`_free_motion` and :meth:`_limit` in numpy around
+        the compiled kernels (the reference the tests compare with)."""
         self._backend_request = backend
         self._select_backend()
 
@@ -335,7 +361,8 @@ class SandHandle:
         self.evaluations += 1
         work = self._work.get(data)
         if work is None:
-            work = self._work[data] = _Workspace(len(self.body_ids), self._fast is not None)
+            work = self._work[data] = _Workspace(len(self.body_ids), self._fast is not None, self.model.nv,
+                                                       int(self._solver[4]))
         diag = work.diag
         g_hat = self._gravity()
         # 1. Broadphase and depth pre-pass: the bodies with at least one submerged element.
@@ -344,22 +371,46 @@ class SandHandle:
         if touch.size == 0:
             if not work.clean:                        # nothing touches the sand: zero diagnostics, once
                 _clear(diag)
+                work.warm_rounds[:] = 0
+                work.warm[:] = 0.0
                 work.clean = True
             return False
         work.clean = False
         k = touch.size
-        bids = self.body_ids[touch]
         v_com, omega = work.v_com[:k], work.omega[:k]
         dt = self._opt.timestep
+        if self.stabilize and self._fast is not None and self.compiled_limiter:
+            # 2-5 compiled in one call: free motion, RFT octant wrenches, impulse limiter, diagnostics and
+            # the wrenches into sand_out (fastlimit.stabilized).
+            status = self._stabilized_fast(data, user_xfrc, work, touch, dt, g_hat, sand_out)
+            max_depth = work.max_depth[:k]
+        else:
+            status, max_depth = self._evaluate_steps(data, user_xfrc, work, touch, dt, g_hat, sand_out)
+        if status < 0:
+            bad = [self.body_names[i] for i in touch
+                   if not (np.all(np.isfinite(diag.force[i])) and np.all(np.isfinite(diag.torque[i])))]
+            raise FloatingPointError(f"non-finite sand wrench on bodies {bad}; nothing was written to "
+                                     "xfrc_applied. Check the model's inputs (ctrl, qfrc_applied, "
+                                     "xfrc_applied, masses) for NaN/inf")
+        if self.monitor is not None and self.evaluations % self.monitor.every == 0:
+            self.monitor.check(self, data, touch, v_com, omega, max_depth)
+        return bool(status)
+
+    def _evaluate_steps(self, data, user_xfrc, work, touch, dt, g_hat, sand_out):
+        """Steps 2-5 of :meth:`_evaluate` with the numpy limiter (around the numpy or the compiled kernels).
+        Returns (status of :func:`fastkernel.finish`, max depths (k,))."""
+        k = touch.size
+        diag = work.diag
+        v_com, omega = work.v_com[:k], work.omega[:k]
         acc = None
+        limited = None
         if self.stabilize:
-            jac, qvel_pred, qacc_free = self._free_motion(data, bids, user_xfrc, dt)
+            jac, qvel_pred, qacc_free = self._free_motion(data, self.body_ids[touch], user_xfrc, dt)
             acc = jac @ qacc_free                      # (k, 6): [linear at COM, angular]
         # 2. RFT octant wrenches (k, 8, 6) of the touching bodies.
         groups, count, max_depth, loaded = self._wrenches(work, touch, v_com, omega, acc, dt, g_hat,
                                                           work.groups, work.count, work.max_depth)
         # 3. Impulse limiter (stabilize) and diagnostics.
-        limited = None
         if loaded and self.stabilize:
             def column(v_lin, v_ang):
                 # RFT octant wrenches (k, 8, 6) for the element motions of body twists (no blend).
@@ -376,15 +427,7 @@ class SandHandle:
         else:
             status = self._finish_numpy(diag, groups, count, max_depth, v_com, omega, limited, touch,
                                         sand_out)
-        if status < 0:
-            bad = [self.body_names[i] for i in touch
-                   if not (np.all(np.isfinite(diag.force[i])) and np.all(np.isfinite(diag.torque[i])))]
-            raise FloatingPointError(f"non-finite sand wrench on bodies {bad}; nothing was written to "
-                                     "xfrc_applied. Check the model's inputs (ctrl, qfrc_applied, "
-                                     "xfrc_applied, masses) for NaN/inf")
-        if self.monitor is not None and self.evaluations % self.monitor.every == 0:
-            self.monitor.check(self, data, touch, v_com, omega, max_depth)
-        return bool(status)
+        return status, max_depth
 
     def _gravity(self) -> np.ndarray:
         """Unit gravity direction (3,), recomputed only when ``model.opt.gravity`` changed."""
@@ -395,6 +438,38 @@ class SandHandle:
             self._gravity_vec = np.array(g)
             self._gravity_seen = g
         return self._g_hat
+
+    def _stabilized_fast(self, data, user_xfrc, work, touch, dt, g_hat, sand_out) -> int:
+        """Steps 2-5 of the stabilized evaluation in one compiled call (:func:`fastlimit.stabilized`): the
+        same as :meth:`_evaluate_steps` with :meth:`_free_motion`, :meth:`_wrenches`, :meth:`_limit` and
+        :func:`fastkernel.finish`, the limiter warm-started from the previous evaluation
+        (``self.warm_start``). Returns the status of :func:`fastkernel.finish`."""
+        m = self.model
+        # The warm start carries over only while time runs on by at most one step (RK4 stages included):
+        # a reset or a jump back in time starts cold, so rollouts from a reset are reproducible.
+        t = data.time
+        if not 0.0 <= t - work.last_time <= dt * (1.0 + 1e-9):
+            work.warm_rounds[:] = 0
+            work.warm[:] = 0.0
+        work.last_time = t
+        mujoco.mj_fwdActuation(m, data)
+        if m.nv:
+            mujoco.mj_solveM(m, data, work.minv, work.eye)
+        arrays, kind, tp, heights = self._fast
+        media, guards, diag = self._media, self.guards, work.diag
+        status = fastlimit.stabilized(
+            touch, touch.size, self.body_ids, user_xfrc, data.xipos, data.cdof, data.subtree_com, data.qvel,
+            data.qfrc_passive, data.qfrc_bias, data.qfrc_actuator, data.qfrc_applied, work.minv, *self._tree,
+            dt, self._bound_radius, work.warm, work.warm_rounds, self.warm_start, self._solver, *arrays,
+            work.body_pos, work.body_mat, work.body_com, work.v_com, work.omega, g_hat, self._max_height, kind, tp,
+            heights, media.xi_n_at(self._g_mag), law.COEFFICIENTS, media.mu_surf, guards.no_tension,
+            guards.no_forward_tangential, guards.no_positive_power, self._tol, work.scratch, work.groups,
+            work.count, work.max_depth, work.col_v, work.col_w, work.col_groups, work.col_count,
+            work.col_max_depth, work.jac, work.qacc, work.limited, diag.force, diag.torque, diag.submerged,
+            diag.max_depth, diag.scale, diag.rft_force, sand_out)
+        if status == fastlimit.BAD_ACCELERATION:
+            self._free_motion(data, self.body_ids[touch], user_xfrc, dt)   # raises, naming the bodies
+        return status
 
     def _touching_numpy(self, data, g_hat, work) -> np.ndarray:
         """Numpy broadphase and depth pre-pass: indices (k,) into ``body_ids`` of the bodies with a
@@ -603,7 +678,7 @@ class SandHandle:
 def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
            surface_height: float | Terrain = 0.0, resolution: str | float = "default", *,
            guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True,
-           monitor: bool | ValidityMonitor = True, backend: str = "auto") -> SandHandle:
+           monitor: bool | ValidityMonitor = True, backend: str = "auto", warm_start: bool = True) -> SandHandle:
     """Attach 3D-RFT sand to ``model``: from now on ``mujoco.mj_step(model, data)`` includes it.
 
     Args:
@@ -627,6 +702,12 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             once per machine and cached), "numpy" (:mod:`rft_mujoco.kernel`, the readable reference), or
             "auto" (default: numba when it imports and supports the terrain, else numpy). Both give the
             same forces to round-off.
+        warm_start: with stabilize=True and the numba backend, start the impulse limiter's solver from
+            its factors of the previous step (2x faster on a standing quadruped, as accurate:
+            :mod:`rft_mujoco.fastlimit`). Like MuJoCo's own solver warm start, the result then depends on
+            the previous step as well as on the state; it is cleared whenever time does not advance by at
+            most one step (resets), so rollouts from a reset are reproducible. False: every step is a
+            function of the state alone.
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """
@@ -650,6 +731,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         raise ValueError("no bodies to attach sand to: the model has no body with surface geoms")
     gravity_direction(model.opt.gravity)  # raises on zero gravity
     handle = SandHandle(model, media, ids, terrain, size, guards, stabilize, passive, monitor, backend)
+    handle.warm_start = bool(warm_start)
     DISPATCHER.register(handle)
     handle.attached = True
     return handle

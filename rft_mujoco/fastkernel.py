@@ -24,8 +24,9 @@ scalar pass adds the loaded elements into the cluster's octant group. All three 
 Terrains: :class:`~rft_mujoco.terrain.FlatSurface`, :class:`~rft_mujoco.terrain.HeightfieldSurface` and
 :class:`~rft_mujoco.terrain.SandRegion` are compiled (:func:`terrain_spec`); anything else makes the
 coupling fall back to numpy. The impulse limiter's solver (:func:`rft_mujoco.kernel.limit_impulses`) is
-compiled by the kernel module itself (the same loops as its Python reference); :func:`ensure_compiled`
-compiles it with the rest.
+compiled by the kernel module itself (the same loops as its Python reference), and the stabilized
+evaluation around these kernels lives in :mod:`rft_mujoco.fastlimit`; :func:`ensure_compiled` compiles
+both with the rest.
 
 Compilation: every function is ``@njit(cache=True, fastmath=False)``. The first use on a machine compiles
 (:data:`COMPILE_SECONDS`) and saves the machine code next to this file (or in ``NUMBA_CACHE_DIR``); later
@@ -62,8 +63,8 @@ PAD = 16
 twice) never run a scalar remainder."""
 CHUNK = 256
 """Elements per chunk of :func:`element_forces`."""
-COMPILE_SECONDS = 20
-"""Rough first-use compile time in s on a 2-core machine (measured ~10 s, rounded up), for the notice."""
+COMPILE_SECONDS = 45
+"""Rough first-use compile time in s on a 2-core machine (measured 38 s, rounded up), for the notice."""
 
 # Terrain kinds of :func:`terrain_spec` (the compiled depth switches on them).
 FLAT = 0
@@ -890,6 +891,9 @@ def _warm_up() -> None:
                  vcom, om)
         wrenches(touch, 0, *packed.arrays(), pos, mat, com, vcom, om, np.zeros((0, 6)), 0.0, g, 0.0, kind, tp,
                  heights, 1.0, coef, 0.4, False, False, False, tol, scratch, groups, count, mdep)
+        from . import fastlimit   # the stabilized evaluation around these kernels
+
+        fastlimit._warm_up(packed, kind, tp, heights, coef, tol)
     finish(groups, count, mdep, vcom, om, np.zeros((0, 6)), False, touch, 0, ids, np.zeros((B, 3)),
            np.zeros((B, 3)), np.zeros(B, dtype=i8), np.zeros(B), np.ones(B), np.zeros((B, 3)), np.zeros((2, 6)))
     x6 = np.zeros((2, 6))

@@ -125,6 +125,10 @@ adds no column for it."""
 
 LIMITER_ITERATIONS = 100
 """Most sweeps of the projected Gauss-Seidel solver in :func:`limit_impulses`."""
+LIMITER_WARM_ITERATIONS = 30
+"""Most sweeps of a solve the compiled coupling starts from the previous evaluation's factors
+(:mod:`rft_mujoco.fastlimit`): measured on the quadruped settling on sand, 30 warm sweeps leave the same
+fraction of the removable kinetic energy unremoved as 100 cold ones (median 4e-6 vs 6e-6)."""
 LIMITER_TOL = 1e-10
 """The solver stops when no scale factor changed by more than this in a sweep ..."""
 LIMITER_ENERGY_TOL = 1e-12
@@ -179,17 +183,21 @@ def _factor_loops(G, h, rel_tol):
     return A, c
 
 
-def _subspace_step_loops(A, G, group, free, lam, gsum, y, n_groups):
+def _subspace_step_loops(A, group, free, lam, gsum, y, n_groups):
     """One subspace-minimization step of :func:`_pgs`: minimize exactly over the variables that are
     strictly positive (with the sum of each saturated group held at 1), then take the better of that step
     cut at the first constraint and that step projected onto the constraints, if it lowers the objective.
+    The objective's Hessian is ``G = A^T A``; only its (n, n) block over those variables is formed.
     Updates ``lam``, ``gsum``, ``y``; returns the objective change (<= 0)."""
     k = lam.shape[0]
     r = y.shape[0]
     idx = np.zeros(k, dtype=np.int64)
     n = 0
     for a in range(k):
-        if free[a] and lam[a] > 0.0 and G[a, a] > 1e-300:
+        norm = 0.0
+        for j in range(r):
+            norm += A[j, a] * A[j, a]
+        if free[a] and lam[a] > 0.0 and norm > 1e-300:
             idx[n] = a
             n += 1
     if n == 0 or n > SUBSPACE_MAX:
@@ -198,6 +206,14 @@ def _subspace_step_loops(A, G, group, free, lam, gsum, y, n_groups):
     for i in range(n):
         for j in range(r):
             grad[i] += A[j, idx[i]] * y[j]
+    G = np.zeros((n, n))                                # G[i, j] = A[:, idx[i]] . A[:, idx[j]]
+    for i in range(n):
+        for j in range(i + 1):
+            v = 0.0
+            for q in range(r):
+                v += A[q, idx[i]] * A[q, idx[j]]
+            G[i, j] = v
+            G[j, i] = v
     row = np.full(n_groups, -1, dtype=np.int64)      # equality row of each saturated group
     m = 0
     for i in range(n):
@@ -210,7 +226,7 @@ def _subspace_step_loops(A, G, group, free, lam, gsum, y, n_groups):
     for i in range(n):
         a = idx[i]
         for j in range(n):
-            K[i, j] = G[a, idx[j]]
+            K[i, j] = G[i, j]
         rhs[i] = -grad[i]                               # the step d: G_FF d + E^T mu = -grad_F, E d = 0
         q = row[group[a]]
         if q >= 0:
@@ -222,7 +238,7 @@ def _subspace_step_loops(A, G, group, free, lam, gsum, y, n_groups):
     for i in range(n):
         slope += grad[i] * d[i]
         for j in range(n):
-            curv += d[i] * G[idx[i], idx[j]] * d[j]
+            curv += d[i] * G[i, j] * d[j]
     if not slope < 0.0:
         return 0.0
     t_free = 1.0 if curv <= 0.0 else min(1.0, -slope / curv)
@@ -283,7 +299,7 @@ def _subspace_step_loops(A, G, group, free, lam, gsum, y, n_groups):
         di = new[i] - lam[idx[i]]
         change += grad[i] * di
         for j in range(n):
-            quad += di * G[idx[i], idx[j]] * (new[j] - lam[idx[j]])
+            quad += di * G[i, j] * (new[j] - lam[idx[j]])
     change += 0.5 * quad
     if change < best_change:
         best_change = change
@@ -301,7 +317,7 @@ def _subspace_step_loops(A, G, group, free, lam, gsum, y, n_groups):
     return best_change
 
 
-def _pgs(A, c, G, group, free, lam, n_groups, iterations, tol, energy_tol):
+def _pgs(A, c, group, free, lam, n_groups, iterations, tol, energy_tol):
     """Projected Gauss-Seidel on ``f = 0.5 |A l + c|^2`` (= the objective + const) over ``l >= 0``,
     ``sum of l over a group <= 1``.
 
@@ -330,19 +346,22 @@ def _pgs(A, c, G, group, free, lam, n_groups, iterations, tol, energy_tol):
         first[group[a] + 1] += 1
     for g in range(n_groups):
         first[g + 1] += first[g]
+    norm2 = np.zeros(k)                                 # |A[:, a]|^2 = G[a, a]
+    for a in range(k):
+        for j in range(r):
+            norm2[a] += A[j, a] * A[j, a]
     sweeps = 0
     for _ in range(iterations):
         sweeps += 1
         change = 0.0
         decrease = 0.0
         for a in range(k):
-            d = 0.0
-            g_a = 0.0
-            for j in range(r):
-                d += A[j, a] * A[j, a]
-                g_a += A[j, a] * y[j]
+            d = norm2[a]
             if d <= 1e-300 or not free[a]:
                 continue
+            g_a = 0.0
+            for j in range(r):
+                g_a += A[j, a] * y[j]
             g = group[a]
             new = min(1.0 - (gsum[g] - lam[a]), max(0.0, lam[a] - g_a / d))
             delta = new - lam[a]
@@ -384,7 +403,7 @@ def _pgs(A, c, G, group, free, lam, n_groups, iterations, tol, energy_tol):
         if change < tol or decrease <= energy_tol * scale:
             break
         if sweeps % SUBSPACE_EVERY == 0:
-            _subspace_step(A, G, group, free, lam, gsum, y, n_groups)
+            _subspace_step(A, group, free, lam, gsum, y, n_groups)
     return sweeps
 
 
@@ -451,7 +470,7 @@ def limit_impulses(G: np.ndarray, h: np.ndarray, group: np.ndarray | None = None
                          f"{free.shape}")
     factor, solve = _compiled() if compiled else (_factor_loops, _pgs)
     A, c = factor(G, h, FACTOR_TOL)
-    solve(A, c, G, group, free, lam, int(group.max()) + 1,
+    solve(A, c, group, free, lam, int(group.max()) + 1,
           int(LIMITER_ITERATIONS if iterations is None else iterations),
           float(LIMITER_TOL if tol is None else tol), float(LIMITER_ENERGY_TOL if energy_tol is None else energy_tol))
     if not ensure_passive:

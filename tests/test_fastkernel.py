@@ -200,14 +200,17 @@ def trajectory(integrator, terrain, stabilize, guards, steps=40, seed=0):
     return model, states
 
 
-def evaluate_states(model, states, backend, terrain, stabilize, guards):
-    """xfrc_applied (user wrench on the ball + sand) and diagnostics after mj_forward at every state."""
+def evaluate_states(model, states, backend, terrain, stabilize, guards, compiled_limiter=False):
+    """xfrc_applied (user wrench on the ball + sand) and diagnostics after mj_forward at every state
+    (``compiled_limiter=False``: the numpy limiter around the compiled kernels, so that SandHandle._limit can
+    be replaced; tests/test_fastlimit.py compares the compiled limiter with it)."""
     data = mujoco.MjData(model)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     xfrc, diags = [], []
     with rft_mujoco.attach(model, MEDIA, None, terrain, 0.01, guards=guards, stabilize=stabilize,
                            monitor=False, backend=backend) as handle:
         assert handle.backend == backend
+        handle.compiled_limiter = compiled_limiter
         for i, state in enumerate(states):
             mujoco.mj_setState(model, data, state, spec)
             data.xfrc_applied[:] = 0.0
