@@ -11,9 +11,12 @@ numbers from one run, not across machines. Sections:
    all submerged (depth 1..30 cm), random velocities, 8 bodies; about half are leading.
 2. **Coupling overhead** against a bare ``mj_step`` of the same model: the quadruped of
    ``models/quadruped.xml`` standing on sand (settled for 0.5 s from its ``home`` keyframe, the floor
-   replaced by the sand, every body attached), at two resolutions; the state is restored before every
-   timed step (the restore is timed alone and subtracted). Ant-v5 (gymnasium) env steps per second with
-   and without sand (random actions, resets on termination).
+   replaced by the sand, every body attached), at three resolutions, stabilized with the warm-started
+   compiled limiter (the default), with the cold-started one (``warm_start=False``), without stabilization,
+   and (full run) with the numpy backend; each timing is the median over runs of :data:`STEPS_PER_RUN`
+   consecutive steps from the settled state (the bare model, without its floor, falls meanwhile: its step
+   cost does not depend on that). Ant-v5 (gymnasium) env steps per second with and without sand
+   (random actions, resets on termination), and the shipped ``rft_mujoco/SandAnt-v0``.
 3. **Bodies above the sand**: N free spheres 1 m above the surface, all attached; the control callback
    MuJoCo calls once per evaluation is timed on its own at N = 1 and N = 1000 bodies (per body: the
    slope), next to the mj_step times with and without sand (Euler: one evaluation per step).
@@ -175,6 +178,10 @@ def throughput(sizes) -> list[dict]:
 
 
 # --- 2. coupling overhead -------------------------------------------------------------------------
+STEPS_PER_RUN = 200
+"""Consecutive steps per timed run of the quadruped (0.4 s of standing at its 2 ms step)."""
+
+
 def _quadruped():
     path = Path(__file__).resolve().parent.parent / "models" / "quadruped.xml"
     if not path.exists():
@@ -196,16 +203,18 @@ def _settled_state(model, data, seconds: float = 0.5) -> np.ndarray:
     return state
 
 
-def _step_time(model, data, state, repeats=7) -> float:
+def _step_time(model, data, state, repeats=7, steps=STEPS_PER_RUN) -> float:
+    """s per mj_step: median over ``repeats`` runs of ``steps`` consecutive steps from ``state`` (a real
+    trajectory, so that the limiter's warm start carries over as in use; the restore is not timed)."""
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-
-    def restore():
+    samples = []
+    for _ in range(repeats):
         mujoco.mj_setState(model, data, state, spec)
-
-    def step():
-        mujoco.mj_setState(model, data, state, spec)
-        mujoco.mj_step(model, data)
-    return _median_time(step, repeats) - _median_time(restore, repeats)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            mujoco.mj_step(model, data)
+        samples.append((time.perf_counter() - t0) / steps)
+    return float(np.median(samples))
 
 
 def _candidates(handle, data) -> tuple[int, int, int]:
@@ -221,15 +230,16 @@ def _candidates(handle, data) -> tuple[int, int, int]:
 
 
 def quadruped_overhead(resolutions, backends, quick: bool) -> list[dict]:
+    """``backends``: (backend, stabilize, warm_start) triples."""
     rows = []
     for res in resolutions:
-        for backend, stabilize in backends:
+        for backend, stabilize, warm in backends:
             model = _quadruped()
             data = mujoco.MjData(model)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 handle = attach(model, LI_LOOSE_GLASS_BEADS, None, 0.0, res, stabilize=stabilize,
-                                backend=backend, monitor=False)
+                                backend=backend, monitor=False, warm_start=warm)
                 handle.replace_rigid(["floor"])
                 state = _settled_state(model, data)
                 mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
@@ -241,7 +251,8 @@ def quadruped_overhead(resolutions, backends, quick: bool) -> list[dict]:
             model.geom_contype[0] = model.geom_conaffinity[0] = 0   # bare: the same model, no floor
             t_bare = _step_time(model, data, state, reps)
             rows.append(dict(resolution=res, element_size=surface.element_size(res), backend=backend,
-                             stabilize=stabilize, elements=handle.n_elements, cand_bodies=n_cand_b,
+                             stabilize=stabilize, warm_start=warm and stabilize and backend == "numba",
+                             elements=handle.n_elements, cand_bodies=n_cand_b,
                              cand_elements=n_cand_e, touch_elements=n_touch_e, bare_us=t_bare * 1e6,
                              sand_us=t_sand * 1e6, ratio=t_sand / t_bare))
     return rows
@@ -279,7 +290,19 @@ def ant_overhead(steps: int) -> dict | None:
         n_el = handle.n_elements
         handle.detach()
         env.close()
-    return dict(bare_sps=bare, sand_sps=sand, fraction=sand / bare, elements=n_el, touched_bodies=touched)
+        sand_env = None
+        try:
+            from . import envs  # noqa: F401  (registers the sand ids)
+            env = gym.make("rft_mujoco/SandAnt-v0")
+            sand_env = run(env)
+            env_elements = env.unwrapped.sand.handle.n_elements
+            env_size = env.unwrapped.sand.handle.element_size
+            env.close()
+        except ImportError:
+            env_elements = env_size = None
+    return dict(bare_sps=bare, sand_sps=sand, fraction=sand / bare, elements=n_el, touched_bodies=touched,
+                env_sps=sand_env, env_fraction=None if sand_env is None else sand_env / bare,
+                env_elements=env_elements, env_element_size=env_size)
 
 
 def above_sand(counts=(1, 1000)) -> dict:
@@ -435,8 +458,9 @@ def _plots(out: Path, thr, quad, acc) -> list[Path]:
     plt.close(fig)
 
     if quad:
-        fig, ax = plt.subplots(figsize=(7, 4.5))
-        labels = [f"{r['resolution']}\n{r['backend']}{'' if r['stabilize'] else ', no stab.'}" for r in quad]
+        fig, ax = plt.subplots(figsize=(12, 4.5))
+        labels = [f"{r['resolution']}\n{r['backend']}"
+                  f"{', no stab.' if not r['stabilize'] else ', warm' if r['warm_start'] else ', cold'}" for r in quad]
         x = np.arange(len(quad))
         ax.bar(x - 0.2, [r["bare_us"] for r in quad], 0.4, label="bare mj_step")
         ax.bar(x + 0.2, [r["sand_us"] for r in quad], 0.4, label="mj_step with sand")
@@ -501,12 +525,13 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots: bool = True) 
                    f"{r['kernel_numba']:.1f}", f"{r['kernel_numpy'] / r['kernel_numba']:.1f}x"] for r in thr]))
 
     print("\n2a. Quadruped (models/quadruped.xml) standing on sand, every body attached: us per mj_step")
-    backends = [("numba", True), ("numba", False)] + ([] if quick else [("numpy", True)])
-    quad = quadruped_overhead(["default", "fine"], backends, quick)
-    print(_table(["resolution", "backend", "stabilize", "elements", "cand. bodies", "cand. elements",
-                  "touching el.", "bare us", "sand us", "ratio"],
+    backends = [("numba", True, True), ("numba", True, False), ("numba", False, True)] + (
+        [] if quick else [("numpy", True, False)])
+    quad = quadruped_overhead(["coarse", "default", "fine"], backends, quick)
+    print(_table(["resolution", "backend", "stabilize", "warm start", "elements", "cand. bodies",
+                  "cand. elements", "touching el.", "bare us", "sand us", "ratio"],
                  [[f"{r['resolution']} ({r['element_size'] * 1000:g} mm)", r["backend"], r["stabilize"],
-                   r["elements"], r["cand_bodies"], r["cand_elements"], r["touch_elements"],
+                   r["warm_start"], r["elements"], r["cand_bodies"], r["cand_elements"], r["touch_elements"],
                    f"{r['bare_us']:.1f}", f"{r['sand_us']:.1f}", f"{r['ratio']:.2f}x"] for r in quad]))
 
     print("\n2b. Ant-v5 (gymnasium, frame_skip 5, RK4: 20 sand evaluations per env step), env steps/s")
@@ -514,9 +539,13 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots: bool = True) 
     if ant is None:
         print("gymnasium not installed: skipped")
     else:
-        print(_table(["bare", "on sand (default, numba)", "fraction", "elements"],
-                     [[f"{ant['bare_sps']:.0f}", f"{ant['sand_sps']:.0f}", f"{ant['fraction']:.2f}",
-                       ant["elements"]]]))
+        rows = [["Ant-v5 + attach(resolution='default')", f"{ant['bare_sps']:.0f}", f"{ant['sand_sps']:.0f}",
+                 f"{ant['fraction']:.2f}", ant["elements"]]]
+        if ant["env_sps"] is not None:
+            rows.append([f"rft_mujoco/SandAnt-v0 ({ant['env_element_size'] * 1000:g} mm elements)",
+                         f"{ant['bare_sps']:.0f}", f"{ant['env_sps']:.0f}", f"{ant['env_fraction']:.2f}",
+                         ant["env_elements"]])
+        print(_table(["sand", "Ant-v5", "on sand", "fraction", "elements"], rows))
 
     print("\n3. Bodies above the sand (free spheres r 5 cm, 1 m up; Euler: 1 evaluation per step)")
     above = above_sand()
