@@ -99,7 +99,7 @@ class _Workspace:
 
     __slots__ = ("diag", "clean", "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "groups",
                  "count", "max_depth", "col_groups", "col_count", "col_max_depth", "scratch", "col_v", "col_w",
-                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "last_time")
+                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "last_time", "args")
 
     def __init__(self, n_bodies: int, compiled: bool, nv: int = 0, rest_columns: int = kernel.REST_COLUMNS) -> None:
         b = n_bodies
@@ -127,6 +127,7 @@ class _Workspace:
         self.warm = np.zeros((b, kernel.GROUPS_PER_BODY, r, r))
         self.warm_rounds = np.zeros(b, dtype=np.int64)
         self.last_time = -math.inf
+        self.args = None            # the compiled calls' fixed arguments (SandHandle._fixed_args)
 
 
 def _body_id(model, name) -> int:
@@ -445,6 +446,7 @@ class SandHandle:
         :func:`fastkernel.finish`, the limiter warm-started from the previous evaluation
         (``self.warm_start``). Returns the status of :func:`fastkernel.finish`."""
         m = self.model
+        a = work.args or self._fixed_args(data, work)
         # The warm start carries over only while time runs on by at most one step (RK4 stages included):
         # a reset or a jump back in time starts cold, so rollouts from a reset are reproducible.
         t = data.time
@@ -455,18 +457,12 @@ class SandHandle:
         mujoco.mj_fwdActuation(m, data)
         if m.nv:
             mujoco.mj_solveM(m, data, work.minv, work.eye)
-        arrays, kind, tp, heights = self._fast
-        media, guards, diag = self._media, self.guards, work.diag
+        _, kind, tp, heights = self._fast
+        media, guards = self._media, self.guards
         status = fastlimit.stabilized(
-            touch, touch.size, self.body_ids, user_xfrc, data.xipos, data.cdof, data.subtree_com, data.qvel,
-            data.qfrc_passive, data.qfrc_bias, data.qfrc_actuator, data.qfrc_applied, work.minv, *self._tree,
-            dt, self._bound_radius, work.warm, work.warm_rounds, self.warm_start, self._solver, *arrays,
-            work.body_pos, work.body_mat, work.body_com, work.v_com, work.omega, g_hat, self._max_height, kind, tp,
-            heights, media.xi_n_at(self._g_mag), law.COEFFICIENTS, media.mu_surf, guards.no_tension,
-            guards.no_forward_tangential, guards.no_positive_power, self._tol, work.scratch, work.groups,
-            work.count, work.max_depth, work.col_v, work.col_w, work.col_groups, work.col_count,
-            work.col_max_depth, work.jac, work.qacc, work.limited, diag.force, diag.torque, diag.submerged,
-            diag.max_depth, diag.scale, diag.rft_force, sand_out)
+            touch, touch.size, self.body_ids, user_xfrc, *a[2], dt, *a[3], self.warm_start, *a[4], g_hat,
+            self._max_height, kind, tp, heights, media.xi_n_at(self._g_mag), law.COEFFICIENTS, media.mu_surf,
+            guards.no_tension, guards.no_forward_tangential, guards.no_positive_power, self._tol, *a[5], sand_out)
         if status == fastlimit.BAD_ACCELERATION:
             self._free_motion(data, self.body_ids[touch], user_xfrc, dt)   # raises, naming the bodies
         return status
@@ -503,21 +499,36 @@ class SandHandle:
             self._root[touch]])
         return touch
 
+    def _fixed_args(self, data, work) -> tuple:
+        """The arguments of the compiled calls that are the same at every evaluation of ``data`` (MjData's
+        and the workspace's buffers, the packed elements), built once per workspace: (touching before
+        g_hat, touching after heights, stabilized after user_xfrc, after dt, after warm_start, after tol)."""
+        arrays = self._fast[0]
+        packed, diag = self._packed, work.diag
+        work.args = (
+            (self.body_ids, self._root64, data.xpos, data.xmat, data.xipos, data.cvel, data.subtree_com,
+             data.qpos, data.qvel, self._bound_center, self._bound_radius, packed.centroids,
+             packed.cluster_start, packed.cluster_center, packed.cluster_radius, packed.body_clusters),
+            (work.touch, work.body_pos, work.body_mat, work.body_com, work.v_com, work.omega),
+            (data.xipos, data.cdof, data.subtree_com, data.qvel, data.qfrc_passive, data.qfrc_bias,
+             data.qfrc_actuator, data.qfrc_applied, work.minv, *self._tree),
+            (self._bound_radius, work.warm, work.warm_rounds),
+            (self._solver, *arrays, work.body_pos, work.body_mat, work.body_com, work.v_com, work.omega),
+            (work.scratch, work.groups, work.count, work.max_depth, work.col_v, work.col_w, work.col_groups,
+             work.col_count, work.col_max_depth, work.jac, work.qacc, work.limited, diag.force, diag.torque,
+             diag.submerged, diag.max_depth, diag.scale, diag.rft_force))
+        return work.args
+
     def _touching_fast(self, data, g_hat, work) -> np.ndarray:
         """Compiled :meth:`_touching_numpy` (same result) straight from the MjData arrays."""
         _, kind, tp, heights = self._fast
-        packed = self._packed
         if self._gravity_seen is not self._fast_checked:
             self._fast_checked = self._gravity_seen
             self._fast_gravity_ok = (kind == fastkernel.FLAT and tp[6] == 0.0) or g_hat[2] <= -1.0 + 1e-9
         if not self._fast_gravity_ok:                 # tilted gravity on a heightfield: numpy explains
             return self._touching_numpy(data, g_hat, work)
-        k = fastkernel.touching(self.body_ids, self._root64, data.xpos, data.xmat, data.xipos, data.cvel,
-                                data.subtree_com, data.qpos, data.qvel, self._bound_center,
-                                self._bound_radius, packed.centroids, packed.cluster_start,
-                                packed.cluster_center, packed.cluster_radius, packed.body_clusters, g_hat,
-                                self._max_height, kind, tp, heights, work.touch, work.body_pos,
-                                work.body_mat, work.body_com, work.v_com, work.omega)
+        a = work.args or self._fixed_args(data, work)
+        k = fastkernel.touching(*a[0], g_hat, self._max_height, kind, tp, heights, *a[1])
         if k < 0:
             return self._touching_numpy(data, g_hat, work)  # raises the non-finite state error
         return work.touch[:k]
