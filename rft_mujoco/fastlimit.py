@@ -14,22 +14,21 @@ computes the same quantities without Python in the loop (tests/test_fastlimit.py
   steps in the same order as ``SandHandle._limit``, solved by the same compiled projected Gauss-Seidel
   loops (:func:`rft_mujoco.kernel.limit_impulses`).
 
-Warm start. The limiter's QP is degenerate (many octant wrenches, a generalized impulse of rank <= nv),
-and projected Gauss-Seidel converges slowly along its flat directions: started from the published force
-every step, a standing quadruped takes the full :data:`rft_mujoco.kernel.LIMITER_ITERATIONS` (100) sweeps
-in every solve. The optimum changes little from one step to the next, so :func:`stabilized` starts each
-solve from the factors of the same (body, octant, round, column) at the end of the previous evaluation of
-the same MjData when ``attach(warm_start=True)`` (the caller's ``warm`` buffer; a body that was not
-limited then starts from the published force, as in the reference) and stops after
-:data:`rft_mujoco.kernel.LIMITER_WARM_ITERATIONS` (30)
-sweeps (energy tolerance :data:`rft_mujoco.kernel.LIMITER_WARM_ENERGY_TOL`). Measured on the quadruped
-settling on sand (tests/test_fastlimit.py checks the same on a small scene): the kinetic energy left after
-the step exceeds that of a 3000-sweep solve by a median 4e-6 of the energy the sand removes, against 6e-6
-for 100 cold sweeps, at half the cost. The price is in the tail: over the 429 cases of
-``python -m rft_mujoco stability`` no failure, but resting bodies kept up to 2.8e-4 m/s of jitter (8 cases
-above 1e-5) where the cold solves leave 1e-6, which is why it is not the default. The coupling clears the buffer
-whenever time does not run on by at most one step (a reset, ``mj_setState`` back in time), so rollouts from
-a reset repeat bit for bit. By default every solve starts as the reference does.
+Warm start (``attach(warm_start=True)``; off by default). The limiter's QP is degenerate (many octant
+wrenches, a generalized impulse of rank <= nv), and projected Gauss-Seidel converges slowly along its flat
+directions: started from the published force every step, a standing quadruped takes the full
+:data:`rft_mujoco.kernel.LIMITER_ITERATIONS` (100) sweeps in every solve. The optimum changes little from
+one step to the next, so with the warm start :func:`stabilized` starts each solve from the factors of the
+same (body, octant, round, column) at the end of the previous evaluation of the same MjData (the caller's
+``warm`` buffer; a body that was not limited then starts from the published force, as in the reference)
+and stops after :data:`rft_mujoco.kernel.LIMITER_WARM_ITERATIONS` (30) sweeps. Measured on the quadruped
+settling on sand (tests/test_fastlimit.py checks the same on a small scene): the kinetic energy left
+after the step exceeds that of a 3000-sweep solve by a median 4e-6 of the energy the sand removes,
+against 6e-6 for 100 cold sweeps, at half the cost. The price is in the tail: over the 429 cases of
+``python -m rft_mujoco stability`` no failure, but resting bodies kept up to 2.8e-4 m/s of jitter (8
+cases above 1e-5 m/s) where the cold solves leave 1e-6, which is why it is not the default. The coupling
+clears the buffer whenever time does not run on by at most one step (a reset, ``mj_setState`` back in
+time), so rollouts from a reset repeat bit for bit.
 
 The inverse mass matrix is passed in dense (``mj_solveM`` of the identity, one MuJoCo call per evaluation);
 everything else reads MjData's arrays.
