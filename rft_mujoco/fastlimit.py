@@ -147,6 +147,31 @@ def _factor(q, m, dt, chol):
 
 
 @njit(**_JIT)
+def _cholesky(M):
+    """Lower-triangular C with ``C C^T = M`` for the symmetric positive (semi-)definite ``M`` (nv, nv);
+    pivots below 1e-14 of the largest diagonal entry are clamped to it, so that a numerically singular
+    ``M^-1`` (extreme mass ratios) still gives a usable factor instead of an exception."""
+    n = M.shape[0]
+    C = np.zeros((n, n))
+    top = 0.0
+    for i in range(n):
+        top = max(top, M[i, i])
+    floor = 1e-14 * top if top > 0.0 else 1e-300
+    for j in range(n):
+        s = M[j, j]
+        for q in range(j):
+            s -= C[j, q] * C[j, q]
+        d = math.sqrt(s if s > floor else floor)
+        C[j, j] = d
+        for i in range(j + 1, n):
+            v = 0.5 * (M[i, j] + M[j, i])
+            for q in range(j):
+                v -= C[i, q] * C[j, q]
+            C[i, j] = v / d
+    return C
+
+
+@njit(**_JIT)
 def _forward(chol, x):
     """``C^-1 x`` for lower-triangular C (forward substitution)."""
     n = x.shape[0]
@@ -251,7 +276,7 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
     mq = np.empty((cap, nv))
     m = _append_columns(groups, k, jac, 0, group, rnd, wrench, q, 0)
     _solve_mass(q, minv, 0, m, mq)
-    chol = np.linalg.cholesky(minv)
+    chol = _cholesky(minv)
     cvec = _forward(chol, qvel_pred)
     A = _factor(q, m, dt, chol)
     # Low-speed regime per body: predicted speed below the speed change of the full impulse of all columns.

@@ -221,3 +221,14 @@ def test_solver_settings_follow_the_kernel_module(monkeypatch):
     monkeypatch.setattr(kernel, "LIMITER_WARM_ENERGY_TOL", 1e-6)
     s = fastlimit.solver_settings()
     assert s[6] == 7 and s[4] == 2 and s[7] == 1e-6 and s[0] == kernel.LIMITER_ITERATIONS
+
+
+def test_cholesky_factor_matches_numpy_and_survives_singular_input():
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(7, 7))
+    M = a @ a.T + 0.1 * np.eye(7)
+    np.testing.assert_allclose(fastlimit._cholesky(M), np.linalg.cholesky(M), rtol=1e-12, atol=1e-12)
+    singular = np.outer(a[0], a[0])                       # rank 1: LAPACK would raise
+    C = fastlimit._cholesky(singular)
+    assert np.all(np.isfinite(C))
+    np.testing.assert_allclose(C @ C.T, singular, atol=1e-6 * np.abs(singular).max())
