@@ -11,9 +11,9 @@ numbers from one run, not across machines. Sections:
    all submerged (depth 1..30 cm), random velocities, 8 bodies; about half are leading.
 2. **Coupling overhead** against a bare ``mj_step`` of the same model: the quadruped of
    ``models/quadruped.xml`` standing on sand (settled for 0.5 s from its ``home`` keyframe, the floor
-   replaced by the sand, every body attached), at three resolutions, stabilized with the warm-started
-   compiled limiter (the default), with the cold-started one (``warm_start=False``), without stabilization,
-   and (full run) with the numpy backend; each timing is the median over runs of :data:`STEPS_PER_RUN`
+   replaced by the sand, every body attached), at three resolutions, stabilized with the compiled limiter
+   warm-started (``warm_start=True``) and cold-started (the default), without stabilization, and (full run)
+   with the numpy backend; each timing is the median over runs of :data:`STEPS_PER_RUN`
    consecutive steps from the settled state (the bare model, without its floor, falls meanwhile: its step
    cost does not depend on that). Ant-v5 (gymnasium) env steps per second with and without sand
    (random actions, resets on termination), and the shipped ``rft_mujoco/SandAnt-v0``.
@@ -460,7 +460,8 @@ def _plots(out: Path, thr, quad, acc) -> list[Path]:
     if quad:
         fig, ax = plt.subplots(figsize=(12, 4.5))
         labels = [f"{r['resolution']}\n{r['backend']}"
-                  f"{', no stab.' if not r['stabilize'] else ', warm' if r['warm_start'] else ', cold'}" for r in quad]
+                  f"{', no stab.' if not r['stabilize'] else ', warm start' if r['warm_start'] else ' (default)'}"
+                  for r in quad]
         x = np.arange(len(quad))
         ax.bar(x - 0.2, [r["bare_us"] for r in quad], 0.4, label="bare mj_step")
         ax.bar(x + 0.2, [r["sand_us"] for r in quad], 0.4, label="mj_step with sand")

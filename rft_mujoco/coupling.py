@@ -101,7 +101,7 @@ class _Workspace:
                  "count", "max_depth", "col_groups", "col_count", "col_max_depth", "scratch", "col_v", "col_w",
                  "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "last_time", "args")
 
-    def __init__(self, n_bodies: int, compiled: bool, nv: int = 0, rest_columns: int = kernel.REST_COLUMNS) -> None:
+    def __init__(self, n_bodies: int, compiled: bool, nv: int, rest_columns: int) -> None:
         b = n_bodies
         self.diag = Diagnostics.zeros(b)
         self.clean = True
@@ -363,7 +363,7 @@ class SandHandle:
         work = self._work.get(data)
         if work is None:
             work = self._work[data] = _Workspace(len(self.body_ids), self._fast is not None, self.model.nv,
-                                                       int(self._solver[4]))
+                                                 int(self._solver[4]))
         diag = work.diag
         g_hat = self._gravity()
         # 1. Broadphase and depth pre-pass: the bodies with at least one submerged element.
@@ -715,7 +715,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             same forces to round-off.
         warm_start: with stabilize=True and the numba backend, start the impulse limiter's solver from
             its factors of the previous step and stop it after fewer sweeps: 2x faster on a standing
-            quadruped and as accurate on average, but resting bodies keep up to 0.3 mm/s of jitter in a
+            quadruped and as accurate on average, but resting bodies keep 0.08-0.3 mm/s of jitter in a
             few of the stability cases, against 1e-6 m/s by default (:mod:`rft_mujoco.fastlimit`). Like
             MuJoCo's own solver warm start, the result then depends on the previous step as well as on the
             state; it is cleared whenever time does not advance by at most one step (resets), so rollouts

@@ -863,7 +863,7 @@ def ensure_compiled(verbose: bool = True) -> float:
 
 def _warm_up() -> None:
     """Call every kernel once on tiny inputs of exactly the types the package passes."""
-    from . import kernel
+    from . import fastlimit, kernel   # the stabilized evaluation around these kernels; the limiter's solver
 
     i8 = np.int64
     c3 = np.zeros((2, 3))
@@ -891,8 +891,6 @@ def _warm_up() -> None:
                  vcom, om)
         wrenches(touch, 0, *packed.arrays(), pos, mat, com, vcom, om, np.zeros((0, 6)), 0.0, g, 0.0, kind, tp,
                  heights, 1.0, coef, 0.4, False, False, False, tol, scratch, groups, count, mdep)
-        from . import fastlimit   # the stabilized evaluation around these kernels
-
         fastlimit._warm_up(packed, kind, tp, heights, coef, tol)
     finish(groups, count, mdep, vcom, om, np.zeros((0, 6)), False, touch, 0, ids, np.zeros((B, 3)),
            np.zeros((B, 3)), np.zeros(B, dtype=i8), np.zeros(B), np.ones(B), np.zeros((B, 3)), np.zeros((2, 6)))

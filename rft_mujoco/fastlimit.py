@@ -23,10 +23,11 @@ same (body, octant, round, column) at the end of the previous evaluation of the 
 ``warm`` buffer; a body that was not limited then starts from the published force, as in the reference)
 and stops after :data:`rft_mujoco.kernel.LIMITER_WARM_ITERATIONS` (30) sweeps. Measured on the quadruped
 settling on sand (tests/test_fastlimit.py checks the same on a small scene): the kinetic energy left
-after the step exceeds that of a 3000-sweep solve by a median 4e-6 of the energy the sand removes,
+after the step exceeds that of a 3000-sweep solve by a median 5e-6 of the energy the sand removes,
 against 6e-6 for 100 cold sweeps, at half the cost. The price is in the tail: over the 429 cases of
-``python -m rft_mujoco stability`` no failure, but resting bodies kept up to 2.8e-4 m/s of jitter (8
-cases above 1e-5 m/s) where the cold solves leave 1e-6, which is why it is not the default. The coupling
+``python -m rft_mujoco stability`` no failure, but resting bodies kept up to 7.7e-5 m/s of jitter (3
+cases above 1e-5 m/s; 2.8e-4 and 8 with an earlier build's round-off) where the cold solves leave 1e-6,
+which is why it is not the default. The coupling
 clears the buffer whenever time does not run on by at most one step (a reset, ``mj_setState`` back in
 time), so rollouts from a reset repeat bit for bit.
 
@@ -109,9 +110,7 @@ def _solve(A, c, group, lam, free, ensure_passive, settings, warm):
     _PGS(A, c, group, free, lam, n_groups, int(settings[6] if warm else settings[0]), settings[1],
          settings[7] if warm else settings[2])
     if ensure_passive:
-        y = np.dot(A, lam)
-        quad = np.dot(y, y)
-        lin = np.dot(c, y)
+        quad, lin = _quadratic(A, c, lam)
         if 0.5 * quad + lin > 0.0:
             f = min(1.0, max(0.0, -lin / quad)) if quad > 0.0 else 0.0
             for a in range(m):
@@ -119,24 +118,31 @@ def _solve(A, c, group, lam, free, ensure_passive, settings, warm):
 
 
 @njit(**_JIT)
-def _energy(A, c, lam):
-    """The limiter's objective ``0.5 l.G.l + h.l`` (J) in factored form."""
+def _quadratic(A, c, lam):
+    """(``l.G.l``, ``h.l``) of the limiter's objective ``0.5 l.G.l + h.l`` (J) in factored form."""
     y = np.dot(A, lam)
-    return 0.5 * np.dot(y, y) + np.dot(c, y)
+    return np.dot(y, y), np.dot(c, y)
 
 
 @njit(**_JIT)
-def _speed(jac, j, qv, radius):
-    """``|v_com| + radius |omega|`` of body row j for generalized velocity ``qv`` (nv,)."""
+def _energy(A, c, lam):
+    """The limiter's objective ``0.5 l.G.l + h.l`` (J)."""
+    quad, lin = _quadratic(A, c, lam)
+    return 0.5 * quad + lin
+
+
+@njit(**_JIT)
+def _speed(jac, j, qv, radius, twist):
+    """``|v_com| + radius |omega|`` of body row j for generalized velocity ``qv`` (nv,); the body's twist
+    ``J_j qv`` is left in ``twist`` (6,)."""
     nv = qv.shape[0]
-    t = np.zeros(6)
     for r in range(6):
         s = 0.0
         for d in range(nv):
             s += jac[j, r, d] * qv[d]
-        t[r] = s
-    return math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]) + radius * math.sqrt(t[3] * t[3] + t[4] * t[4]
-                                                                                    + t[5] * t[5])
+        twist[r] = s
+    return math.sqrt(twist[0] * twist[0] + twist[1] * twist[1] + twist[2] * twist[2]) + radius * math.sqrt(
+        twist[3] * twist[3] + twist[4] * twist[4] + twist[5] * twist[5])
 
 
 @njit(**_JIT)
@@ -284,9 +290,11 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
     for a in range(m):
         for d in range(nv):
             tot[d] += dt * mq[a, d]
+    twist = np.zeros(6)
     low = np.zeros(k, dtype=np.bool_)
     for j in range(k):
-        low[j] = _speed(jac, j, qvel_pred, radius[touch[j]]) < _speed(jac, j, tot, radius[touch[j]])
+        rad = radius[touch[j]]
+        low[j] = _speed(jac, j, qvel_pred, rad, twist) < _speed(jac, j, tot, rad, twist)
     free = np.zeros(cap, dtype=np.bool_)
     lam = np.ones(cap)
     any_free = False
@@ -313,7 +321,6 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
         warm[touch[j], group[a] % ng, 0, 0] = lam[a]
     # Rest columns: the RFT resistance to the motion left after the step, for limited low-speed bodies.
     qv = np.empty(nv)
-    twist = np.zeros(6)
     for rd in range(1, rest_columns):
         refine = np.zeros(k, dtype=np.bool_)
         for a in range(m):
@@ -326,14 +333,7 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
             qv[d] = qvel_pred[d] + dt * s
         n_refine = 0
         for j in range(k):
-            for r in range(6):
-                s = 0.0
-                for d in range(nv):
-                    s += jac[j, r, d] * qv[d]
-                twist[r] = s
-            rad = radius[touch[j]]
-            sp = math.sqrt(twist[0] ** 2 + twist[1] ** 2 + twist[2] ** 2) + rad * math.sqrt(
-                twist[3] ** 2 + twist[4] ** 2 + twist[5] ** 2)
+            sp = _speed(jac, j, qv, radius[touch[j]], twist)
             refine[j] = refine[j] and low[j] and sp > rest_speed
             for r in range(3):
                 col_v[j, r] = twist[r] if refine[j] else 0.0
@@ -386,8 +386,8 @@ def free_acceleration(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dof
     qfrc = np.empty(nv)
     for d in range(nv):
         qfrc[d] = qfrc_passive[d] - qfrc_bias[d] + qfrc_actuator[d] + qfrc_applied[d]
-    one = np.zeros(1, dtype=np.int64)
-    jb = np.zeros((1, 6, nv))
+    one = np.zeros(0, dtype=np.int64)                   # allocated at the first user wrench only
+    jb = np.zeros((0, 6, nv))
     for b in range(1, user_xfrc.shape[0]):
         nz = False
         for c in range(6):
@@ -395,6 +395,9 @@ def free_acceleration(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dof
                 nz = True
         if not nz:
             continue
+        if one.shape[0] == 0:
+            one = np.zeros(1, dtype=np.int64)
+            jb = np.zeros((1, 6, nv))
         one[0] = b
         body_jacobians(one, 1, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
                        dof_parentid, jb)
@@ -460,7 +463,13 @@ def stabilized(touch, k, ids, user_xfrc, xipos, cdof, subtree_com, qvel, qfrc_pa
     if n == 0:
         for j in range(k):
             warm_rounds[touch[j]] = 0
-    else:
+    for b in range(warm_rounds.shape[0]):                # bodies out of the sand: no warm start later
+        inside = False
+        for j in range(k):
+            inside = inside or touch[j] == b
+        if not inside:
+            warm_rounds[b] = 0
+    if n > 0:
         limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds, warm_start, settings,
               packed_centroids, packed_normals, packed_areas, cluster_start, cluster_octant, cluster_center,
               cluster_radius, body_clusters, body_pos, body_mat, body_com, g_hat, max_height, kind, tp,
