@@ -38,9 +38,10 @@ _COMPILE_ENTRY_POINTS = (
 class _DataBook:
     """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
 
-    __slots__ = ("added", "written", "rows", "model", "nonzero", "sand", "sand_dirty", "user", "__weakref__")
+    __slots__ = ("added", "written", "rows", "model", "nonzero", "sand", "sand_dirty", "user", "plain",
+                 "own", "__weakref__")
 
-    def __init__(self, model) -> None:
+    def __init__(self, model, data) -> None:
         nbody = model.nbody
         self.model = weakref.ref(model)
         self.added = np.zeros((nbody, 6))
@@ -50,6 +51,10 @@ class _DataBook:
         self.sand = np.zeros((nbody, 6))     # the handles' sum of this evaluation (reused buffer)
         self.sand_dirty = False
         self.user = np.zeros((nbody, 6))      # the user's part of xfrc_applied (reused buffer)
+        # Addresses for the handles' native calls: (user wrenches, sand) when the user's part is
+        # xfrc_applied itself, and when it is ``user`` (MjData's arrays never move).
+        self.plain = (data.xfrc_applied.ctypes.data, self.sand.ctypes.data)
+        self.own = (self.user.ctypes.data, self.sand.ctypes.data)
 
 
 class Dispatcher:
@@ -116,7 +121,7 @@ class Dispatcher:
     def book(self, model, data) -> _DataBook:
         book = self._books.get(data)
         if book is None or book.added.shape[0] != model.nbody:
-            book = self._books[data] = _DataBook(model)
+            book = self._books[data] = _DataBook(model, data)
         return book
 
     def user_xfrc(self, model, data) -> np.ndarray:
@@ -154,19 +159,19 @@ class Dispatcher:
         fast = fastkernel.ready()
         xfrc = data.xfrc_applied
         if not book.nonzero:
-            user = xfrc
+            user, addresses = xfrc, book.plain
         elif fast:
-            user = book.user
+            user, addresses = book.user, book.own
             fastkernel.user_part(xfrc, book.written, book.added, book.rows, user)
         else:
-            user = self.user_xfrc(model, data)
+            user, addresses = self.user_xfrc(model, data), None
         sand = book.sand
         if book.sand_dirty:
             sand[:] = 0.0
         book.sand_dirty = True
         any_sand = False
         for h in handles:
-            if h._evaluate(data, user, sand) is not False:
+            if h._evaluate(data, user, sand, addresses) is not False:
                 any_sand = True
         if not any_sand and not book.nonzero:
             # Fast path (every body above the sand, as before): xfrc_applied already is the user's.

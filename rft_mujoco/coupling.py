@@ -41,7 +41,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from . import fastkernel, fastlimit, kernel, surface
+from . import fastkernel, fastlimit, kernel, native, surface
 from .monitor import ValidityMonitor
 from ._dispatch import DISPATCHER
 from . import law
@@ -99,7 +99,7 @@ class _Workspace:
 
     __slots__ = ("diag", "clean", "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "groups",
                  "count", "max_depth", "col_groups", "col_count", "col_max_depth", "scratch", "col_v", "col_w",
-                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "last_time", "args")
+                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "last_time", "args", "native")
 
     def __init__(self, n_bodies: int, compiled: bool, nv: int, rest_columns: int) -> None:
         b = n_bodies
@@ -128,6 +128,7 @@ class _Workspace:
         self.warm_rounds = np.zeros(b, dtype=np.int64)
         self.last_time = -math.inf
         self.args = None            # the compiled calls' fixed arguments (SandHandle._fixed_args)
+        self.native = None          # the native call's argument table (SandHandle._native_table)
 
 
 def _body_id(model, name) -> int:
@@ -243,6 +244,7 @@ class SandHandle:
         self._opt_gravity = model.opt.gravity            # a live view: gravity changes are seen
         self._gravity_seen = None
         self._fast_checked = None
+        self._fast_seen = None
         self._tol = fastkernel.tolerances()
         self._solver = fastlimit.solver_settings()
         self._tree = tuple(np.ascontiguousarray(a, dtype=np.int64) for a in (
@@ -250,6 +252,10 @@ class SandHandle:
         self.warm_start = False
         """Compiled stabilized path: start the limiter from the previous evaluation's factors (False: from
         the published force every time, as the numpy reference does); see :func:`attach`."""
+        self.native = True
+        """With the numba backend and stabilize=True: make the whole evaluation one native call
+        (:mod:`rft_mujoco.native`, same results, no numba dispatch); False uses numba's dispatcher (the
+        tests compare the two). Ignored where :func:`rft_mujoco.native.available` is False."""
         self.compiled_limiter = True
         """With the numba backend and stabilize=True: the free motion and the limiter run compiled
         (:mod:`rft_mujoco.fastlimit`); False runs :meth:`_free_motion` and :meth:`_limit` in numpy around
@@ -357,8 +363,9 @@ class SandHandle:
                 f"attached={self.attached})")
 
     # --- per evaluation -----------------------------------------------------------------------------
-    def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray) -> bool:
-        """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero."""
+    def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, addresses=None) -> bool:
+        """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero.
+        ``addresses``: (address of user_xfrc, of sand_out) when the caller knows them (the native call)."""
         self.evaluations += 1
         work = self._work.get(data)
         if work is None:
@@ -366,6 +373,9 @@ class SandHandle:
                                                  int(self._solver[4]))
         diag = work.diag
         g_hat = self._gravity()
+        if self.native and self.stabilize and self.compiled_limiter and self._fast is not None \
+                and self._fast_touching_ok(g_hat) and native.available():
+            return self._evaluate_native(data, work, user_xfrc, sand_out, addresses)
         # 1. Broadphase and depth pre-pass: the bodies with at least one submerged element.
         touch = self._touching_fast(data, g_hat, work) if self._fast is not None else \
             self._touching_numpy(data, g_hat, work)
@@ -388,11 +398,7 @@ class SandHandle:
         else:
             status, max_depth = self._evaluate_steps(data, user_xfrc, work, touch, dt, g_hat, sand_out)
         if status < 0:
-            bad = [self.body_names[i] for i in touch
-                   if not (np.all(np.isfinite(diag.force[i])) and np.all(np.isfinite(diag.torque[i])))]
-            raise FloatingPointError(f"non-finite sand wrench on bodies {bad}; nothing was written to "
-                                     "xfrc_applied. Check the model's inputs (ctrl, qfrc_applied, "
-                                     "xfrc_applied, masses) for NaN/inf")
+            self._raise_not_finite(diag, touch)
         if self.monitor is not None and self.evaluations % self.monitor.every == 0:
             self.monitor.check(self, data, touch, v_com, omega, max_depth)
         return bool(status)
@@ -436,6 +442,7 @@ class SandHandle:
         if g != self._gravity_seen:
             g_hat, self._g_mag = gravity_direction(g)
             self._g_hat = np.ascontiguousarray(g_hat)
+            self._g_addr = self._g_hat.ctypes.data
             self._gravity_vec = np.array(g)
             self._gravity_seen = g
         return self._g_hat
@@ -519,13 +526,90 @@ class SandHandle:
              diag.submerged, diag.max_depth, diag.scale, diag.rft_force))
         return work.args
 
+    def _fast_touching_ok(self, g_hat) -> bool:
+        """Whether the compiled broadphase handles this terrain and gravity (not: tilted gravity on a
+        heightfield, which the numpy pre-pass explains)."""
+        if self._gravity_seen is not self._fast_checked or self._fast is not self._fast_seen:
+            _, kind, tp, _ = self._fast
+            self._fast_checked = self._gravity_seen
+            self._fast_seen = self._fast
+            self._fast_gravity_ok = (kind == fastkernel.FLAT and tp[6] == 0.0) or g_hat[2] <= -1.0 + 1e-9
+        return self._fast_gravity_ok
+
+    def _native_table(self, data, work) -> native.Table:
+        """The native call's argument table for ``data`` (built once per workspace and terrain)."""
+        arrays, kind, tp, heights = self._fast
+        packed, diag, m = self._packed, work.diag, self.model
+        fields = dict(
+            xpos=data.xpos, xmat=data.xmat, xipos=data.xipos, cvel=data.cvel, subtree_com=data.subtree_com,
+            qpos=data.qpos, qvel=data.qvel, cdof=data.cdof, qfrc_passive=data.qfrc_passive,
+            qfrc_bias=data.qfrc_bias, qfrc_actuator=data.qfrc_actuator, qfrc_applied=data.qfrc_applied,
+            ids=self.body_ids, root=self._root64, bound_center=self._bound_center, bound_radius=self._bound_radius,
+            body_rootid=self._tree[0], body_dofnum=self._tree[1], body_dofadr=self._tree[2],
+            body_parentid=self._tree[3], dof_parentid=self._tree[4], settings=self._solver,
+            centroids=packed.centroids, normals=packed.normals, areas=packed.areas,
+            cluster_start=packed.cluster_start, cluster_octant=packed.cluster_octant,
+            cluster_center=packed.cluster_center, cluster_radius=packed.cluster_radius,
+            body_clusters=packed.body_clusters, tp=tp, heights=heights, coef=law.COEFFICIENTS, tol=self._tol,
+            touch=work.touch, body_pos=work.body_pos, body_mat=work.body_mat, body_com=work.body_com,
+            v_com=work.v_com, omega=work.omega, minv=work.minv, eye=work.eye, warm=work.warm,
+            warm_rounds=work.warm_rounds, scratch=work.scratch, groups=work.groups, count=work.count,
+            max_depth=work.max_depth, col_v=work.col_v, col_w=work.col_w, col_groups=work.col_groups,
+            col_count=work.col_count, col_max_depth=work.col_max_depth, jac=work.jac, qacc=work.qacc,
+            limited=work.limited, force=diag.force, torque=diag.torque, submerged=diag.submerged,
+            depth_max=diag.max_depth, scale=diag.scale, rft_force=diag.rft_force)
+        return native.Table(fields, m, data, kind, self._fast)
+
+    def _evaluate_native(self, data, work, user_xfrc, sand_out, addresses) -> bool:
+        """:meth:`_evaluate` for the compiled stabilized path as one native call (:mod:`rft_mujoco.native`):
+        the same broadphase, MuJoCo calls and compiled evaluation as :meth:`_touching_fast` and
+        :meth:`_stabilized_fast`, without numba's per-argument dispatch."""
+        table = work.native
+        if table is None or table.source is not self._fast:
+            table = work.native = self._native_table(data, work)
+        if addresses is None:
+            addresses = (user_xfrc.ctypes.data, sand_out.ctypes.data)
+        dt = self._opt.timestep
+        t = data.time                                 # warm start only while time runs on (_stabilized_fast)
+        if not 0.0 <= t - work.last_time <= dt * (1.0 + 1e-9):
+            work.warm_rounds[:] = 0
+            work.warm[:] = 0.0
+        work.last_time = t
+        media = self._media
+        code = native.entry()(table.address, addresses[0], addresses[1], self._g_addr, dt,
+                              media.xi_n_at(self._g_mag), media.mu_surf, self._max_height,
+                              native.flags(self.warm_start, self.guards))
+        if code == native.NOT_FINITE_STATE:
+            self._touching_numpy(data, self._g_hat, work)    # raises the non-finite state error
+        k, status = native.decode(code)
+        if k == 0:
+            if not work.clean:                        # nothing touches the sand: zero diagnostics, once
+                _clear(work.diag)
+                work.warm_rounds[:] = 0
+                work.warm[:] = 0.0
+                work.clean = True
+            return False
+        work.clean = False
+        touch = work.touch[:k]
+        if status == fastlimit.BAD_ACCELERATION:
+            self._free_motion(data, self.body_ids[touch], user_xfrc, dt)   # raises, naming the bodies
+        if status < 0:
+            self._raise_not_finite(work.diag, touch)
+        if self.monitor is not None and self.evaluations % self.monitor.every == 0:
+            self.monitor.check(self, data, touch, work.v_com[:k], work.omega[:k], work.max_depth[:k])
+        return bool(status)
+
+    def _raise_not_finite(self, diag, touch) -> None:
+        bad = [self.body_names[i] for i in touch
+               if not (np.all(np.isfinite(diag.force[i])) and np.all(np.isfinite(diag.torque[i])))]
+        raise FloatingPointError(f"non-finite sand wrench on bodies {bad}; nothing was written to "
+                                 "xfrc_applied. Check the model's inputs (ctrl, qfrc_applied, "
+                                 "xfrc_applied, masses) for NaN/inf")
+
     def _touching_fast(self, data, g_hat, work) -> np.ndarray:
         """Compiled :meth:`_touching_numpy` (same result) straight from the MjData arrays."""
         _, kind, tp, heights = self._fast
-        if self._gravity_seen is not self._fast_checked:
-            self._fast_checked = self._gravity_seen
-            self._fast_gravity_ok = (kind == fastkernel.FLAT and tp[6] == 0.0) or g_hat[2] <= -1.0 + 1e-9
-        if not self._fast_gravity_ok:                 # tilted gravity on a heightfield: numpy explains
+        if not self._fast_touching_ok(g_hat):         # tilted gravity on a heightfield: numpy explains
             return self._touching_numpy(data, g_hat, work)
         a = work.args or self._fixed_args(data, work)
         k = fastkernel.touching(*a[0], g_hat, self._max_height, kind, tp, heights, *a[1])

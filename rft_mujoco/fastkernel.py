@@ -898,3 +898,5 @@ def _warm_up() -> None:
     user_part(x6, x6.copy(), x6.copy(), ids, x6.copy())
     commit(x6, x6.copy(), x6.copy(), ids, x6.copy(), x6.copy())
     kernel.limit_impulses(np.eye(2), np.zeros(2), np.arange(2), compiled=True)
+    from . import native                # the stabilized evaluation as one native call
+    native.build()

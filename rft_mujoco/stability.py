@@ -249,13 +249,14 @@ class _StageRecorder:
         self.q = []
         evaluate = handle._evaluate
 
-        def wrapped(data, user, sand_out):
+        def wrapped(data, user, sand_out, addresses=None):
             before = sand_out[body].copy()
-            evaluate(data, user, sand_out)
+            loaded = evaluate(data, user, sand_out, addresses)
             w = sand_out[body] - before
             q = np.zeros(model.nv)
             mujoco.mj_applyFT(model, data, w[:3].copy(), w[3:].copy(), data.xipos[body].copy(), body, q)
             self.q.append(q)
+            return loaded
 
         handle._evaluate = wrapped
 
