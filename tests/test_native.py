@@ -1,0 +1,113 @@
+"""The native entry point (rft_mujoco.native) against the numba-dispatch path it replaces: the same
+compiled functions on the same inputs, so every result must agree bit for bit."""
+
+import mujoco
+import numpy as np
+import pytest
+
+import rft_mujoco
+from rft_mujoco import fastlimit, law, native
+from rft_mujoco.terrain import FlatSurface, HeightfieldSurface
+
+from test_fastkernel import MEDIA, SCENE
+
+pytestmark = pytest.mark.skipif(not rft_mujoco.fastkernel.AVAILABLE, reason="numba is not installed")
+
+
+def rollout(use_native, integrator="Euler", terrain=0.0, warm_start=False, steps=60, user_wrench=False,
+            guards=law.PUBLISHED, datas=1):
+    """xfrc_applied and qpos after every step of a sand rollout of SCENE (``datas`` MjData stepped in
+    turn), with the native call on or off."""
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator=integrator))
+    ds = [mujoco.MjData(model) for _ in range(datas)]
+    for i, d in enumerate(ds):
+        d.qvel[:] = np.random.default_rng(i).normal(size=model.nv) * 0.5
+    out = []
+    with rft_mujoco.attach(model, MEDIA, None, terrain, 0.01, monitor=False, backend="numba", guards=guards,
+                           warm_start=warm_start) as handle:
+        handle.native = use_native
+        for step in range(steps):
+            for d in ds:
+                if user_wrench:
+                    d.xfrc_applied[1, 2] = 3.0 * np.sin(0.1 * step)     # the user's own wrench on the ball
+                mujoco.mj_step(model, d)
+                out.append(np.concatenate([d.xfrc_applied.ravel(), d.qpos]))
+        diag = handle.diagnostics(ds[0])
+        last = np.concatenate([diag.force.ravel(), diag.torque.ravel(), diag.scale, diag.max_depth])
+    return np.array(out), last
+
+
+def test_native_is_available():
+    assert native.available(), native.error()
+
+
+@pytest.mark.parametrize("integrator,warm_start", [("Euler", False), ("RK4", False), ("implicitfast", True)])
+def test_native_equals_dispatch_bit_for_bit(integrator, warm_start):
+    got, got_diag = rollout(True, integrator, warm_start=warm_start)
+    ref, ref_diag = rollout(False, integrator, warm_start=warm_start)
+    assert np.count_nonzero(ref[:, 6:6 * 5]) > 100        # the sand did act (rows of the world body excluded)
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(got_diag, ref_diag)
+
+
+def test_native_with_user_wrenches_heightfield_guards_and_two_datas():
+    heights = 0.01 * np.random.default_rng(1).normal(size=(5, 6))
+    terrain = HeightfieldSurface(heights, (-0.5, 0.5), (-0.4, 0.6))
+    kw = dict(terrain=terrain, user_wrench=True, guards=law.Guards.all(), datas=2, steps=40)
+    (got, got_diag), (ref, ref_diag) = rollout(True, **kw), rollout(False, **kw)
+    assert np.count_nonzero(ref[:, 6:6 * 5]) > 100
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(got_diag, ref_diag)
+
+
+def test_terrain_replaced_between_steps():
+    """The argument table points at the terrain's arrays: replacing the terrain rebuilds it."""
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    runs = []
+    for use_native in (True, False):
+        data = mujoco.MjData(model)
+        with rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=False, backend="numba") as handle:
+            handle.native = use_native
+            xs = []
+            for step in range(30):
+                if step == 15:
+                    handle.terrain = FlatSurface(0.02)
+                mujoco.mj_step(model, data)
+                xs.append(data.xfrc_applied.copy())
+            runs.append(np.array(xs))
+    assert not np.array_equal(runs[0][14], runs[0][16])
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_non_finite_inputs_raise_as_on_the_dispatch_path():
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    data = mujoco.MjData(model)
+    with rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=False, backend="numba") as handle:
+        assert handle.native
+        mujoco.mj_step(model, data)
+        data.qvel[0] = np.nan
+        with pytest.raises(FloatingPointError, match="non-finite qpos/qvel"):
+            mujoco.mj_forward(model, data)
+        mujoco.mj_resetData(model, data)
+        data.qfrc_applied[0] = np.inf                       # a bad input makes the free acceleration NaN
+        with pytest.raises(FloatingPointError, match="non-finite acceleration without sand.*ball"):
+            mujoco.mj_forward(model, data)
+
+
+def test_decode_and_table_checks():
+    for k in (0, 1, 5, 1000):
+        for status in (fastlimit.BAD_ACCELERATION, -1, 0, 1):
+            if k == 0 and status:
+                continue
+            code = k * 8 + status + 4
+            assert native.decode(code) == (k, status)
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    data = mujoco.MjData(model)
+    arrays = {name: np.zeros(2) for name in native.FIELDS}
+    native.Table(arrays, model, data, 0, None)
+    with pytest.raises(TypeError, match="xpos must be a C-contiguous float64/int64"):
+        native.Table({**arrays, "xpos": np.zeros((3, 4))[:, ::2]}, model, data, 0, None)
+    with pytest.raises(TypeError, match="float32"):
+        native.Table({**arrays, "qvel": np.zeros(2, np.float32)}, model, data, 0, None)
+    with pytest.raises(KeyError, match="touch"):
+        native.Table({k: v for k, v in arrays.items() if k != "touch"}, model, data, 0, None)
