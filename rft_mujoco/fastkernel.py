@@ -63,8 +63,9 @@ PAD = 16
 twice) never run a scalar remainder."""
 CHUNK = 256
 """Elements per chunk of :func:`element_forces`."""
-COMPILE_SECONDS = 45
-"""Rough first-use compile time in s on a 2-core machine (measured 38 s, rounded up), for the notice."""
+COMPILE_SECONDS = 60
+"""Rough first-use compile time in s on a 2-core machine (measured 54 s with the native entry point of
+:mod:`rft_mujoco.native`, rounded up), for the notice."""
 
 # Terrain kinds of :func:`terrain_spec` (the compiled depth switches on them).
 FLAT = 0
