@@ -26,8 +26,10 @@ Steps 1-3 and the bookkeeping of 4-5 run in the numba-compiled kernels of :mod:`
 buffers, or in the numpy reference :mod:`rft_mujoco.kernel` (``backend="numpy"``); both give the same
 wrenches to round-off (tests/test_fastkernel.py). With the numba backend, step 4 (Jacobians, free motion,
 the impulse limiter) is compiled too (:mod:`rft_mujoco.fastlimit`, optionally warm-started from the previous
-step; tests/test_fastlimit.py compares it with :meth:`SandHandle._limit`). Costs are measured by
-``python -m rft_mujoco bench``.
+step; tests/test_fastlimit.py compares it with :meth:`SandHandle._limit`), and steps 1-5 are then one
+native call per evaluation (:mod:`rft_mujoco.native`; ``handle.native = False`` calls the same compiled
+functions through numba's dispatcher, tests/test_native.py checks they agree bit for bit). Costs are
+measured by ``python -m rft_mujoco bench``.
 """
 
 from __future__ import annotations
