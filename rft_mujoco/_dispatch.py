@@ -35,11 +35,16 @@ _COMPILE_ENTRY_POINTS = (
 )
 
 
+_RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
+_RK4_C = (0.5, 0.5, 1.0)
+"""Times of RK4 stages 2-4 after the first, in steps (MuJoCo's mj_RungeKutta tableau)."""
+
+
 class _DataBook:
     """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
 
     __slots__ = ("added", "written", "rows", "model", "nonzero", "sand", "sand_dirty", "user", "plain",
-                 "own", "__weakref__")
+                 "own", "stage_time", "stage", "__weakref__")
 
     def __init__(self, model, data) -> None:
         nbody = model.nbody
@@ -55,6 +60,10 @@ class _DataBook:
         # xfrc_applied itself, and when it is ``user`` (MjData's arrays never move).
         self.plain = (data.xfrc_applied.ctypes.data, self.sand.ctypes.data)
         self.own = (self.user.ctypes.data, self.sand.ctypes.data)
+        # RK4 stage tracking (handles with rk4_stages="first"): the time of the last evaluated first
+        # stage, and how many stages of that step have been seen (0: none pending).
+        self.stage_time = 0.0
+        self.stage = 0
 
 
 class Dispatcher:
@@ -155,6 +164,11 @@ class Dispatcher:
         book = self._books.get(data)
         if book is None or book.added.shape[0] != model.nbody:
             book = self.book(model, data)
+        if model.opt.integrator == _RK4 and all(h.rk4_stages == "first" for h in handles):
+            if self._later_rk4_stage(book, data.time, model.opt.timestep):
+                return                       # xfrc_applied still holds the first stage's user + sand wrench
+        else:
+            book.stage = 0
         # With nothing added last time, the user's part is the whole row (read-only for the handles).
         fast = fastkernel.ready()
         xfrc = data.xfrc_applied
@@ -191,6 +205,19 @@ class Dispatcher:
             book.written[rows] = xfrc[rows]
         book.rows = rows
         book.nonzero = any_sand
+
+    @staticmethod
+    def _later_rk4_stage(book: _DataBook, t: float, dt: float) -> bool:
+        """Whether an evaluation at time ``t`` is stage 2, 3 or 4 of the RK4 step whose first stage the
+        book saw last (mj_RungeKutta evaluates at t0 + dt/2, t0 + dt/2, t0 + dt after mj_forward at t0);
+        otherwise it is a first stage (mj_step's mj_forward, or any mj_forward) and is recorded as one."""
+        n = book.stage
+        if 1 <= n <= 3 and abs(t - (book.stage_time + _RK4_C[n - 1] * dt)) <= 1e-9 * dt:
+            book.stage = n + 1
+            return True
+        book.stage_time = t
+        book.stage = 1
+        return False
 
     def remove_sand(self, model, data, rows: np.ndarray) -> None:
         """Take the sand part out of ``data.xfrc_applied`` rows (used at detach)."""

@@ -297,12 +297,68 @@ def ant_overhead(steps: int) -> dict | None:
             sand_env = run(env)
             env_elements = env.unwrapped.sand.handle.n_elements
             env_size = env.unwrapped.sand.handle.element_size
+            env.unwrapped.sand.handle.rk4_stages = "first"
+            sand_first = run(env)
             env.close()
         except ImportError:
-            env_elements = env_size = None
+            env_elements = env_size = sand_first = None
     return dict(bare_sps=bare, sand_sps=sand, fraction=sand / bare, elements=n_el, touched_bodies=touched,
                 env_sps=sand_env, env_fraction=None if sand_env is None else sand_env / bare,
-                env_elements=env_elements, env_element_size=env_size)
+                env_elements=env_elements, env_element_size=env_size, first_sps=sand_first,
+                first_fraction=None if sand_first is None else sand_first / bare)
+
+
+def _ant_gait(mode: str, dt: float, seed: int, settle_s: float = 2.0, gait_s: float = 4.0):
+    """SandAnt-v0 with step ``dt`` (env dt kept at 0.05 s) and ``rk4_stages=mode``: settle 2 s with zero
+    action, then 4 s of a fixed sinusoidal gait (amplitude 0.3, 1 Hz, diagonal legs in phase). Returns
+    (torso height after settling m, torso xy displacement during the gait (2,) m, wall s)."""
+    import gymnasium as gym
+
+    from . import envs  # noqa: F401  (registers the sand ids)
+    env = gym.make("rft_mujoco/SandAnt-v0", max_episode_steps=10 ** 6)
+    u = env.unwrapped
+    u.sand.handle.rk4_stages = mode
+    u.model.opt.timestep = dt
+    u.frame_skip = int(round(0.05 / dt))
+    env.reset(seed=seed)
+    t0 = time.perf_counter()
+    for _ in range(int(round(settle_s / 0.05))):
+        env.step(np.zeros(8))
+    z = float(u.data.qpos[2])
+    start = u.data.qpos[:2].copy()
+    for i in range(int(round(gait_s / 0.05))):
+        ph = 2.0 * np.pi * i * 0.05
+        a = 0.3 * np.array([np.sin(ph), np.cos(ph), -np.sin(ph), -np.cos(ph)] * 2)
+        env.step(a)
+    wall = time.perf_counter() - t0
+    disp = u.data.qpos[:2] - start
+    env.close()
+    return z, disp, wall
+
+
+def rk4_stages_accuracy(quick: bool) -> list[dict] | None:
+    """``attach(rk4_stages=...)`` on SandAnt-v0 (RK4): "all" against "first" at 10, 5 and 2.5 ms steps,
+    errors against "all" at 1 ms, averaged over seeds (the reset noise): the torso height after settling
+    and the displacement of the gait (:func:`_ant_gait`); cost as wall ms per simulated second."""
+    try:
+        import gymnasium  # noqa: F401
+    except ImportError:
+        return None
+    seeds = range(2 if quick else 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = [_ant_gait("all", 0.001, s) for s in seeds]
+        rows = []
+        for dt in (0.01, 0.005, 0.0025):
+            for mode in ("all", "first"):
+                runs = [_ant_gait(mode, dt, s) for s in seeds]
+                rows.append(dict(
+                    mode=mode, dt=dt, evaluations=(4 if mode == "all" else 1) * int(round(0.05 / dt)),
+                    settle_err_mm=1e3 * float(np.mean([r[0] - q[0] for r, q in zip(runs, ref)])),
+                    disp_err_m=float(np.mean([np.linalg.norm(r[1] - q[1]) for r, q in zip(runs, ref)])),
+                    ref_disp_m=float(np.mean([np.linalg.norm(q[1]) for q in ref])),
+                    ms_per_s=1e3 * float(np.mean([r[2] for r in runs])) / 6.0))
+    return rows
 
 
 def above_sand(counts=(1, 1000)) -> dict:
@@ -546,7 +602,22 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots: bool = True) 
             rows.append([f"rft_mujoco/SandAnt-v0 ({ant['env_element_size'] * 1000:g} mm elements)",
                          f"{ant['bare_sps']:.0f}", f"{ant['env_sps']:.0f}", f"{ant['env_fraction']:.2f}",
                          ant["env_elements"]])
+            rows.append(["SandAnt-v0, rk4_stages='first' (see 2c)", f"{ant['bare_sps']:.0f}",
+                         f"{ant['first_sps']:.0f}", f"{ant['first_fraction']:.2f}", ant["env_elements"]])
         print(_table(["sand", "Ant-v5", "on sand", "fraction", "elements"], rows))
+
+    print("\n2c. RK4 stages on SandAnt-v0: sand at every stage ('all', default) or at the first only, held "
+          "('first');\n    errors against 'all' at 1 ms (mean over seeds): torso height after 2 s of "
+          "settling, torso displacement over 4 s of a fixed gait")
+    stages = rk4_stages_accuracy(quick)
+    if stages is None:
+        print("gymnasium not installed: skipped")
+    else:
+        print(_table(["rk4_stages", "dt ms", "evaluations per env step", "settle err mm", "gait err m",
+                      "gait (ref) m", "wall ms per sim s"],
+                     [[r["mode"], f"{r['dt'] * 1e3:g}", r["evaluations"], f"{r['settle_err_mm']:+.2f}",
+                       f"{r['disp_err_m']:.3f}", f"{r['ref_disp_m']:.3f}", f"{r['ms_per_s']:.0f}"]
+                      for r in stages]))
 
     print("\n3. Bodies above the sand (free spheres r 5 cm, 1 m up; Euler: 1 evaluation per step)")
     above = above_sand()
@@ -588,7 +659,8 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots: bool = True) 
     files = _plots(out, thr, quad, acc) if plots else []
     if files:
         print("\nwrote " + ", ".join(str(f) for f in files))
-    return dict(throughput=thr, quadruped=quad, ant=ant, above=above, accuracy=acc, files=files)
+    return dict(throughput=thr, quadruped=quad, ant=ant, stages=stages, above=above, accuracy=acc,
+                files=files)
 
 
 def main(argv: list[str] | None = None, command: str = "bench") -> int:

@@ -89,6 +89,8 @@ def _clear(diag: Diagnostics) -> None:
 
 _NO_ROWS = np.zeros((0, 6))
 """Empty (0, 6) float array: "no accelerations" / "no limiter result" for the compiled kernel."""
+RK4_STAGES = ("all", "first")
+"""Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
 BACKENDS = ("auto", "numba", "numpy")
 """Kernel backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.fastkernel`) or numpy
 (:mod:`rft_mujoco.kernel`, the readable reference); "auto" is numba when it imports and supports the
@@ -254,6 +256,9 @@ class SandHandle:
         self.warm_start = False
         """Compiled stabilized path: start the limiter from the previous evaluation's factors (False: from
         the published force every time, as the numpy reference does); see :func:`attach`."""
+        self.rk4_stages = "all"
+        """With integrator="RK4": "all" evaluates at every stage, "first" holds the first stage's wrench
+        (see :func:`attach`)."""
         self.native = True
         """With the numba backend and stabilize=True: make the whole evaluation one native call
         (:mod:`rft_mujoco.native`, same results, no numba dispatch); False uses numba's dispatcher (the
@@ -775,7 +780,8 @@ class SandHandle:
 def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
            surface_height: float | Terrain = 0.0, resolution: str | float = "default", *,
            guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True,
-           monitor: bool | ValidityMonitor = True, backend: str = "auto", warm_start: bool = False) -> SandHandle:
+           monitor: bool | ValidityMonitor = True, backend: str = "auto", warm_start: bool = False,
+           rk4_stages: str = "all") -> SandHandle:
     """Attach 3D-RFT sand to ``model``: from now on ``mujoco.mj_step(model, data)`` includes it.
 
     Args:
@@ -806,11 +812,17 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             MuJoCo's own solver warm start, the result then depends on the previous step as well as on the
             state; it is cleared whenever time does not advance by at most one step (resets), so rollouts
             from a reset are reproducible. False (default): every step is a function of the state alone.
+        rk4_stages: with ``integrator="RK4"``, "all" (default) evaluates the sand at each of the four
+            stages of a step; "first" evaluates it at the first stage (the state at the start of the step)
+            and holds that wrench through stages 2-4, a quarter of the cost. It applies only while every
+            handle of the model asks for it; other integrators evaluate once per step anyway.
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """
     if not isinstance(model, mujoco.MjModel):
         raise TypeError(f"model must be a mujoco.MjModel, got {type(model).__name__}")
+    if rk4_stages not in RK4_STAGES:
+        raise ValueError(f"rk4_stages must be one of {RK4_STAGES}, got {rk4_stages!r}")
     media = get_media(media)
     terrain = as_terrain(surface_height)
     size = surface.element_size(resolution)
@@ -830,6 +842,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     gravity_direction(model.opt.gravity)  # raises on zero gravity
     handle = SandHandle(model, media, ids, terrain, size, guards, stabilize, passive, monitor, backend)
     handle.warm_start = bool(warm_start)
+    handle.rk4_stages = rk4_stages
     DISPATCHER.register(handle)
     handle.attached = True
     return handle

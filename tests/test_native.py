@@ -111,3 +111,55 @@ def test_decode_and_table_checks():
         native.Table({**arrays, "qvel": np.zeros(2, np.float32)}, model, data, 0, None)
     with pytest.raises(KeyError, match="touch"):
         native.Table({k: v for k, v in arrays.items() if k != "touch"}, model, data, 0, None)
+
+
+def _rk4_model():
+    return mujoco.MjModel.from_xml_string(SCENE.format(integrator="RK4"))
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_rk4_first_stage_is_held_through_the_step(backend):
+    """rk4_stages="first": one evaluation per RK4 step, at the state the step starts from; the wrench
+    stays in xfrc_applied through stages 2-4. "all": four evaluations, the last at stage 4's state."""
+    model = _rk4_model()
+    for mode, per_step in (("first", 1), ("all", 4)):
+        data = mujoco.MjData(model)
+        data.qvel[:] = np.random.default_rng(0).normal(size=model.nv) * 0.5
+        with rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=False, backend=backend,
+                               rk4_stages=mode) as handle:
+            for _ in range(5):
+                mujoco.mj_step(model, data)
+            changed = 0
+            for _ in range(20):
+                mujoco.mj_forward(model, data)          # evaluates at the state the next step starts from
+                start = data.xfrc_applied.copy()
+                n = handle.evaluations
+                mujoco.mj_step(model, data)
+                assert handle.evaluations - n == per_step
+                if mode == "first":
+                    np.testing.assert_array_equal(data.xfrc_applied, start)
+                else:
+                    changed += not np.array_equal(data.xfrc_applied, start)
+            assert np.count_nonzero(start[1:]) > 0          # the sand acts
+            if mode == "all":
+                assert changed == 20
+
+
+def test_rk4_first_needs_every_handle_and_rk4():
+    model = _rk4_model()
+    data = mujoco.MjData(model)
+    with rft_mujoco.attach(model, MEDIA, ["ball"], 0.0, 0.01, monitor=False, rk4_stages="first") as a, \
+            rft_mujoco.attach(model, MEDIA, ["brick"], 0.0, 0.01, monitor=False) as b:
+        mujoco.mj_step(model, data)
+        assert (a.evaluations, b.evaluations) == (4, 4)       # b evaluates every stage, so a does too
+        b.rk4_stages = "first"
+        mujoco.mj_step(model, data)
+        assert (a.evaluations, b.evaluations) == (5, 5)
+    euler = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    data = mujoco.MjData(euler)
+    with rft_mujoco.attach(euler, MEDIA, None, 0.0, 0.01, monitor=False, rk4_stages="first") as h:
+        for _ in range(3):
+            mujoco.mj_step(euler, data)
+        assert h.evaluations == 3
+    with pytest.raises(ValueError, match="rk4_stages must be one of"):
+        rft_mujoco.attach(euler, MEDIA, None, 0.0, 0.01, rk4_stages="last")
