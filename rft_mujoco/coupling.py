@@ -87,6 +87,24 @@ def _clear(diag: Diagnostics) -> None:
     diag.rft_force[:] = 0.0
 
 
+def _follow_time(work: "_Workspace", t: float, dt: float) -> None:
+    """The limiter's warm start carries over only while time runs on by at most one step (RK4 stages
+    included): a reset or a jump in time starts cold, so rollouts from a reset are reproducible."""
+    if not 0.0 <= t - work.last_time <= dt * (1.0 + 1e-9):
+        work.warm_rounds[:] = 0
+        work.warm[:] = 0.0
+    work.last_time = t
+
+
+def _nothing_touches(work: "_Workspace") -> None:
+    """No body touches the sand: zero the diagnostics and the warm start, once."""
+    if not work.clean:
+        _clear(work.diag)
+        work.warm_rounds[:] = 0
+        work.warm[:] = 0.0
+        work.clean = True
+
+
 _NO_ROWS = np.zeros((0, 6))
 """Empty (0, 6) float array: "no accelerations" / "no limiter result" for the compiled kernel."""
 RK4_STAGES = ("all", "first")
@@ -378,20 +396,16 @@ class SandHandle:
         if work is None:
             work = self._work[data] = _Workspace(len(self.body_ids), self._fast is not None, self.model.nv,
                                                  int(self._solver[4]))
-        diag = work.diag
         g_hat = self._gravity()
         if self.native and self.stabilize and self.compiled_limiter and self._fast is not None \
                 and self._fast_touching_ok(g_hat) and native.available():
             return self._evaluate_native(data, work, user_xfrc, sand_out, addresses)
+        diag = work.diag
         # 1. Broadphase and depth pre-pass: the bodies with at least one submerged element.
         touch = self._touching_fast(data, g_hat, work) if self._fast is not None else \
             self._touching_numpy(data, g_hat, work)
         if touch.size == 0:
-            if not work.clean:                        # nothing touches the sand: zero diagnostics, once
-                _clear(diag)
-                work.warm_rounds[:] = 0
-                work.warm[:] = 0.0
-                work.clean = True
+            _nothing_touches(work)
             return False
         work.clean = False
         k = touch.size
@@ -461,13 +475,7 @@ class SandHandle:
         (``self.warm_start``). Returns the status of :func:`fastkernel.finish`."""
         m = self.model
         a = work.args or self._fixed_args(data, work)
-        # The warm start carries over only while time runs on by at most one step (RK4 stages included):
-        # a reset or a jump back in time starts cold, so rollouts from a reset are reproducible.
-        t = data.time
-        if not 0.0 <= t - work.last_time <= dt * (1.0 + 1e-9):
-            work.warm_rounds[:] = 0
-            work.warm[:] = 0.0
-        work.last_time = t
+        _follow_time(work, data.time, dt)
         mujoco.mj_fwdActuation(m, data)
         if m.nv:
             mujoco.mj_solveM(m, data, work.minv, work.eye)
@@ -513,41 +521,12 @@ class SandHandle:
             self._root[touch]])
         return touch
 
-    def _fixed_args(self, data, work) -> tuple:
-        """The arguments of the compiled calls that are the same at every evaluation of ``data`` (MjData's
-        and the workspace's buffers, the packed elements), built once per workspace: (touching before
-        g_hat, touching after heights, stabilized after user_xfrc, after dt, after warm_start, after tol)."""
-        arrays = self._fast[0]
+    def _call_arrays(self, data, work) -> dict:
+        """Every array the compiled calls read or write, by the argument names of
+        :data:`rft_mujoco.native.FIELDS`: MjData's, the handle's and the workspace's."""
+        _, _, tp, heights = self._fast
         packed, diag = self._packed, work.diag
-        work.args = (
-            (self.body_ids, self._root64, data.xpos, data.xmat, data.xipos, data.cvel, data.subtree_com,
-             data.qpos, data.qvel, self._bound_center, self._bound_radius, packed.centroids,
-             packed.cluster_start, packed.cluster_center, packed.cluster_radius, packed.body_clusters),
-            (work.touch, work.body_pos, work.body_mat, work.body_com, work.v_com, work.omega),
-            (data.xipos, data.cdof, data.subtree_com, data.qvel, data.qfrc_passive, data.qfrc_bias,
-             data.qfrc_actuator, data.qfrc_applied, work.minv, *self._tree),
-            (self._bound_radius, work.warm, work.warm_rounds),
-            (self._solver, *arrays, work.body_pos, work.body_mat, work.body_com, work.v_com, work.omega),
-            (work.scratch, work.groups, work.count, work.max_depth, work.col_v, work.col_w, work.col_groups,
-             work.col_count, work.col_max_depth, work.jac, work.qacc, work.limited, diag.force, diag.torque,
-             diag.submerged, diag.max_depth, diag.scale, diag.rft_force))
-        return work.args
-
-    def _fast_touching_ok(self, g_hat) -> bool:
-        """Whether the compiled broadphase handles this terrain and gravity (not: tilted gravity on a
-        heightfield, which the numpy pre-pass explains)."""
-        if self._gravity_seen is not self._fast_checked or self._fast is not self._fast_seen:
-            _, kind, tp, _ = self._fast
-            self._fast_checked = self._gravity_seen
-            self._fast_seen = self._fast
-            self._fast_gravity_ok = (kind == fastkernel.FLAT and tp[6] == 0.0) or g_hat[2] <= -1.0 + 1e-9
-        return self._fast_gravity_ok
-
-    def _native_table(self, data, work) -> native.Table:
-        """The native call's argument table for ``data`` (built once per workspace and terrain)."""
-        arrays, kind, tp, heights = self._fast
-        packed, diag, m = self._packed, work.diag, self.model
-        fields = dict(
+        return dict(
             xpos=data.xpos, xmat=data.xmat, xipos=data.xipos, cvel=data.cvel, subtree_com=data.subtree_com,
             qpos=data.qpos, qvel=data.qvel, cdof=data.cdof, qfrc_passive=data.qfrc_passive,
             qfrc_bias=data.qfrc_bias, qfrc_actuator=data.qfrc_actuator, qfrc_applied=data.qfrc_applied,
@@ -565,7 +544,43 @@ class SandHandle:
             col_count=work.col_count, col_max_depth=work.col_max_depth, jac=work.jac, qacc=work.qacc,
             limited=work.limited, force=diag.force, torque=diag.torque, submerged=diag.submerged,
             depth_max=diag.max_depth, scale=diag.scale, rft_force=diag.rft_force)
-        return native.Table(fields, m, data, kind, self._fast)
+
+    # The argument runs of the dispatched calls (fastkernel.touching, fastlimit.stabilized) between their
+    # per-call arguments, in signature order.
+    _ARG_RUNS = (
+        ("ids", "root", "xpos", "xmat", "xipos", "cvel", "subtree_com", "qpos", "qvel", "bound_center",
+         "bound_radius", "centroids", "cluster_start", "cluster_center", "cluster_radius", "body_clusters"),
+        ("touch", "body_pos", "body_mat", "body_com", "v_com", "omega"),
+        ("xipos", "cdof", "subtree_com", "qvel", "qfrc_passive", "qfrc_bias", "qfrc_actuator", "qfrc_applied",
+         "minv", "body_rootid", "body_dofnum", "body_dofadr", "body_parentid", "dof_parentid"),
+        ("bound_radius", "warm", "warm_rounds"),
+        ("settings", "centroids", "normals", "areas", "cluster_start", "cluster_octant", "cluster_center",
+         "cluster_radius", "body_clusters", "body_pos", "body_mat", "body_com", "v_com", "omega"),
+        ("scratch", "groups", "count", "max_depth", "col_v", "col_w", "col_groups", "col_count",
+         "col_max_depth", "jac", "qacc", "limited", "force", "torque", "submerged", "depth_max", "scale",
+         "rft_force"))
+
+    def _fixed_args(self, data, work) -> tuple:
+        """The arguments of the dispatched compiled calls that are the same at every evaluation of ``data``,
+        built once per workspace: the runs of :attr:`_ARG_RUNS` (touching before g_hat, touching after
+        heights, stabilized after user_xfrc, after dt, after warm_start, after tol)."""
+        arrays = self._call_arrays(data, work)
+        work.args = tuple(tuple(arrays[name] for name in run) for run in self._ARG_RUNS)
+        return work.args
+
+    def _fast_touching_ok(self, g_hat) -> bool:
+        """Whether the compiled broadphase handles this terrain and gravity (not: tilted gravity on a
+        heightfield, which the numpy pre-pass explains)."""
+        if self._gravity_seen is not self._fast_checked or self._fast is not self._fast_seen:
+            _, kind, tp, _ = self._fast
+            self._fast_checked = self._gravity_seen
+            self._fast_seen = self._fast
+            self._fast_gravity_ok = (kind == fastkernel.FLAT and tp[6] == 0.0) or g_hat[2] <= -1.0 + 1e-9
+        return self._fast_gravity_ok
+
+    def _native_table(self, data, work) -> native.Table:
+        """The native call's argument table for ``data`` (built once per workspace and terrain)."""
+        return native.Table(self._call_arrays(data, work), self.model, data, self._fast[1], self._fast)
 
     def _evaluate_native(self, data, work, user_xfrc, sand_out, addresses) -> bool:
         """:meth:`_evaluate` for the compiled stabilized path as one native call (:mod:`rft_mujoco.native`):
@@ -577,11 +592,7 @@ class SandHandle:
         if addresses is None:
             addresses = (user_xfrc.ctypes.data, sand_out.ctypes.data)
         dt = self._opt.timestep
-        t = data.time                                 # warm start only while time runs on (_stabilized_fast)
-        if not 0.0 <= t - work.last_time <= dt * (1.0 + 1e-9):
-            work.warm_rounds[:] = 0
-            work.warm[:] = 0.0
-        work.last_time = t
+        _follow_time(work, data.time, dt)
         media = self._media
         code = native.entry()(table.address, addresses[0], addresses[1], self._g_addr, dt,
                               media.xi_n_at(self._g_mag), media.mu_surf, self._max_height,
@@ -590,11 +601,7 @@ class SandHandle:
             self._touching_numpy(data, self._g_hat, work)    # raises the non-finite state error
         k, status = native.decode(code)
         if k == 0:
-            if not work.clean:                        # nothing touches the sand: zero diagnostics, once
-                _clear(work.diag)
-                work.warm_rounds[:] = 0
-                work.warm[:] = 0.0
-                work.clean = True
+            _nothing_touches(work)
             return False
         work.clean = False
         touch = work.touch[:k]

@@ -78,8 +78,9 @@ _error: str | None = None
 def _library_path() -> str:
     import mujoco
     folder = os.path.dirname(mujoco.__file__)
-    names = sorted(n for n in os.listdir(folder) if n.startswith("libmujoco.so") or n.startswith("libmujoco.")
-                   and n.endswith(".dylib") or n == "mujoco.dll")
+    names = sorted(n for n in os.listdir(folder)
+                   if n.startswith("libmujoco.so") or (n.startswith("libmujoco.") and n.endswith(".dylib"))
+                   or n == "mujoco.dll")
     if not names:
         raise OSError(f"no libmujoco shared library in {folder}")
     return os.path.join(folder, names[-1])
