@@ -16,7 +16,9 @@ numbers from one run, not across machines. Sections:
    with the numpy backend; each timing is the median over runs of :data:`STEPS_PER_RUN`
    consecutive steps from the settled state (the bare model, without its floor, falls meanwhile: its step
    cost does not depend on that). Ant-v5 (gymnasium) env steps per second with and without sand
-   (random actions, resets on termination), and the shipped ``rft_mujoco/SandAnt-v0``.
+   (random actions, resets on termination), and the shipped ``rft_mujoco/SandAnt-v0`` (also with
+   ``rk4_stages="first"``); the accuracy and cost of ``rk4_stages`` on SandAnt-v0 at 10, 5 and 2.5 ms steps
+   against every stage at 1 ms (:func:`rk4_stages_accuracy`).
 3. **Bodies above the sand**: N free spheres 1 m above the surface, all attached; the control callback
    MuJoCo calls once per evaluation is timed on its own at N = 1 and N = 1000 bodies (per body: the
    slope), next to the mj_step times with and without sand (Euler: one evaluation per step).
