@@ -24,7 +24,7 @@ import weakref
 import mujoco
 import numpy as np
 
-from . import fastkernel
+from . import fastkernel, native
 
 _COMPILE_ENTRY_POINTS = (
     (mujoco.MjModel, "from_xml_string", True),
@@ -43,8 +43,7 @@ _RK4_C = (0.5, 0.5, 1.0)
 class _DataBook:
     """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
 
-    __slots__ = ("added", "written", "rows", "model", "nonzero", "sand", "sand_dirty", "user", "plain",
-                 "own", "stage_time", "stage", "__weakref__")
+    __slots__ = ("added", "written", "rows", "model", "sand", "user", "plain", "own", "state", "__weakref__")
 
     def __init__(self, model, data) -> None:
         nbody = model.nbody
@@ -52,18 +51,22 @@ class _DataBook:
         self.added = np.zeros((nbody, 6))
         self.written = np.zeros((nbody, 6))
         self.rows = np.zeros(0, dtype=np.int64)
-        self.nonzero = False                 # whether ``added`` has a non-zero entry
         self.sand = np.zeros((nbody, 6))     # the handles' sum of this evaluation (reused buffer)
-        self.sand_dirty = False
         self.user = np.zeros((nbody, 6))      # the user's part of xfrc_applied (reused buffer)
         # Addresses for the handles' native calls: (user wrenches, sand) when the user's part is
         # xfrc_applied itself, and when it is ``user`` (MjData's arrays never move).
         self.plain = (data.xfrc_applied.ctypes.data, self.sand.ctypes.data)
         self.own = (self.user.ctypes.data, self.sand.ctypes.data)
-        # RK4 stage tracking (handles with rk4_stages="first"): the time of the last evaluated first
-        # stage, and how many stages of that step have been seen (0: none pending).
-        self.stage_time = 0.0
-        self.stage = 0
+        # The flags and the RK4 stage tracking in one array (the native route reads and writes it too):
+        # nonzero (``added`` has a non-zero entry), sand_dirty (``sand`` needs zeroing), and for handles with
+        # rk4_stages="first" how many stages of the step have been seen (0: none pending) and the time of
+        # its first stage (s).
+        self.state = np.zeros(4)
+
+    nonzero = property(lambda self: bool(self.state[0]), lambda self, v: self.state.__setitem__(0, float(v)))
+    sand_dirty = property(lambda self: bool(self.state[1]), lambda self, v: self.state.__setitem__(1, float(v)))
+    stage = property(lambda self: int(self.state[2]), lambda self, v: self.state.__setitem__(2, float(v)))
+    stage_time = property(lambda self: float(self.state[3]), lambda self, v: self.state.__setitem__(3, float(v)))
 
 
 class Dispatcher:
@@ -74,6 +77,14 @@ class Dispatcher:
         self._books: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
         self._routes: dict = {}              # id(model) -> (model, handles, rows), rebuilt on (un)register
         self._lock = threading.RLock()
+        # Native routes: id(MjData) -> (weakref to it, model, generation, model.opt, route address, Route);
+        # a route is used only while its generation is current (invalidate() bumps it).
+        self._native: dict = {}
+        self._generation = 0
+        self.native_routes = True
+        """Make the whole callback one native call (:class:`rft_mujoco.native.Route`) for a model whose
+        handles all take the native call; False keeps every evaluation on the Python path (the tests
+        compare the two)."""
 
     # --- registration ---------------------------------------------------------------------------
     def register(self, handle) -> None:
@@ -82,14 +93,21 @@ class Dispatcher:
                 self._install()
             self._handles.append(handle)
             self._routes.clear()
+            self.invalidate()
 
     def unregister(self, handle) -> None:
         with self._lock:
             if handle in self._handles:
                 self._handles.remove(handle)
             self._routes.clear()
+            self.invalidate()
             if not self._handles:
                 self._uninstall()
+
+    def invalidate(self) -> None:
+        """Forget the native routes (a handle, a terrain, gravity or a setting changed): the next
+        evaluation of each MjData runs in Python and rebuilds its route."""
+        self._generation += 1
 
     @property
     def handles(self) -> tuple:
@@ -158,6 +176,16 @@ class Dispatcher:
     def __call__(self, model, data) -> None:
         if self._chained is not None:
             self._chained(model, data)
+        fast = self._native.get(id(data))
+        if fast is not None and fast[2] == self._generation and fast[1] is model and fast[0]() is data \
+                and fast[4] is not None:
+            opt = fast[3]
+            if fast[4](fast[5], data.time, opt.timestep, opt.integrator) == native.ROUTE_DONE:
+                return
+        self._evaluate(model, data)
+
+    def _evaluate(self, model, data) -> None:
+        """One evaluation on the Python path (what the native route does, and its reference)."""
         handles, rows = self._route(model)
         if not handles:
             return
@@ -188,23 +216,53 @@ class Dispatcher:
             if h._evaluate(data, user, sand, addresses) is not False:
                 any_sand = True
         if not any_sand and not book.nonzero:
-            # Fast path (every body above the sand, as before): xfrc_applied already is the user's.
+            # Every body above the sand, as before: xfrc_applied already is the user's.
             book.sand_dirty = False
-            book.rows = rows
-            return
-        if book.rows is not rows:
-            stale = np.setdiff1d(book.rows, rows)
-            if stale.size:                               # rows of handles detached since the last call
-                xfrc[stale] = user[stale]
-        if fast:
-            fastkernel.commit(xfrc, user, sand, rows, book.added, book.written)
         else:
-            xfrc[rows] = user[rows] + sand[rows]
-            book.added[:] = 0.0
-            book.added[rows] = sand[rows]
-            book.written[rows] = xfrc[rows]
+            if book.rows is not rows:
+                stale = np.setdiff1d(book.rows, rows)
+                if stale.size:                               # rows of handles detached since the last call
+                    xfrc[stale] = user[stale]
+            if fast:
+                fastkernel.commit(xfrc, user, sand, rows, book.added, book.written)
+            else:
+                xfrc[rows] = user[rows] + sand[rows]
+                book.added[:] = 0.0
+                book.added[rows] = sand[rows]
+                book.written[rows] = xfrc[rows]
+            book.nonzero = any_sand
         book.rows = rows
-        book.nonzero = any_sand
+        if fast and self.native_routes:
+            entry = self._native.get(id(data))
+            if entry is None or entry[2] != self._generation or entry[0]() is not data:
+                self._build_route(model, data, book, handles, rows)
+
+    def _build_route(self, model, data, book: _DataBook, handles, rows) -> None:
+        """The native route of (model, data), or a record that there is none (a handle that does not take
+        the native call), valid until :meth:`invalidate`."""
+        call = route = None
+        works = [h._work.get(data) for h in handles]
+        if native.route_entry() is not None and all(
+                h.native and h.stabilize and h.compiled_limiter and h._fast is not None
+                and h._gravity_seen is not None and h._fast_touching_ok(h._g_hat)
+                and w is not None and w.native is not None and w.native.source is h._fast
+                for h, w in zip(handles, works)):
+            for h in handles:
+                h._counts[1] = 0 if h.monitor is None else h.monitor.every
+            route = native.Route(
+                dict(state=book.state, xfrc=data.xfrc_applied, written=book.written, added=book.added,
+                     rows=rows, user=book.user, sand=book.sand),
+                [dict(table=w.native, g_hat=h._g_hat, gravity=h._gravity_vec,
+                      flags=native.flags(h.warm_start, h.guards), counts=h._counts, state=w.state,
+                      xi_n=h._media.xi_n_at(h._g_mag), mu_surf=h._media.mu_surf, max_height=h._max_height)
+                 for h, w in zip(handles, works)],
+                all(h.rk4_stages == "first" for h in handles), handles[0]._opt_gravity)
+            call = native.route_entry()
+        for key, entry in list(self._native.items()):       # forget the MjData that are gone
+            if entry[0]() is None:
+                del self._native[key]
+        self._native[id(data)] = (weakref.ref(data), model, self._generation, model.opt, call,
+                                  None if route is None else route.address, route)
 
     @staticmethod
     def _later_rk4_stage(book: _DataBook, t: float, dt: float) -> bool:

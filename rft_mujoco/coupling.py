@@ -119,14 +119,15 @@ class _Workspace:
     """Per-MjData buffers of one handle (datas may be stepped in different threads): the diagnostics,
     and rows 0..k-1 of the touching bodies' poses, velocities and octant wrenches."""
 
-    __slots__ = ("diag", "clean", "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "groups",
+    __slots__ = ("diag", "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "groups",
                  "count", "max_depth", "col_groups", "col_count", "col_max_depth", "scratch", "col_v", "col_w",
-                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "last_time", "args", "native")
+                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "state", "args", "native")
 
     def __init__(self, n_bodies: int, compiled: bool, nv: int, rest_columns: int) -> None:
         b = n_bodies
         self.diag = Diagnostics.zeros(b)
-        self.clean = True
+        # (clean, last time s) in one array, read and written by the native route as well.
+        self.state = np.array([1.0, -math.inf])
         self.touch = np.zeros(b, dtype=np.int64)
         self.body_pos, self.body_com, self.v_com, self.omega = (np.zeros((b, 3)) for _ in range(4))
         self.body_mat = np.zeros((b, 9))
@@ -148,9 +149,26 @@ class _Workspace:
         r = rest_columns
         self.warm = np.zeros((b, kernel.GROUPS_PER_BODY, r, r))
         self.warm_rounds = np.zeros(b, dtype=np.int64)
-        self.last_time = -math.inf
         self.args = None            # the compiled calls' fixed arguments (SandHandle._fixed_args)
         self.native = None          # the native call's argument table (SandHandle._native_table)
+
+    @property
+    def clean(self) -> bool:
+        """Whether the diagnostics and the warm start are already zero (no body touched last time)."""
+        return bool(self.state[0])
+
+    @clean.setter
+    def clean(self, value: bool) -> None:
+        self.state[0] = 1.0 if value else 0.0
+
+    @property
+    def last_time(self) -> float:
+        """The time of the last evaluation, s (for the warm start's continuity check)."""
+        return float(self.state[1])
+
+    @last_time.setter
+    def last_time(self, value: float) -> None:
+        self.state[1] = value
 
 
 def _body_id(model, name) -> int:
@@ -195,7 +213,17 @@ class SandHandle:
         body_ids: (B,) int, bodies that feel the sand.
         body_names: their names.
         n_elements: total surface elements (candidates) over those bodies.
+        evaluations: sand evaluations so far (all MjData together).
     """
+
+    _ROUTED = frozenset({"native", "stabilize", "passive", "compiled_limiter", "warm_start", "guards", "monitor",
+                         "rk4_stages", "attached", "_fast", "_max_height", "_media", "_g_addr"})
+    """Attributes the dispatcher's native routes were built from: setting one rebuilds them."""
+
+    def __setattr__(self, name, value) -> None:
+        object.__setattr__(self, name, value)
+        if name in SandHandle._ROUTED:
+            DISPATCHER.invalidate()
 
     def __init__(self, model, media: Media, body_ids: Sequence[int], terrain: Terrain, size: float,
                  guards: Guards, stabilize: bool, passive: bool, monitor: bool | ValidityMonitor = True,
@@ -203,6 +231,7 @@ class SandHandle:
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
         self._backend_request = None
+        self._counts = np.zeros(2, dtype=np.int64)       # evaluations, monitor period (the native route's)
         self.model = model
         self.media = media
         self.terrain = terrain
@@ -289,6 +318,14 @@ class SandHandle:
         self._select_backend()
 
     # --- public -------------------------------------------------------------------------------------
+    @property
+    def evaluations(self) -> int:
+        return int(self._counts[0])
+
+    @evaluations.setter
+    def evaluations(self, value: int) -> None:
+        self._counts[0] = value
+
     @property
     def media(self) -> Media:
         """The granular medium; may be replaced between steps (e.g. per-episode randomization)."""
@@ -391,7 +428,7 @@ class SandHandle:
     def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, addresses=None) -> bool:
         """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero.
         ``addresses``: (address of user_xfrc, of sand_out) when the caller knows them (the native call)."""
-        self.evaluations += 1
+        self._counts[0] += 1
         work = self._work.get(data)
         if work is None:
             work = self._work[data] = _Workspace(len(self.body_ids), self._fast is not None, self.model.nv,
@@ -420,7 +457,7 @@ class SandHandle:
             status, max_depth = self._evaluate_steps(data, user_xfrc, work, touch, dt, g_hat, sand_out)
         if status < 0:
             self._raise_not_finite(diag, touch)
-        if self.monitor is not None and self.evaluations % self.monitor.every == 0:
+        if self.monitor is not None and self._counts[0] % self.monitor.every == 0:
             self.monitor.check(self, data, touch, v_com, omega, max_depth)
         return bool(status)
 
@@ -609,7 +646,7 @@ class SandHandle:
             self._free_motion(data, self.body_ids[touch], user_xfrc, dt)   # raises, naming the bodies
         if status < 0:
             self._raise_not_finite(work.diag, touch)
-        if self.monitor is not None and self.evaluations % self.monitor.every == 0:
+        if self.monitor is not None and self._counts[0] % self.monitor.every == 0:
             self.monitor.check(self, data, touch, work.v_com[:k], work.omega[:k], work.max_depth[:k])
         return bool(status)
 

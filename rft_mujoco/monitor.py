@@ -87,10 +87,20 @@ class ValidityMonitor:
     """
 
     def __init__(self, every: int = CHECK_EVERY):
-        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
-            raise ValueError(f"every must be a positive int (evaluations between checks), got {every!r}")
-        self.every = int(every)
+        self.every = every
         self.reset()
+
+    @property
+    def every(self) -> int:
+        return self._every
+
+    @every.setter
+    def every(self, value: int) -> None:
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"every must be a positive int (evaluations between checks), got {value!r}")
+        self._every = int(value)
+        from ._dispatch import DISPATCHER      # the native routes read the period: rebuild them
+        DISPATCHER.invalidate()
 
     def reset(self) -> None:
         """Forget the worst values and the warnings already given (warn again on the next violation)."""

@@ -70,8 +70,9 @@ def decode(code: int) -> tuple[int, int]:
 
 
 _lock = threading.Lock()
-_entry = None            # the ctypes function, once built
-_cfunc = None
+_entry = None            # the ctypes functions, once built
+_route_entry = None
+_cfunc = _route_cfunc = None
 _error: str | None = None
 
 
@@ -137,6 +138,7 @@ if numba is not None:
         return _carray(_as_i64(t[s]), (t[s + 1], t[s + 2]))
 
     _touching, _stabilized = fastkernel.touching, fastlimit.stabilized
+    _user_part, _commit = fastkernel.user_part, fastkernel.commit
 
 
 def _evaluate(t, user_addr, sand_addr, g_addr, dt, xi_n, mu_surf, max_height, flags):
@@ -179,6 +181,108 @@ def _evaluate(t, user_addr, sand_addr, g_addr, dt, xi_n, mu_surf, max_height, fl
     return k * 8 + status + _STATUS_OFFSET
 
 
+if numba is not None:
+    _evaluate_nb = numba.njit(_evaluate)
+
+
+# --- the whole control callback of one (model, MjData) as one native call ------------------------------
+ROUTE_DONE, ROUTE_PYTHON = 0, 1
+"""Return values of the route call: everything was done natively, or the Python dispatcher must do this
+evaluation (nothing was committed)."""
+ROUTE_HEAD = 16
+"""Entries of a route table before its per-handle blocks."""
+ROUTE_HANDLE = 8
+"""Entries of one handle's block."""
+ROUTE_FLOATS = 3
+"""Float entries per handle in the route's float table: xi_n N/m^3, mu_surf, max_height m."""
+_RK4_C = (0.5, 0.5, 1.0)      # the times of RK4 stages 2-4 after the first, in steps (as _dispatch)
+
+
+def _route(r, time, dt, integrator):
+    """The route call's body (compiled as a cfunc by :func:`_build`): the dispatcher's
+    ``Dispatcher.__call__`` for one (model, MjData) whose handles all take the native call, on the route
+    table ``r`` (see :class:`Route`). Returns :data:`ROUTE_PYTHON`, having committed nothing and counted
+    no evaluation, whenever the Python path must run: a monitor check is due, gravity changed, the state
+    is not finite or a wrench is not (the Python path then raises, naming the bodies)."""
+    n_handles = r[0]
+    st = _carray(_as_f64(r[1]), (4,))              # the book: nonzero, sand_dirty, stage, stage_time
+    nbody = r[3]
+    floats = _carray(_as_f64(r[12]), (n_handles * ROUTE_FLOATS,))
+    live_g = _carray(_as_f64(r[11]), (3,))
+    for i in range(n_handles):
+        b = ROUTE_HEAD + i * ROUTE_HANDLE
+        counts = _carray(_as_i64(r[b + 4]), (2,))    # evaluations, monitor every (0: no monitor)
+        if counts[1] > 0 and (counts[0] + 1) % counts[1] == 0:
+            return ROUTE_PYTHON
+        seen = _carray(_as_f64(r[b + 2]), (3,))
+        if live_g[0] != seen[0] or live_g[1] != seen[1] or live_g[2] != seen[2]:
+            return ROUTE_PYTHON
+    if r[10] != 0 and integrator == r[13]:            # every handle holds the first RK4 stage's wrench
+        n = int(st[2])
+        if 1 <= n <= 3 and abs(time - (st[3] + _RK4_C[n - 1] * dt)) <= 1e-9 * dt:
+            st[2] = n + 1
+            return ROUTE_DONE
+        st[3] = time
+        st[2] = 1
+    else:
+        st[2] = 0
+    xfrc = _carray(_as_f64(r[2]), (nbody, 6))
+    written = _carray(_as_f64(r[4]), (nbody, 6))
+    added = _carray(_as_f64(r[5]), (nbody, 6))
+    rows = _carray(_as_i64(r[6]), (r[7],))
+    user = _carray(_as_f64(r[8]), (nbody, 6))
+    sand = _carray(_as_f64(r[9]), (nbody, 6))
+    nonzero = st[0] != 0.0
+    if nonzero:
+        _user_part(xfrc, written, added, rows, user)
+        user_addr = r[8]
+    else:
+        user_addr = r[2]
+    if st[1] != 0.0:
+        sand[:] = 0.0
+    st[1] = 1.0
+    any_sand = False
+    for i in range(n_handles):
+        b = ROUTE_HEAD + i * ROUTE_HANDLE
+        t = _carray(_as_i64(r[b]), (TABLE_SIZE,))
+        ws = _carray(_as_f64(r[b + 5]), (2,))        # the workspace: clean, last_time
+        if not 0.0 <= time - ws[1] <= dt * (1.0 + 1e-9):       # coupling._follow_time
+            _i1(t, _WARM_ROUNDS)[:] = 0
+            _f4(t, _WARM)[:] = 0.0
+        ws[1] = time
+        code = _evaluate_nb(t, user_addr, r[9], r[b + 1], dt, floats[i * ROUTE_FLOATS],
+                            floats[i * ROUTE_FLOATS + 1], floats[i * ROUTE_FLOATS + 2], r[b + 3])
+        if code == NOT_FINITE_STATE:
+            return ROUTE_PYTHON
+        k = code >> 3
+        status = (code & 7) - _STATUS_OFFSET
+        if k == 0:
+            if ws[0] == 0.0:                          # coupling._nothing_touches
+                _f2(t, _FORCE)[:] = 0.0
+                _f2(t, _TORQUE)[:] = 0.0
+                _i1(t, _SUBMERGED)[:] = 0
+                _f1(t, _DEPTH_MAX)[:] = 0.0
+                _f1(t, _SCALE)[:] = 1.0
+                _f2(t, _RFT_FORCE)[:] = 0.0
+                _i1(t, _WARM_ROUNDS)[:] = 0
+                _f4(t, _WARM)[:] = 0.0
+                ws[0] = 1.0
+        else:
+            ws[0] = 0.0
+            if status < 0:
+                return ROUTE_PYTHON
+            if status != 0:
+                any_sand = True
+    for i in range(n_handles):
+        _carray(_as_i64(r[ROUTE_HEAD + i * ROUTE_HANDLE + 4]), (2,))[0] += 1
+    if not any_sand and not nonzero:
+        st[1] = 0.0
+        return ROUTE_DONE
+    _commit(xfrc, user, sand, rows, added, written)
+    st[0] = 1.0 if any_sand else 0.0
+    return ROUTE_DONE
+
+
 def _build():
     """Give LLVM the two MuJoCo symbols, compile (or load from numba's cache) the cfunc; return it as a
     ctypes function."""
@@ -192,8 +296,13 @@ def _build():
     compiled = numba.cfunc(sig, cache=True, nopython=True)(_evaluate)
     proto = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64,
                              ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_int64)
-    global _cfunc
-    _cfunc = compiled                 # owns the machine code the ctypes function points to
+    routed = numba.cfunc(types.int64(_I64P, types.float64, types.float64, types.int64), cache=True,
+                         nopython=True)(_route)
+    route_proto = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_double, ctypes.c_double,
+                                   ctypes.c_int64)
+    global _cfunc, _route_cfunc, _route_entry
+    _cfunc, _route_cfunc = compiled, routed      # own the machine code the ctypes functions point to
+    _route_entry = route_proto(routed.address)
     return proto(compiled.address)
 
 
@@ -254,6 +363,59 @@ class Table:
         self.arrays = kept
         self.address = ints.ctypes.data
         self.source = source          # what the table was built from (rebuilt when it changes)
+
+
+class Route:
+    """The route table of one (model, MjData): what ``Dispatcher.__call__`` reads and writes, for a model
+    whose every handle takes the native call (keeps every array it points to alive).
+
+    Layout (int64): 0 the number of handles H; 1 the book's state (float64: nonzero, sand_dirty, RK4 stage,
+    RK4 stage time s); 2 ``xfrc_applied``; 3 nbody; 4, 5 the book's ``written`` and ``added``; 6, 7 the
+    route's body rows and their count; 8, 9 the book's user and sand buffers; 10 whether every handle
+    holds the first RK4 stage; 11 the model's live gravity (3,); 12 the float table (H x ROUTE_FLOATS);
+    13 MuJoCo's id of the RK4 integrator.
+    Then per handle (ROUTE_HANDLE entries from ROUTE_HEAD): its native :class:`Table`, its gravity
+    direction (3,), the gravity it was computed from (3,), its flag word, its evaluation counter (int64:
+    evaluations, monitor period or 0), its workspace's state (float64: clean, last time s).
+    """
+
+    __slots__ = ("ints", "floats", "keep", "address")
+
+    def __init__(self, book: dict, handles: list[dict], all_first: bool, gravity: np.ndarray) -> None:
+        import mujoco
+        keep = []
+
+        def address(a, dtype, shape=None):
+            if a.dtype != dtype or not a.flags.c_contiguous or (shape is not None and a.shape != shape):
+                raise TypeError(f"native route: expected a C-contiguous {np.dtype(dtype)} array of shape "
+                                f"{shape}, got {a.dtype} {a.shape}")
+            keep.append(a)
+            return a.ctypes.data
+
+        nbody = book["xfrc"].shape[0]
+        ints = np.zeros(ROUTE_HEAD + ROUTE_HANDLE * len(handles), dtype=np.int64)
+        floats = np.zeros(ROUTE_FLOATS * len(handles))
+        ints[:ROUTE_HEAD - 2] = (
+            len(handles), address(book["state"], np.float64, (4,)), address(book["xfrc"], np.float64),
+            nbody, address(book["written"], np.float64, (nbody, 6)), address(book["added"], np.float64, (nbody, 6)),
+            address(book["rows"], np.int64), book["rows"].size, address(book["user"], np.float64, (nbody, 6)),
+            address(book["sand"], np.float64, (nbody, 6)), int(all_first), address(gravity, np.float64, (3,)),
+            address(floats, np.float64), int(mujoco.mjtIntegrator.mjINT_RK4))
+        for i, h in enumerate(handles):
+            table = h["table"]
+            keep.append(table)
+            ints[ROUTE_HEAD + i * ROUTE_HANDLE:ROUTE_HEAD + (i + 1) * ROUTE_HANDLE] = (
+                table.address, address(h["g_hat"], np.float64, (3,)), address(h["gravity"], np.float64, (3,)),
+                h["flags"], address(h["counts"], np.int64, (2,)), address(h["state"], np.float64, (2,)), 0, 0)
+            floats[i * ROUTE_FLOATS:(i + 1) * ROUTE_FLOATS] = (h["xi_n"], h["mu_surf"], h["max_height"])
+        self.ints, self.floats, self.keep = ints, floats, keep
+        self.address = ints.ctypes.data
+
+
+def route_entry():
+    """The route call (a ctypes function ``(route address, time s, timestep s, integrator) -> int``), or
+    None when the native entry points cannot be built."""
+    return _route_entry if entry() is not None else None
 
 
 def flags(warm_start: bool, guards: law.Guards) -> int:
