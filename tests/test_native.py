@@ -163,3 +163,130 @@ def test_rk4_first_needs_every_handle_and_rk4():
         assert h.evaluations == 3
     with pytest.raises(ValueError, match="rk4_stages must be one of"):
         rft_mujoco.attach(euler, MEDIA, None, 0.0, 0.01, rk4_stages="last")
+
+
+# --- the native route: the whole callback as one native call ---------------------------------------------
+
+def _route_rollout(routes, integrator="Euler", steps=50, events=None, two_handles=False, datas=1, **attach_kw):
+    """xfrc_applied and qpos after every step of a sand rollout of SCENE with the dispatcher's native
+    routes on or off; ``events`` maps a step to a function of (handles, model, datas) run before it.
+    Returns (trajectory, diagnostics of the first MjData, evaluations, Python-path evaluations)."""
+    from rft_mujoco._dispatch import DISPATCHER
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator=integrator))
+    ds = [mujoco.MjData(model) for _ in range(datas)]
+    for i, d in enumerate(ds):
+        d.qvel[:] = np.random.default_rng(i).normal(size=model.nv) * 0.5
+    kw = {"monitor": False, "backend": "numba", **attach_kw}
+    bodies = [["ball", "brick"], ["arm", "hand", "high"]] if two_handles else [None]
+    handles = [rft_mujoco.attach(model, MEDIA, b, 0.0, 0.01, **kw) for b in bodies]
+    python_calls = [0]
+    original = DISPATCHER._evaluate
+
+    def counted(m, d):
+        python_calls[0] += 1
+        original(m, d)
+
+    DISPATCHER.native_routes, DISPATCHER._evaluate = routes, counted
+    out = []
+    try:
+        for step in range(steps):
+            if events and step in events:
+                events[step](handles, model, ds)
+            for d in ds:
+                mujoco.mj_step(model, d)
+                out.append(np.concatenate([d.xfrc_applied.ravel(), d.qpos]))
+        diag = handles[-1].diagnostics(ds[0])
+        last = np.concatenate([diag.force.ravel(), diag.torque.ravel(), diag.scale, diag.max_depth,
+                               diag.submerged])
+        evaluations = [h.evaluations for h in handles]
+    finally:
+        DISPATCHER.native_routes = True
+        del DISPATCHER._evaluate
+        for h in handles:
+            if h.attached:
+                h.detach()
+    return np.array(out), last, evaluations, python_calls[0]
+
+
+def _user_wrench(step):
+    def push(handles, model, ds):
+        for d in ds:
+            d.xfrc_applied[1, 2] = 3.0 * np.sin(0.1 * step)
+            d.xfrc_applied[2, :3] = 0.0 if step % 3 else 1.0
+    return push
+
+
+ROUTE_CASES = {
+    "euler": dict(),
+    "rk4": dict(integrator="RK4"),
+    "rk4 first stage": dict(integrator="RK4", rk4_stages="first"),
+    "implicitfast warm start": dict(integrator="implicitfast", warm_start=True),
+    "user wrenches, two datas": dict(datas=2, events={s: _user_wrench(s) for s in range(0, 50, 2)}),
+    "two handles, guards": dict(two_handles=True, guards=law.Guards.all()),
+    "settings changed": dict(two_handles=True, events={
+        10: lambda hs, m, ds: setattr(hs[0], "warm_start", True),
+        20: lambda hs, m, ds: setattr(hs[1], "terrain", FlatSurface(0.03)),
+        25: lambda hs, m, ds: m.opt.gravity.__setitem__(slice(None), (0.0, 0.5, -9.0)),
+        30: lambda hs, m, ds: setattr(hs[0], "media", rft_mujoco.get_media("dem_glass_beads")),
+        35: lambda hs, m, ds: hs[1].detach(),
+        40: lambda hs, m, ds: setattr(m.opt, "timestep", 0.001)}),
+    "monitor every 7": dict(monitor=7),
+}
+
+
+class _CountingMonitor(rft_mujoco.monitor.ValidityMonitor):
+    def check(self, handle, data, *args) -> None:
+        self.times.append(data.time)
+        super().check(handle, data, *args)
+
+    def reset(self) -> None:
+        super().reset()
+        self.times = []
+
+
+@pytest.mark.parametrize("case", list(ROUTE_CASES))
+def test_native_route_equals_the_python_path_bit_for_bit(case):
+    runs = []
+    for routes in (True, False):
+        kw = dict(ROUTE_CASES[case])
+        if "monitor" in kw:
+            kw["monitor"] = _CountingMonitor(every=kw["monitor"])
+        runs.append((_route_rollout(routes, **kw), kw.get("monitor")))
+    (got, got_diag, got_n, got_python), got_monitor = runs[0]
+    (ref, ref_diag, ref_n, ref_python), ref_monitor = runs[1]
+    assert np.count_nonzero(ref[:, 6:6 * 5]) > 100            # the sand did act
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(got_diag, ref_diag)
+    assert got_n == ref_n
+    if got_monitor is not None:
+        assert len(ref_monitor.times) == ref_n[0] // 7 and got_monitor.times == ref_monitor.times
+        assert got_python <= ref_python / 7 + 3     # Python ran for the monitor checks (and the first call)
+    else:
+        assert got_python < ref_python / 3          # Python ran to build routes, and after each change
+
+
+def test_native_route_falls_back_to_python_where_it_must():
+    """A user control callback is chained in Python; numpy handles and stabilize=False take no route;
+    errors still raise from mj_step with the route in place."""
+    from rft_mujoco._dispatch import DISPATCHER
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    data = mujoco.MjData(model)
+    seen = []
+    mujoco.set_mjcb_control(lambda m, d: seen.append(d.time))
+    try:
+        with rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=False, backend="numba"):
+            for _ in range(5):
+                mujoco.mj_step(model, data)
+            assert DISPATCHER._native[id(data)][4] is not None            # a route was built and used
+            assert len(seen) == 5                                       # the user's callback still runs
+            data.qvel[0] = np.nan
+            with pytest.raises(FloatingPointError, match="non-finite qpos/qvel"):
+                mujoco.mj_forward(model, data)         # (mj_step would reset the NaN state first)
+    finally:
+        mujoco.set_mjcb_control(None)
+    for kw in (dict(backend="numpy"), dict(stabilize=False)):
+        data = mujoco.MjData(model)
+        with rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=False, **kw):
+            mujoco.mj_step(model, data)
+            mujoco.mj_step(model, data)
+            assert DISPATCHER._native[id(data)][4] is None
