@@ -431,6 +431,7 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
     flat = kind == FLAT and tp[6] == 0.0
     h0 = tp[0]
     n_active = 0
+    seg = np.empty(GROUPS_PER_BODY + 1, dtype=np.int64)
     for j in range(n_on):
         b = bodies[j]
         for o in range(groups.shape[1]):
@@ -451,6 +452,8 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
         aax = acc[j, 3] if pred else 0.0
         aay = acc[j, 4] if pred else 0.0
         aaz = acc[j, 5] if pred else 0.0
+        if not pred and ux == 0.0 and uy == 0.0 and uz == 0.0 and wx == 0.0 and wy == 0.0 and wz == 0.0:
+            continue                         # a body at rest: no element moves, no element is loaded
         for q in range(body_clusters[b], body_clusters[b + 1]):
             q0, q1, q2 = cluster_center[q, 0], cluster_center[q, 1], cluster_center[q, 2]
             low = -((px + (r0 * q0 + r1 * q1 + r2 * q2)) * g0 + (py + (r3 * q0 + r4 * q1 + r5 * q2)) * g1
@@ -474,10 +477,29 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
                     l0, l1, l2 = centroids[0, s + i], centroids[1, s + i], centroids[2, s + i]
                     scratch[3, i] = _depth(px + (r0 * l0 + r1 * l1 + r2 * l2), py + (r3 * l0 + r4 * l1 + r5 * l2),
                                            pz + (r6 * l0 + r7 * l1 + r8 * l2), g0, g1, g2, kind, tp, heights)
-            # 2. velocity, predicted direction, leading test, stress: no branches (vectorized)
-            for i in range(n):
+            # 2. only the submerged elements go on: packed to the front of scratch with their normals and
+            # areas (rows 4-7), octant by octant (seg[o]:seg[o + 1]). Padding slots have NaN depths.
+            mm = 0
+            for o in range(GROUPS_PER_BODY):
+                seg[o] = mm
+                for i in range(cluster_octant[q, o] - s, cluster_octant[q, o + 1] - s):
+                    if scratch[3, i] > 0.0:
+                        scratch[0, mm] = scratch[0, i]
+                        scratch[1, mm] = scratch[1, i]
+                        scratch[2, mm] = scratch[2, i]
+                        scratch[3, mm] = scratch[3, i]
+                        scratch[4, mm] = normals[0, s + i]
+                        scratch[5, mm] = normals[1, s + i]
+                        scratch[6, mm] = normals[2, s + i]
+                        scratch[7, mm] = areas[s + i]
+                        mm += 1
+            seg[GROUPS_PER_BODY] = mm
+            if mm == 0:
+                continue
+            # 3. velocity, predicted direction, leading test, stress: no branches (vectorized)
+            for i in range(mm):
                 hx, hy, hz, depth = scratch[0, i], scratch[1, i], scratch[2, i], scratch[3, i]
-                m0, m1, m2 = normals[0, s + i], normals[1, s + i], normals[2, s + i]
+                m0, m1, m2 = scratch[4, i], scratch[5, i], scratch[6, i]
                 nx = r0 * m0 + r1 * m1 + r2 * m2
                 ny = r3 * m0 + r4 * m1 + r5 * m2
                 nz = r6 * m0 + r7 * m1 + r8 * m2
@@ -499,26 +521,26 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
                 vx /= speed
                 vy /= speed
                 vz /= speed
-                keep = (depth > 0.0) & (speed > zero_speed) & (nx * vx + ny * vy + nz * vz >= -lead_tol)
+                keep = (speed > zero_speed) & (nx * vx + ny * vy + nz * vz >= -lead_tol)
                 rx, ry, rz = _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forward,
                                      no_power, lead_tol, vert_tol)
-                sa = depth * areas[s + i]
+                sa = depth * scratch[7, i]
                 fx = (xi_n * rx) * sa if keep else 0.0
                 fy = (xi_n * ry) * sa if keep else 0.0
                 fz = (xi_n * rz) * sa if keep else 0.0
                 scratch[4, i] = fx
                 scratch[5, i] = fy
                 scratch[6, i] = fz
-                scratch[7, i] = hy * fz - hz * fy if keep else 0.0     # padding slots have NaN arms
+                scratch[7, i] = hy * fz - hz * fy if keep else 0.0
                 scratch[8, i] = hz * fx - hx * fz if keep else 0.0
                 scratch[9, i] = hx * fy - hy * fx if keep else 0.0
                 scratch[10, i] = 1.0 if keep else 0.0
-            # 3. each octant segment into its group (elements not loaded add exact zeros): register sums
+            # 4. each octant segment into its group (elements not loaded add exact zeros): register sums
             kept = 0.0
             deepest = max_depth[j]
             for o in range(GROUPS_PER_BODY):
-                lo = cluster_octant[q, o] - s
-                hi = cluster_octant[q, o + 1] - s
+                lo = seg[o]
+                hi = seg[o + 1]
                 if lo == hi:
                     continue
                 a0 = groups[j, o, 0]
@@ -853,6 +875,7 @@ def ensure_compiled(verbose: bool = True) -> float:
                 pass
 
         t0 = time.perf_counter()
+        _drop_stale_cache()
         with event.install_listener("numba:compile", _Notice()):
             _warm_up()
         _compiled = True
@@ -860,6 +883,44 @@ def ensure_compiled(verbose: bool = True) -> float:
         if shown:
             _log.info("rft_mujoco: numba kernel compiled in %.1f s", seconds)
         return seconds
+
+
+_KERNEL_MODULES = ("fastkernel", "fastlimit", "kernel", "native", "law")
+"""The modules whose compiled functions call one another (the package's numba cache)."""
+
+
+def _drop_stale_cache() -> None:
+    """numba keys each function's cache entry on its own source file only, so a compiled function that
+    calls into another module would keep stale machine code after that module alone changed (an edit, a
+    ``git checkout``). The package therefore stamps its cache with a hash of all the kernel modules and
+    drops the cache files when the hash differs. (Only for the default cache next to the sources; with
+    ``NUMBA_CACHE_DIR`` set, clear that directory after changing the sources.)"""
+    import glob
+    import hashlib
+    import os
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    folder = os.path.join(here, "__pycache__")
+    digest = hashlib.sha256()
+    for name in _KERNEL_MODULES:
+        with open(os.path.join(here, name + ".py"), "rb") as f:
+            digest.update(f.read())
+    stamp = os.path.join(folder, "rft_mujoco_kernels.sha256")
+    try:
+        with open(stamp) as f:
+            if f.read().strip() == digest.hexdigest():
+                return
+    except OSError:
+        pass
+    try:
+        os.makedirs(folder, exist_ok=True)
+        for name in _KERNEL_MODULES:
+            for path in glob.glob(os.path.join(folder, f"{name}.*.nb[ic]")):
+                os.remove(path)
+        with open(stamp, "w") as f:
+            f.write(digest.hexdigest() + "\n")
+    except OSError:                  # a read-only install: numba caches elsewhere, keyed by file stamps
+        pass
 
 
 def _warm_up() -> None:
