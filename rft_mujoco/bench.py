@@ -165,7 +165,7 @@ def throughput(sizes) -> list[dict]:
         tol = fastkernel.tolerances()
         acc = np.zeros((0, 6))
         xi = media.xi_n_at(9.81)
-        scratch = np.empty((11, fastkernel.CLUSTER_SIZE))
+        scratch = np.empty((fastkernel.SCRATCH_ROWS, fastkernel.CLUSTER_SIZE))
         arrays = packed.arrays()
 
         def compiled_kernel():
@@ -454,7 +454,7 @@ def _evaluation_time(el, rot, depth) -> tuple[float, float]:
     mat9 = mat.reshape(1, 9).copy()
     acc = np.zeros((0, 6))
     xi = MPM_VALIDATION.xi_n_at(9.81)
-    scratch = np.empty((11, fastkernel.CLUSTER_SIZE))
+    scratch = np.empty((fastkernel.SCRATCH_ROWS, fastkernel.CLUSTER_SIZE))
 
     def compiled():
         fastkernel.wrenches(bodies, 1, *arrays, pos, mat9, pos, v_com, omega, acc, 0.0, g_hat, 0.0, kind, tp,

@@ -137,7 +137,7 @@ class _Workspace:
         self.col_groups = np.zeros((b, kernel.GROUPS_PER_BODY, 6))
         self.col_count = np.zeros(b, dtype=np.int64)
         self.col_max_depth = np.zeros(b)
-        self.scratch = np.zeros((11, fastkernel.CLUSTER_SIZE)) if compiled else None
+        self.scratch = np.zeros((fastkernel.SCRATCH_ROWS, fastkernel.CLUSTER_SIZE)) if compiled else None
         # The compiled stabilized path (fastlimit): Jacobians, free acceleration, M^-1, limiter output and
         # the previous evaluation's limiter factors (its warm start).
         self.col_v, self.col_w = np.zeros((b, 3)), np.zeros((b, 3))

@@ -19,7 +19,7 @@ submerged). Inside a cluster one pass computes positions, lever arms and depths,
 velocity, predicted direction, leading test and the stress of every element without branches (the
 element masks become selects), which LLVM vectorizes (SIMD) even with ``fastmath=False``; a third, short
 scalar pass adds the loaded elements into the cluster's octant group. All three work on a fixed
-(11, CLUSTER_SIZE) scratch buffer, never on per-element temporaries.
+(SCRATCH_ROWS, CLUSTER_SIZE) scratch buffer, never on per-element temporaries.
 
 Terrains: :class:`~rft_mujoco.terrain.FlatSurface`, :class:`~rft_mujoco.terrain.HeightfieldSurface` and
 :class:`~rft_mujoco.terrain.SandRegion` are compiled (:func:`terrain_spec`); anything else makes the
@@ -55,6 +55,9 @@ from .media import Media
 from .terrain import FlatSurface, HeightfieldSurface, SandRegion
 
 GROUPS_PER_BODY = 8
+SCRATCH_ROWS = 15
+"""Rows of the element kernel's scratch buffer: lever arms and depth (0-3), the law's outputs (4-10), the
+submerged elements' normals and areas (11-14; separate from the outputs so that the law loop vectorizes)."""
 """Octant groups per body; the same as :data:`rft_mujoco.kernel.GROUPS_PER_BODY`."""
 CLUSTER_SIZE = 128
 """Most elements per cluster (the unit of culling and of the vectorized inner loops)."""
@@ -421,7 +424,7 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
     and ``acc`` (n_on, 6) = [free linear acceleration of the COM, angular acceleration]) belongs to body
     ``b = bodies[j]``, whose elements are the clusters ``body_clusters[b]:body_clusters[b + 1]`` of the
     packed arrays (:func:`pack`). With ``acc`` of fewer rows than n_on or ``dt <= 0``, elements move along
-    their velocity (no predicted direction). ``scratch``: (11, >= cluster size) float. Output rows
+    their velocity (no predicted direction). ``scratch``: (SCRATCH_ROWS, >= cluster size) float. Output rows
     0..n_on-1 are overwritten. Returns the number of non-zero octant groups.
     """
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
@@ -432,6 +435,8 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
     h0 = tp[0]
     n_active = 0
     seg = np.empty(GROUPS_PER_BODY + 1, dtype=np.int64)
+    sub_normals = np.empty((3, scratch.shape[1]))       # the submerged elements of a cluster, packed
+    sub_areas = np.empty(scratch.shape[1])
     for j in range(n_on):
         b = bodies[j]
         for o in range(groups.shape[1]):
@@ -460,6 +465,8 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
                     + (pz + (r6 * q0 + r7 * q1 + r8 * q2)) * g2) - cluster_radius[q]
             if low > max_height:                             # the whole cluster is above the sand
                 continue
+            # flat sand: the whole cluster is in it when its highest point is below the surface h0
+            whole = flat and h0 - (low + 2.0 * cluster_radius[q]) > 0.0
             s = cluster_start[q]
             n = cluster_start[q + 1] - s
             # 1. positions, lever arms, depths
@@ -477,29 +484,37 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
                     l0, l1, l2 = centroids[0, s + i], centroids[1, s + i], centroids[2, s + i]
                     scratch[3, i] = _depth(px + (r0 * l0 + r1 * l1 + r2 * l2), py + (r3 * l0 + r4 * l1 + r5 * l2),
                                            pz + (r6 * l0 + r7 * l1 + r8 * l2), g0, g1, g2, kind, tp, heights)
-            # 2. only the submerged elements go on: packed to the front of scratch with their normals and
-            # areas (rows 4-7), octant by octant (seg[o]:seg[o + 1]). Padding slots have NaN depths.
-            mm = 0
-            for o in range(GROUPS_PER_BODY):
-                seg[o] = mm
-                for i in range(cluster_octant[q, o] - s, cluster_octant[q, o + 1] - s):
-                    if scratch[3, i] > 0.0:
-                        scratch[0, mm] = scratch[0, i]
-                        scratch[1, mm] = scratch[1, i]
-                        scratch[2, mm] = scratch[2, i]
-                        scratch[3, mm] = scratch[3, i]
-                        scratch[4, mm] = normals[0, s + i]
-                        scratch[5, mm] = normals[1, s + i]
-                        scratch[6, mm] = normals[2, s + i]
-                        scratch[7, mm] = areas[s + i]
-                        mm += 1
-            seg[GROUPS_PER_BODY] = mm
-            if mm == 0:
-                continue
+            # 2. only the submerged elements go on, octant by octant (seg[o]:seg[o + 1]): a cluster wholly in
+            # the sand as it is (its padding slots have NaN depths: never loaded), another packed to the
+            # front of scratch (lever arms, depths) and into sub_normals / sub_areas.
+            if whole:
+                n_sub = n
+                nrm, area, off = normals, areas, s
+                for o in range(GROUPS_PER_BODY + 1):
+                    seg[o] = cluster_octant[q, o] - s
+            else:
+                nrm, area, off = sub_normals, sub_areas, 0
+                n_sub = 0
+                for o in range(GROUPS_PER_BODY):
+                    seg[o] = n_sub
+                    for i in range(cluster_octant[q, o] - s, cluster_octant[q, o + 1] - s):
+                        if scratch[3, i] > 0.0:
+                            scratch[0, n_sub] = scratch[0, i]
+                            scratch[1, n_sub] = scratch[1, i]
+                            scratch[2, n_sub] = scratch[2, i]
+                            scratch[3, n_sub] = scratch[3, i]
+                            sub_normals[0, n_sub] = normals[0, s + i]
+                            sub_normals[1, n_sub] = normals[1, s + i]
+                            sub_normals[2, n_sub] = normals[2, s + i]
+                            sub_areas[n_sub] = areas[s + i]
+                            n_sub += 1
+                seg[GROUPS_PER_BODY] = n_sub
+                if n_sub == 0:
+                    continue
             # 3. velocity, predicted direction, leading test, stress: no branches (vectorized)
-            for i in range(mm):
+            for i in range(n_sub):
                 hx, hy, hz, depth = scratch[0, i], scratch[1, i], scratch[2, i], scratch[3, i]
-                m0, m1, m2 = scratch[4, i], scratch[5, i], scratch[6, i]
+                m0, m1, m2 = nrm[0, off + i], nrm[1, off + i], nrm[2, off + i]
                 nx = r0 * m0 + r1 * m1 + r2 * m2
                 ny = r3 * m0 + r4 * m1 + r5 * m2
                 nz = r6 * m0 + r7 * m1 + r8 * m2
@@ -521,10 +536,10 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
                 vx /= speed
                 vy /= speed
                 vz /= speed
-                keep = (speed > zero_speed) & (nx * vx + ny * vy + nz * vz >= -lead_tol)
+                keep = (depth > 0.0) & (speed > zero_speed) & (nx * vx + ny * vy + nz * vz >= -lead_tol)
                 rx, ry, rz = _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forward,
                                      no_power, lead_tol, vert_tol)
-                sa = depth * scratch[7, i]
+                sa = depth * area[off + i]
                 fx = (xi_n * rx) * sa if keep else 0.0
                 fy = (xi_n * ry) * sa if keep else 0.0
                 fz = (xi_n * rz) * sa if keep else 0.0
@@ -637,7 +652,7 @@ def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, bo
              _as_c(body_mat).reshape(n_bodies, 9), _as_c(body_com), _as_c(v_com), _as_c(omega), _as_c(acc),
              float(dt), g_hat, float(terrain.max_height), *spec, media.xi_n_at(g_mag), law.COEFFICIENTS,
              float(media.mu_surf), guards.no_tension, guards.no_forward_tangential, guards.no_positive_power,
-             tolerances(), np.empty((11, CLUSTER_SIZE)), groups, count, max_depth)
+             tolerances(), np.empty((SCRATCH_ROWS, CLUSTER_SIZE)), groups, count, max_depth)
     return groups, count, max_depth
 
 
@@ -945,7 +960,7 @@ def _warm_up() -> None:
     groups = np.zeros((B, GROUPS_PER_BODY, 6))
     count = np.zeros(B, dtype=i8)
     mdep = np.zeros(B)
-    scratch = np.zeros((11, CLUSTER_SIZE))
+    scratch = np.zeros((SCRATCH_ROWS, CLUSTER_SIZE))
     for kind, tp, heights in ((FLAT, np.zeros(11), _NO_HEIGHTS), (HEIGHTFIELD, np.zeros(11), np.zeros((3, 3)))):
         touching(ids, np.zeros(B, dtype=i8), xb, xm, xb, cv, xb, np.zeros(7), np.zeros(6), np.zeros((B, 3)),
                  np.zeros(B), packed.centroids, packed.cluster_start, packed.cluster_center,

@@ -42,7 +42,7 @@ import math
 import numpy as np
 
 from . import kernel
-from .fastkernel import GROUPS_PER_BODY, _JIT, finish, njit, wrenches
+from .fastkernel import GROUPS_PER_BODY, SCRATCH_ROWS, _JIT, finish, njit, wrenches
 
 if kernel.GROUPS_PER_BODY != GROUPS_PER_BODY:  # pragma: no cover - a guard against editing one of them
     raise ImportError("kernel.GROUPS_PER_BODY and fastkernel.GROUPS_PER_BODY differ")
@@ -492,7 +492,8 @@ def _warm_up(packed, kind, tp, heights, coef, tol) -> None:
                np.zeros(nv), np.zeros(nv), np.zeros(nv), np.eye(nv), *tree, 0.001, np.ones(B),
                np.zeros((B, GROUPS_PER_BODY, 3, 3)), np.zeros(B, i8), True, solver_settings(), *packed.arrays(),
                *work, np.array([0.0, 0.0, -1.0]), 0.0, kind, tp, heights, 1.0, coef, 0.4, False, False, False, tol,
-               np.zeros((11, packed.cluster_start[-1] + 128)), np.zeros((B, GROUPS_PER_BODY, 6)), np.zeros(B, i8),
+               np.zeros((SCRATCH_ROWS, packed.cluster_start[-1] + 128)), np.zeros((B, GROUPS_PER_BODY, 6)),
+               np.zeros(B, i8),
                np.zeros(B), np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, GROUPS_PER_BODY, 6)), np.zeros(B, i8),
                np.zeros(B), np.zeros((B, 6, nv)), np.zeros(nv), np.zeros((B, 6)), np.zeros((B, 3)),
                np.zeros((B, 3)), np.zeros(B, i8), np.zeros(B), np.ones(B), np.zeros((B, 3)), z6.copy())
