@@ -55,9 +55,8 @@ from .media import Media
 from .terrain import FlatSurface, HeightfieldSurface, SandRegion
 
 GROUPS_PER_BODY = 8
-SCRATCH_ROWS = 15
-"""Rows of the element kernel's scratch buffer: lever arms and depth (0-3), the law's outputs (4-10), the
-submerged elements' normals and areas (11-14; separate from the outputs so that the law loop vectorizes)."""
+SCRATCH_ROWS = 11
+"""Rows of the element kernel's scratch buffer: lever arms and depth (0-3), the law's outputs (4-10)."""
 """Octant groups per body; the same as :data:`rft_mujoco.kernel.GROUPS_PER_BODY`."""
 CLUSTER_SIZE = 128
 """Most elements per cluster (the unit of culling and of the vectorized inner loops)."""

@@ -15,6 +15,14 @@ touches the sand, ``mj_fwdActuation`` and ``mj_solveM`` straight from ``libmujoc
 given to LLVM at load time), then ``stabilized``. The compiled functions are the same as on the dispatch
 path, so the results are bit for bit the same (tests/test_native.py); only the calling changes.
 
+A second cfunc, the route (:func:`_route`, :class:`Route`), is the dispatcher's whole callback for one
+(model, MjData) whose handles all take the native call: the bookkeeping of ``xfrc_applied``, the RK4
+stage tracking, the warm-start time check and every handle's evaluation. The dispatcher builds it after
+an evaluation on the Python path and calls it through ctypes with the time, timestep and integrator;
+it hands back to Python (having committed nothing) for a monitor check, a gravity change or an error.
+On SandAnt-v0 it took the callback's Python from ~3 us to ~1 us per evaluation (the Python callback
+itself stays, so that errors raise from ``mj_step``).
+
 Everything is optional: if ``libmujoco`` or numba's cfunc support cannot be loaded, :func:`available` is
 False and the coupling keeps the dispatch path.
 """

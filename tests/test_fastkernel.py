@@ -128,6 +128,30 @@ def test_body_wrenches_tilted_gravity_and_slow_elements():
     assert cnt[0] == 0 and cnt[2] > 0
 
 
+def test_clusters_wholly_partly_and_not_in_the_sand():
+    """The compiled kernel sends a cluster wholly below flat sand through the law as it is and packs the
+    submerged elements of one that crosses the surface: both equal the numpy reference."""
+    rng = np.random.default_rng(11)
+    n = 4000                                     # one tall body: ~31 clusters from 0.35 m deep to 0.1 m up
+    c = np.column_stack([rng.uniform(-0.05, 0.05, n), rng.uniform(-0.05, 0.05, n), rng.uniform(-0.35, 0.1, n)])
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    areas = rng.uniform(1e-5, 1e-4, n)
+    eb = np.zeros(n, dtype=np.int64)
+    packed = fastkernel.pack(c, nrm, areas, eb, 1, kernel.octants(c, np.zeros(3)))
+    top = packed.cluster_center[:, 2] + packed.cluster_radius
+    bottom = packed.cluster_center[:, 2] - packed.cluster_radius
+    assert (top < 0.0).sum() >= 2 and ((bottom < 0.0) & (top > 0.0)).sum() >= 2     # both paths are taken
+    for v in ([0.1, 0.0, -0.2], [0.0, 0.0, 0.3], [-0.2, 0.1, 0.05]):
+        args = (c, nrm, areas, eb, 1, np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)), np.array([v]),
+                np.array([[0.5, -1.0, 2.0]]), FlatSurface(0.0), np.array([0.0, 0.0, -1.0]), (0.0, 0.0, -9.81),
+                MEDIA, law.PUBLISHED, None, None, 0.0, None)
+        w_ref, cnt_ref, dep_ref = kernel.body_wrenches(*args)
+        w, cnt, dep = fastkernel.body_wrenches(*args)
+        assert close(w, w_ref) and np.array_equal(cnt, cnt_ref) and close(dep, dep_ref)
+        assert 0 < cnt[0] < n
+
+
 def test_heightfield_needs_vertical_gravity_in_both():
     rng = np.random.default_rng(3)
     c, n, a, eb, pos, mat, com, vcom, om, octant = random_problem(rng, 2, 50)
