@@ -36,8 +36,6 @@ _COMPILE_ENTRY_POINTS = (
 
 
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
-_RK4_C = (0.5, 0.5, 1.0)
-"""Times of RK4 stages 2-4 after the first, in steps (MuJoCo's mj_RungeKutta tableau)."""
 
 
 class _DataBook:
@@ -63,10 +61,26 @@ class _DataBook:
         # its first stage (s).
         self.state = np.zeros(4)
 
-    nonzero = property(lambda self: bool(self.state[0]), lambda self, v: self.state.__setitem__(0, float(v)))
-    sand_dirty = property(lambda self: bool(self.state[1]), lambda self, v: self.state.__setitem__(1, float(v)))
-    stage = property(lambda self: int(self.state[2]), lambda self, v: self.state.__setitem__(2, float(v)))
-    stage_time = property(lambda self: float(self.state[3]), lambda self, v: self.state.__setitem__(3, float(v)))
+    nonzero = native.Slot("state", 0, bool)
+    sand_dirty = native.Slot("state", 1, bool)
+    stage = native.Slot("state", 2, int)
+    stage_time = native.Slot("state", 3, float)
+
+
+class _NativeEntry:
+    """The dispatcher's record of one MjData's native route (``call`` None: the model has a handle that
+    does not take the native call), valid while ``generation`` is the dispatcher's."""
+
+    __slots__ = ("data", "model", "generation", "opt", "call", "address", "route")
+
+    def __init__(self, data, model, generation: int, route) -> None:
+        self.data = weakref.ref(data)
+        self.model = model
+        self.generation = generation
+        self.opt = model.opt
+        self.call = None if route is None else native.route_entry()
+        self.address = None if route is None else route.address
+        self.route = route                   # keeps the route's arrays alive
 
 
 class Dispatcher:
@@ -77,8 +91,8 @@ class Dispatcher:
         self._books: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
         self._routes: dict = {}              # id(model) -> (model, handles, rows), rebuilt on (un)register
         self._lock = threading.RLock()
-        # Native routes: id(MjData) -> (weakref to it, model, generation, model.opt, route address, Route);
-        # a route is used only while its generation is current (invalidate() bumps it).
+        # Native routes: id(MjData) -> _NativeEntry, used only while its generation is current
+        # (invalidate() bumps it).
         self._native: dict = {}
         self._generation = 0
         self.native_routes = True
@@ -177,10 +191,10 @@ class Dispatcher:
         if self._chained is not None:
             self._chained(model, data)
         fast = self._native.get(id(data))
-        if fast is not None and fast[2] == self._generation and fast[1] is model and fast[0]() is data \
-                and fast[4] is not None:
-            opt = fast[3]
-            if fast[4](fast[5], data.time, opt.timestep, opt.integrator) == native.ROUTE_DONE:
+        if fast is not None and fast.call is not None and fast.generation == self._generation \
+                and fast.model is model and fast.data() is data:
+            opt = fast.opt
+            if fast.call(fast.address, data.time, opt.timestep, opt.integrator) == native.ROUTE_DONE:
                 return
         self._evaluate(model, data)
 
@@ -234,17 +248,16 @@ class Dispatcher:
         book.rows = rows
         if fast and self.native_routes:
             entry = self._native.get(id(data))
-            if entry is None or entry[2] != self._generation or entry[0]() is not data:
+            if entry is None or entry.generation != self._generation or entry.data() is not data:
                 self._build_route(model, data, book, handles, rows)
 
     def _build_route(self, model, data, book: _DataBook, handles, rows) -> None:
         """The native route of (model, data), or a record that there is none (a handle that does not take
         the native call), valid until :meth:`invalidate`."""
-        call = route = None
+        route = None
         works = [h._work.get(data) for h in handles]
         if native.route_entry() is not None and all(
-                h.native and h.stabilize and h.compiled_limiter and h._fast is not None
-                and h._gravity_seen is not None and h._fast_touching_ok(h._g_hat)
+                h._gravity_seen is not None and h._takes_native_call(h._g_hat)
                 and w is not None and w.native is not None and w.native.source is h._fast
                 for h, w in zip(handles, works)):
             for h in handles:
@@ -257,12 +270,10 @@ class Dispatcher:
                       xi_n=h._media.xi_n_at(h._g_mag), mu_surf=h._media.mu_surf, max_height=h._max_height)
                  for h, w in zip(handles, works)],
                 all(h.rk4_stages == "first" for h in handles), handles[0]._opt_gravity)
-            call = native.route_entry()
         for key, entry in list(self._native.items()):       # forget the MjData that are gone
-            if entry[0]() is None:
+            if entry.data() is None:
                 del self._native[key]
-        self._native[id(data)] = (weakref.ref(data), model, self._generation, model.opt, call,
-                                  None if route is None else route.address, route)
+        self._native[id(data)] = _NativeEntry(data, model, self._generation, route)
 
     @staticmethod
     def _later_rk4_stage(book: _DataBook, t: float, dt: float) -> bool:
@@ -270,7 +281,7 @@ class Dispatcher:
         book saw last (mj_RungeKutta evaluates at t0 + dt/2, t0 + dt/2, t0 + dt after mj_forward at t0);
         otherwise it is a first stage (mj_step's mj_forward, or any mj_forward) and is recorded as one."""
         n = book.stage
-        if 1 <= n <= 3 and abs(t - (book.stage_time + _RK4_C[n - 1] * dt)) <= 1e-9 * dt:
+        if 1 <= n <= 3 and abs(t - (book.stage_time + native.RK4_STAGE_TIMES[n - 1] * dt)) <= 1e-9 * dt:
             book.stage = n + 1
             return True
         book.stage_time = t

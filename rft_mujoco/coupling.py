@@ -152,23 +152,8 @@ class _Workspace:
         self.args = None            # the compiled calls' fixed arguments (SandHandle._fixed_args)
         self.native = None          # the native call's argument table (SandHandle._native_table)
 
-    @property
-    def clean(self) -> bool:
-        """Whether the diagnostics and the warm start are already zero (no body touched last time)."""
-        return bool(self.state[0])
-
-    @clean.setter
-    def clean(self, value: bool) -> None:
-        self.state[0] = 1.0 if value else 0.0
-
-    @property
-    def last_time(self) -> float:
-        """The time of the last evaluation, s (for the warm start's continuity check)."""
-        return float(self.state[1])
-
-    @last_time.setter
-    def last_time(self, value: float) -> None:
-        self.state[1] = value
+    clean = native.Slot("state", 0, bool, "Whether the diagnostics and the warm start are already zero.")
+    last_time = native.Slot("state", 1, float, "The time of the last evaluation, s (warm-start continuity).")
 
 
 def _body_id(model, name) -> int:
@@ -318,13 +303,7 @@ class SandHandle:
         self._select_backend()
 
     # --- public -------------------------------------------------------------------------------------
-    @property
-    def evaluations(self) -> int:
-        return int(self._counts[0])
-
-    @evaluations.setter
-    def evaluations(self, value: int) -> None:
-        self._counts[0] = value
+    evaluations = native.Slot("_counts", 0, int, "Sand evaluations so far (all MjData together).")
 
     @property
     def media(self) -> Media:
@@ -434,8 +413,7 @@ class SandHandle:
             work = self._work[data] = _Workspace(len(self.body_ids), self._fast is not None, self.model.nv,
                                                  int(self._solver[4]))
         g_hat = self._gravity()
-        if self.native and self.stabilize and self.compiled_limiter and self._fast is not None \
-                and self._fast_touching_ok(g_hat) and native.available():
+        if self._takes_native_call(g_hat):
             return self._evaluate_native(data, work, user_xfrc, sand_out, addresses)
         diag = work.diag
         # 1. Broadphase and depth pre-pass: the bodies with at least one submerged element.
@@ -604,6 +582,12 @@ class SandHandle:
         arrays = self._call_arrays(data, work)
         work.args = tuple(tuple(arrays[name] for name in run) for run in self._ARG_RUNS)
         return work.args
+
+    def _takes_native_call(self, g_hat) -> bool:
+        """Whether an evaluation is one native call (:meth:`_evaluate_native`; the route needs it of every
+        handle of the model)."""
+        return (self.native and self.stabilize and self.compiled_limiter and self._fast is not None
+                and self._fast_touching_ok(g_hat) and native.available())
 
     def _fast_touching_ok(self, g_hat) -> bool:
         """Whether the compiled broadphase handles this terrain and gravity (not: tilted gravity on a

@@ -55,9 +55,9 @@ from .media import Media
 from .terrain import FlatSurface, HeightfieldSurface, SandRegion
 
 GROUPS_PER_BODY = 8
+"""Octant groups per body; the same as :data:`rft_mujoco.kernel.GROUPS_PER_BODY`."""
 SCRATCH_ROWS = 11
 """Rows of the element kernel's scratch buffer: lever arms and depth (0-3), the law's outputs (4-10)."""
-"""Octant groups per body; the same as :data:`rft_mujoco.kernel.GROUPS_PER_BODY`."""
 CLUSTER_SIZE = 128
 """Most elements per cluster (the unit of culling and of the vectorized inner loops)."""
 PAD = 16

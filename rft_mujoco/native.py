@@ -203,7 +203,31 @@ ROUTE_HANDLE = 8
 """Entries of one handle's block."""
 ROUTE_FLOATS = 3
 """Float entries per handle in the route's float table: xi_n N/m^3, mu_surf, max_height m."""
-_RK4_C = (0.5, 0.5, 1.0)      # the times of RK4 stages 2-4 after the first, in steps (as _dispatch)
+RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
+"""Times of RK4 stages 2-4 after the first, in steps (MuJoCo's mj_RungeKutta tableau): how the dispatcher
+and the route recognize a later stage."""
+
+
+class Slot:
+    """An attribute kept in entry ``index`` of the object's numpy array attribute ``array`` (state the
+    native route reads and writes too), read back as ``kind``."""
+
+    def __init__(self, array: str, index: int, kind=float, doc: str | None = None) -> None:
+        self.array, self.index, self.kind, self.__doc__ = array, index, kind, doc
+
+    def __get__(self, obj, owner=None):
+        return self if obj is None else self.kind(getattr(obj, self.array)[self.index])
+
+    def __set__(self, obj, value) -> None:
+        getattr(obj, self.array)[self.index] = value
+
+
+if numba is not None:
+    @numba.njit(inline="always")
+    def _cold(t):
+        """Clear a table's limiter warm start."""
+        _i1(t, _WARM_ROUNDS)[:] = 0
+        _f4(t, _WARM)[:] = 0.0
 
 
 def _route(r, time, dt, integrator):
@@ -227,7 +251,7 @@ def _route(r, time, dt, integrator):
             return ROUTE_PYTHON
     if r[10] != 0 and integrator == r[13]:            # every handle holds the first RK4 stage's wrench
         n = int(st[2])
-        if 1 <= n <= 3 and abs(time - (st[3] + _RK4_C[n - 1] * dt)) <= 1e-9 * dt:
+        if 1 <= n <= 3 and abs(time - (st[3] + RK4_STAGE_TIMES[n - 1] * dt)) <= 1e-9 * dt:
             st[2] = n + 1
             return ROUTE_DONE
         st[3] = time
@@ -255,8 +279,7 @@ def _route(r, time, dt, integrator):
         t = _carray(_as_i64(r[b]), (TABLE_SIZE,))
         ws = _carray(_as_f64(r[b + 5]), (2,))        # the workspace: clean, last_time
         if not 0.0 <= time - ws[1] <= dt * (1.0 + 1e-9):       # coupling._follow_time
-            _i1(t, _WARM_ROUNDS)[:] = 0
-            _f4(t, _WARM)[:] = 0.0
+            _cold(t)
         ws[1] = time
         code = _evaluate_nb(t, user_addr, r[9], r[b + 1], dt, floats[i * ROUTE_FLOATS],
                             floats[i * ROUTE_FLOATS + 1], floats[i * ROUTE_FLOATS + 2], r[b + 3])
@@ -272,8 +295,7 @@ def _route(r, time, dt, integrator):
                 _f1(t, _DEPTH_MAX)[:] = 0.0
                 _f1(t, _SCALE)[:] = 1.0
                 _f2(t, _RFT_FORCE)[:] = 0.0
-                _i1(t, _WARM_ROUNDS)[:] = 0
-                _f4(t, _WARM)[:] = 0.0
+                _cold(t)
                 ws[0] = 1.0
         else:
             ws[0] = 0.0

@@ -277,7 +277,7 @@ def test_native_route_falls_back_to_python_where_it_must():
         with rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=False, backend="numba"):
             for _ in range(5):
                 mujoco.mj_step(model, data)
-            assert DISPATCHER._native[id(data)][4] is not None            # a route was built and used
+            assert DISPATCHER._native[id(data)].call is not None            # a route was built and used
             assert len(seen) == 5                                       # the user's callback still runs
             data.qvel[0] = np.nan
             with pytest.raises(FloatingPointError, match="non-finite qpos/qvel"):
@@ -289,4 +289,4 @@ def test_native_route_falls_back_to_python_where_it_must():
         with rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=False, **kw):
             mujoco.mj_step(model, data)
             mujoco.mj_step(model, data)
-            assert DISPATCHER._native[id(data)][4] is None
+            assert DISPATCHER._native[id(data)].call is None
