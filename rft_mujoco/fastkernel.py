@@ -93,11 +93,18 @@ except Exception as exc:  # pragma: no cover - exercised only where numba is mis
 # exception check per division, which would stop vectorization.
 _JIT = dict(cache=True, fastmath=False, nogil=True, error_model="numpy")
 _INLINE = dict(_JIT, inline="always")
+_JIT_LAW = dict(_JIT, fastmath={"contract"})
+"""For the two element loops (:func:`_element_forces`, :func:`wrenches`): lets LLVM fuse multiply-adds
+(FMA), nothing else; 5-7% fewer ns per element measured. The results stay within round-off of the numpy
+law (tests/test_fastkernel.py), deterministic run to run."""
 
 
 def tolerances() -> np.ndarray:
     """(3,) [LEADING_TOL, VERTICAL_TOL, ZERO_SPEED] of :mod:`rft_mujoco.law`, for the kernels."""
     return np.array([law.LEADING_TOL, law.VERTICAL_TOL, law.ZERO_SPEED])
+
+
+_TOLERANCES = tolerances()   # element_forces passes it every call (writable: numba types read-only arrays apart)
 
 
 # --- scalar building blocks (inlined) ----------------------------------------------------------------
@@ -197,28 +204,35 @@ def _depth(px, py, pz, g0, g1, g2, kind, tp, heights):
 
 
 # --- element_forces ------------------------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_JIT_LAW)
 def _element_forces(centroids, normals, areas, velocities, height, g_hat, xi_n, coef, mu_surf,
                     no_tension, no_forward, no_power, tol, scratch, out):
     """Fill ``out`` (N, 3); return 0, or 1 on non-finite input / negative area / zero normal (the caller
-    then lets the numpy reference raise its error). ``scratch``: (8, CHUNK) float."""
+    then lets the numpy reference raise its error). ``scratch``: (9, CHUNK) float.
+
+    ``centroids``, ``normals``, ``velocities`` and ``out`` are the flat (3N,) views of the (N, 3) arrays.
+    Each chunk is gathered into ``scratch`` (rows: depth, normal, velocity, area, input check), the law runs
+    on it, and the forces are scattered back. Indexing flat per-chunk slices at ``3 i + k`` gives LLVM a
+    constant stride and indices it can prove non-negative, so the copies vectorize (2.9 -> 1.3 ns per
+    element measured for the gather); the input check is a per-element number (``x - x`` is 0 for finite x,
+    NaN otherwise), not a boolean reduction.
+    """
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
-    n_all = centroids.shape[0]
+    n_all = areas.shape[0]
     chunk = scratch.shape[1]
     for s in range(0, n_all, chunk):
         n = min(chunk, n_all - s)
-        ok = True
+        cen, nrm = centroids[3 * s:3 * (s + n)], normals[3 * s:3 * (s + n)]
+        vel, ar = velocities[3 * s:3 * (s + n)], areas[s:s + n]
         for i in range(n):                                   # gather (AoS -> SoA) and check
-            e = s + i
-            cx, cy, cz = centroids[e, 0], centroids[e, 1], centroids[e, 2]
-            nx, ny, nz = normals[e, 0], normals[e, 1], normals[e, 2]
-            vx, vy, vz = velocities[e, 0], velocities[e, 1], velocities[e, 2]
-            area = areas[e]
-            ok &= (math.isfinite(cx) & math.isfinite(cy) & math.isfinite(cz) & math.isfinite(nx)
-                   & math.isfinite(ny) & math.isfinite(nz) & math.isfinite(vx) & math.isfinite(vy)
-                   & math.isfinite(vz) & math.isfinite(area) & (area >= 0.0))
+            cx, cy, cz = cen[3 * i], cen[3 * i + 1], cen[3 * i + 2]
+            nx, ny, nz = nrm[3 * i], nrm[3 * i + 1], nrm[3 * i + 2]
+            vx, vy, vz = vel[3 * i], vel[3 * i + 1], vel[3 * i + 2]
+            area = ar[i]
+            finite = ((cx - cx) + (cy - cy) + (cz - cz) + (nx - nx) + (ny - ny) + (nz - nz) + (vx - vx)
+                      + (vy - vy) + (vz - vz) + (area - area))
             scratch[0, i] = height + (cx * g0 + cy * g1 + cz * g2)
             scratch[1, i] = nx
             scratch[2, i] = ny
@@ -227,20 +241,21 @@ def _element_forces(centroids, normals, areas, velocities, height, g_hat, xi_n, 
             scratch[5, i] = vy
             scratch[6, i] = vz
             scratch[7, i] = area
-        if not ok:
-            return 1
+            scratch[8, i] = finite if area >= 0.0 else 1.0   # 0 for a valid element
         for i in range(n):                                   # the law, vectorized
             depth, area = scratch[0, i], scratch[7, i]
             nx, ny, nz = scratch[1, i], scratch[2, i], scratch[3, i]
             vx, vy, vz = scratch[4, i], scratch[5, i], scratch[6, i]
             nlen = math.sqrt(nx * nx + ny * ny + nz * nz)
             speed = math.sqrt(vx * vx + vy * vy + vz * vz)
-            nx /= nlen
-            ny /= nlen
-            nz /= nlen
-            vx /= speed
-            vy /= speed
-            vz /= speed
+            inv = 1.0 / nlen
+            nx *= inv
+            ny *= inv
+            nz *= inv
+            inv = 1.0 / speed
+            vx *= inv
+            vy *= inv
+            vz *= inv
             keep = (speed > zero_speed) & (depth > 0.0) & (area > 0.0) & \
                 (nx * vx + ny * vy + nz * vz >= -lead_tol)
             rx, ry, rz = _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forward,
@@ -251,12 +266,12 @@ def _element_forces(centroids, normals, areas, velocities, height, g_hat, xi_n, 
             scratch[3, i] = (xi_n * rz) * sa if keep else 0.0
             scratch[4, i] = nlen
         bad = False
+        res = out[3 * s:3 * (s + n)]
         for i in range(n):                                   # scatter (SoA -> AoS)
-            e = s + i
-            out[e, 0] = scratch[1, i]
-            out[e, 1] = scratch[2, i]
-            out[e, 2] = scratch[3, i]
-            bad |= scratch[4, i] == 0.0
+            res[3 * i] = scratch[1, i]
+            res[3 * i + 1] = scratch[2, i]
+            res[3 * i + 2] = scratch[3, i]
+            bad |= (scratch[4, i] == 0.0) | (scratch[8, i] != 0.0)
         if bad:
             return 1
     return 0
@@ -289,10 +304,10 @@ def element_forces(centroids, normals, areas, velocities, media: Media, surface_
     elif out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float64 array of shape ({n}, 3), got {out.shape} "
                          f"{out.dtype}")
-    status = _element_forces(c, nrm, a, vel, float(surface_height), g_hat, media.xi_n_at(g_mag),
-                             law.COEFFICIENTS, float(media.mu_surf), guards.no_tension,
-                             guards.no_forward_tangential, guards.no_positive_power, tolerances(),
-                             _scratch((8, CHUNK)), out)
+    status = _element_forces(c.reshape(-1), nrm.reshape(-1), a, vel.reshape(-1), float(surface_height), g_hat,
+                             media.xi_n_at(g_mag), law.COEFFICIENTS, float(media.mu_surf), guards.no_tension,
+                             guards.no_forward_tangential, guards.no_positive_power, _TOLERANCES,
+                             _scratch((9, CHUNK)), out.reshape(-1))
     if status:
         law.element_forces(centroids, normals, areas, velocities, media, surface_height, gravity,
                            guards=guards)  # raises the reference's error message
@@ -411,7 +426,35 @@ def pack(local_centroids, local_normals, areas, elem_body, n_bodies: int, elem_o
 
 
 # --- body wrenches ---------------------------------------------------------------------------------------
-@njit(**_JIT)
+LANES = 8
+"""Interleaved lanes of :func:`_count_positive`'s maximum (one SIMD register of doubles)."""
+
+
+@njit(**_INLINE)
+def _count_positive(row, n, lanes):
+    """Number of positive entries of ``row[:n]``; ``lanes[l]`` = the largest of ``row[i]``, i = l mod LANES, or 0.
+
+    A running maximum over one variable compiles to a branch that mispredicts when the maximum keeps
+    rising (deeper and deeper elements along a cluster: +6 ns per element measured at 1e5 elements); per
+    lane it is a select, which vectorizes. The maximum is exact in any order. No NaN may be passed.
+    """
+    for l in range(LANES):
+        lanes[l] = 0.0
+    full = n // LANES * LANES
+    for i0 in range(0, full, LANES):
+        for l in range(LANES):
+            x = row[i0 + l]
+            lanes[l] = x if x > lanes[l] else lanes[l]
+    for i in range(full, n):
+        x = row[i]
+        lanes[i - full] = x if x > lanes[i - full] else lanes[i - full]
+    kept = 0
+    for i in range(n):
+        kept += 1 if row[i] > 0.0 else 0
+    return kept
+
+
+@njit(**_JIT_LAW)
 def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_octant, cluster_center,
              cluster_radius, body_clusters, body_pos, body_mat, body_com, v_com, omega, acc, dt, g_hat,
              max_height, kind, tp, heights, xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol,
@@ -436,6 +479,7 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
     seg = np.empty(GROUPS_PER_BODY + 1, dtype=np.int64)
     sub_normals = np.empty((3, scratch.shape[1]))       # the submerged elements of a cluster, packed
     sub_areas = np.empty(scratch.shape[1])
+    lanes = np.empty(LANES)
     for j in range(n_on):
         b = bodies[j]
         for o in range(groups.shape[1]):
@@ -532,9 +576,10 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
                     vy = vy + wgt * sy
                     vz = vz + wgt * sz
                 speed = math.sqrt(vx * vx + vy * vy + vz * vz)
-                vx /= speed
-                vy /= speed
-                vz /= speed
+                inv = 1.0 / speed
+                vx *= inv
+                vy *= inv
+                vz *= inv
                 keep = (depth > 0.0) & (speed > zero_speed) & (nx * vx + ny * vy + nz * vz >= -lead_tol)
                 rx, ry, rz = _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forward,
                                      no_power, lead_tol, vert_tol)
@@ -548,10 +593,8 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
                 scratch[7, i] = hy * fz - hz * fy if keep else 0.0
                 scratch[8, i] = hz * fx - hx * fz if keep else 0.0
                 scratch[9, i] = hx * fy - hy * fx if keep else 0.0
-                scratch[10, i] = 1.0 if keep else 0.0
+                scratch[10, i] = depth if keep else 0.0          # > 0 exactly for the loaded elements
             # 4. each octant segment into its group (elements not loaded add exact zeros): register sums
-            kept = 0.0
-            deepest = max_depth[j]
             for o in range(GROUPS_PER_BODY):
                 lo = seg[o]
                 hi = seg[o + 1]
@@ -570,17 +613,15 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
                     a3 += scratch[7, i]
                     a4 += scratch[8, i]
                     a5 += scratch[9, i]
-                    kept += scratch[10, i]
-                    d = scratch[3, i] if scratch[10, i] != 0.0 else 0.0
-                    deepest = d if d > deepest else deepest
                 groups[j, o, 0] = a0
                 groups[j, o, 1] = a1
                 groups[j, o, 2] = a2
                 groups[j, o, 3] = a3
                 groups[j, o, 4] = a4
                 groups[j, o, 5] = a5
-            count[j] += int(kept)
-            max_depth[j] = deepest
+            count[j] += _count_positive(scratch[10], n_sub, lanes)
+            for l in range(LANES):
+                max_depth[j] = max(max_depth[j], lanes[l])
         for o in range(groups.shape[1]):
             for k in range(6):
                 if groups[j, o, k] != 0.0:
@@ -947,8 +988,8 @@ def _warm_up() -> None:
     g = np.array([0.0, 0.0, -1.0])
     coef = law.COEFFICIENTS
     tol = tolerances()
-    _element_forces(c3, nrm, np.ones(2), c3 + 1.0, 0.0, g, 1.0, coef, 0.4, False, False, False, tol,
-                    np.zeros((8, CHUNK)), np.zeros((2, 3)))
+    _element_forces(c3.reshape(-1), nrm.reshape(-1), np.ones(2), (c3 + 1.0).reshape(-1), 0.0, g, 1.0, coef, 0.4,
+                    False, False, False, tol, np.zeros((9, CHUNK)), np.zeros(6))
     packed = pack(c3, nrm, np.ones(2), np.zeros(2, i8), 1)
     B = 1
     ids = np.ones(B, dtype=i8)
