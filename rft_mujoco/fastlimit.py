@@ -120,8 +120,15 @@ def _solve(A, c, group, lam, free, ensure_passive, settings, warm):
 @njit(**_JIT)
 def _quadratic(A, c, lam):
     """(``l.G.l``, ``h.l``) of the limiter's objective ``0.5 l.G.l + h.l`` (J) in factored form."""
-    y = np.dot(A, lam)
-    return np.dot(y, y), np.dot(c, y)
+    quad = 0.0
+    lin = 0.0
+    for d in range(A.shape[0]):
+        y = 0.0
+        for a in range(A.shape[1]):
+            y += A[d, a] * lam[a]
+        quad += y * y
+        lin += c[d] * y
+    return quad, lin
 
 
 @njit(**_JIT)
@@ -146,10 +153,25 @@ def _speed(jac, j, qv, radius, twist):
 
 
 @njit(**_JIT)
-def _factor(q, m, dt, chol):
-    """``A`` (nv, m) = dt C^T q[:m]^T with ``M^-1 = C C^T``: then ``A^T A = dt^2 Q M^-1 Q^T = G`` exactly
-    (no m x m matrix is formed; the kernel's pivoted factorization of G is not needed)."""
-    return (np.dot(np.ascontiguousarray(q[:m]), chol) * dt).T    # F-ordered: column a is contiguous
+def _columns(q, minv, chol, dt, first, m, mq, at):
+    """For the new columns a = first..m-1 of the generalized forces ``q`` (rows): ``mq[a] = q[a] M^-1``
+    and ``at[a] = dt q[a] C`` with ``M^-1 = C C^T`` (C lower-triangular). ``A = at[:m].T`` (nv, m) is then the
+    limiter's factor: ``A^T A = dt^2 Q M^-1 Q^T = G`` exactly (no m x m matrix is formed; the kernel's
+    pivoted factorization of G is not needed). Plain loops, not BLAS: at these sizes (m <= 8 B R, nv of a
+    robot) a BLAS call costs more than its arithmetic (~270 ns for 8 x 14 x 14 measured)."""
+    nv = minv.shape[0]
+    for a in range(first, m):
+        for e in range(nv):
+            mq[a, e] = 0.0
+            at[a, e] = 0.0
+        for d in range(nv):
+            x = q[a, d]
+            for e in range(nv):
+                mq[a, e] += x * minv[d, e]
+            for e in range(d + 1):
+                at[a, e] += x * chol[d, e]
+        for e in range(nv):
+            at[a, e] *= dt
 
 
 @njit(**_JIT)
@@ -222,13 +244,6 @@ def _append_columns(src, k, jac, rd, group, rnd, wrench, q, m):
 
 
 @njit(**_JIT)
-def _solve_mass(q, minv, first, m, mq):
-    """mq[first:m] = q[first:m] M^-1 (BLAS; M^-1 is symmetric)."""
-    if m > first:
-        mq[first:m] = np.dot(np.ascontiguousarray(q[first:m]), minv)
-
-
-@njit(**_JIT)
 def _warm_starts(lam, free, group, rnd, touch, warm, warm_rounds, rd, m):
     """Start the free factors of bodies that went through round ``rd`` last time from their values at the
     end of that round then (rescaled per octant group to a sum <= 1, as the columns may differ). Returns
@@ -280,11 +295,12 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
     wrench = np.empty((cap, 6))
     q = np.empty((cap, nv))
     mq = np.empty((cap, nv))
+    at = np.empty((cap, nv))                             # A = at[:m].T (nv, m), F-ordered: columns contiguous
     m = _append_columns(groups, k, jac, 0, group, rnd, wrench, q, 0)
-    _solve_mass(q, minv, 0, m, mq)
     chol = _cholesky(minv)
+    _columns(q, minv, chol, dt, 0, m, mq, at)
     cvec = _forward(chol, qvel_pred)
-    A = _factor(q, m, dt, chol)
+    A = at[:m].T
     # Low-speed regime per body: predicted speed below the speed change of the full impulse of all columns.
     tot = np.zeros(nv)
     for a in range(m):
@@ -353,8 +369,8 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
             lam[a] = 0.0
         if m == first_new:
             break
-        _solve_mass(q, minv, first_new, m, mq)
-        A = _factor(q, m, dt, chol)
+        _columns(q, minv, chol, dt, first_new, m, mq, at)
+        A = at[:m].T
         warmed = warm_start and _warm_starts(lam, free, group, rnd, touch, warm, warm_rounds, rd, m)
         _solve(A, cvec, group[:m], lam[:m], free[:m], True, settings, warmed)
         solves += 1
