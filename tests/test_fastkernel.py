@@ -91,6 +91,27 @@ def test_element_forces_errors_are_the_reference_errors():
         fastkernel.element_forces(c[:, :2], c, np.ones(3), c + 1, MEDIA)
 
 
+@pytest.mark.parametrize("field, value, message", [
+    ("centroids", np.inf, "non-finite"), ("velocities", -np.inf, "non-finite"), ("normals", np.nan, "non-finite"),
+    ("areas", np.nan, "areas"), ("areas", -1e-9, "areas")])
+def test_element_forces_flags_bad_input_in_any_chunk(field, value, message):
+    """One bad entry anywhere (here in the last, partial chunk) makes the compiled call raise the
+    reference's error, whatever the kind of bad value."""
+    rng = np.random.default_rng(3)
+    n = 3 * fastkernel.CHUNK + 17
+    arrays = dict(centroids=rng.normal(size=(n, 3)) * 0.1, normals=rng.normal(size=(n, 3)),
+                  areas=rng.uniform(1e-6, 1e-5, n), velocities=rng.normal(size=(n, 3)))
+    ok = fastkernel.element_forces(arrays["centroids"], arrays["normals"], arrays["areas"],
+                                   arrays["velocities"], MEDIA)
+    assert close(ok, law.element_forces(arrays["centroids"], arrays["normals"], arrays["areas"],
+                                        arrays["velocities"], MEDIA))
+    bad = arrays[field]
+    bad[n - 5] = value
+    with pytest.raises(ValueError, match=message):
+        fastkernel.element_forces(arrays["centroids"], arrays["normals"], arrays["areas"],
+                                  arrays["velocities"], MEDIA)
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_body_wrenches_match_numpy(seed):
     rng = np.random.default_rng(100 + seed)
