@@ -121,7 +121,8 @@ class _Workspace:
 
     __slots__ = ("diag", "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "groups",
                  "count", "max_depth", "col_groups", "col_count", "col_max_depth", "scratch", "col_v", "col_w",
-                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "state", "args", "native")
+                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "arena", "iarena", "state", "args",
+                 "native")
 
     def __init__(self, n_bodies: int, compiled: bool, nv: int, rest_columns: int) -> None:
         b = n_bodies
@@ -149,6 +150,10 @@ class _Workspace:
         r = rest_columns
         self.warm = np.zeros((b, kernel.GROUPS_PER_BODY, r, r))
         self.warm_rounds = np.zeros(b, dtype=np.int64)
+        # every other working array of the compiled stabilized evaluation, carved per call (fastlimit)
+        n_float, n_int = fastlimit.arena_sizes(b, nv, r) if compiled else (0, 0)
+        self.arena = np.zeros(n_float)
+        self.iarena = np.zeros(n_int, dtype=np.int64)
         self.args = None            # the compiled calls' fixed arguments (SandHandle._fixed_args)
         self.native = None          # the native call's argument table (SandHandle._native_table)
 
@@ -558,7 +563,8 @@ class SandHandle:
             max_depth=work.max_depth, col_v=work.col_v, col_w=work.col_w, col_groups=work.col_groups,
             col_count=work.col_count, col_max_depth=work.col_max_depth, jac=work.jac, qacc=work.qacc,
             limited=work.limited, force=diag.force, torque=diag.torque, submerged=diag.submerged,
-            depth_max=diag.max_depth, scale=diag.scale, rft_force=diag.rft_force)
+            depth_max=diag.max_depth, scale=diag.scale, rft_force=diag.rft_force, arena=work.arena,
+            iarena=work.iarena)
 
     # The argument runs of the dispatched calls (fastkernel.touching, fastlimit.stabilized) between their
     # per-call arguments, in signature order.
@@ -573,7 +579,7 @@ class SandHandle:
          "cluster_radius", "body_clusters", "body_pos", "body_mat", "body_com", "v_com", "omega"),
         ("scratch", "groups", "count", "max_depth", "col_v", "col_w", "col_groups", "col_count",
          "col_max_depth", "jac", "qacc", "limited", "force", "torque", "submerged", "depth_max", "scale",
-         "rft_force"))
+         "rft_force", "arena", "iarena"))
 
     def _fixed_args(self, data, work) -> tuple:
         """The arguments of the dispatched compiled calls that are the same at every evaluation of ``data``,

@@ -175,12 +175,13 @@ def _columns(q, minv, chol, dt, first, m, mq, at):
 
 
 @njit(**_JIT)
-def _cholesky(M):
-    """Lower-triangular C with ``C C^T = M`` for the symmetric positive (semi-)definite ``M`` (nv, nv);
-    pivots below 1e-14 of the largest diagonal entry are clamped to it, so that a numerically singular
-    ``M^-1`` (extreme mass ratios) still gives a usable factor instead of an exception."""
+def _cholesky(M, C):
+    """Lower-triangular C (nv, nv), filled and returned, with ``C C^T = M`` for the symmetric positive
+    (semi-)definite ``M`` (nv, nv); pivots below 1e-14 of the largest diagonal entry are clamped to it, so
+    that a numerically singular ``M^-1`` (extreme mass ratios) still gives a usable factor instead of an
+    exception."""
     n = M.shape[0]
-    C = np.zeros((n, n))
+    C[:] = 0.0
     top = 0.0
     for i in range(n):
         top = max(top, M[i, i])
@@ -200,10 +201,9 @@ def _cholesky(M):
 
 
 @njit(**_JIT)
-def _forward(chol, x):
-    """``C^-1 x`` for lower-triangular C (forward substitution)."""
+def _forward(chol, x, out):
+    """``out = C^-1 x`` for lower-triangular C (forward substitution); returns ``out``."""
     n = x.shape[0]
-    out = np.empty(n)
     for i in range(n):
         s = x[i]
         for j in range(i):
@@ -269,12 +269,26 @@ def _warm_starts(lam, free, group, rnd, touch, warm, warm_rounds, rd, m):
     return True
 
 
+def limit_arena(n_bodies: int, nv: int, rest_columns: int) -> tuple[int, int]:
+    """Lengths (float64, int64) of the buffers :func:`limit` carves from its ``arena`` / ``iarena`` for up
+    to ``n_bodies`` touching bodies, ``nv`` dofs and ``rest_columns`` motion directions per octant."""
+    cap = n_bodies * GROUPS_PER_BODY * rest_columns
+    return cap * (7 + 3 * nv) + nv * nv + 3 * nv + 6, 3 * cap + 3 * n_bodies
+
+
+def arena_sizes(n_bodies: int, nv: int, rest_columns: int) -> tuple[int, int]:
+    """Lengths (float64, int64) of the preallocated ``arena`` / ``iarena`` buffers of :func:`stabilized`
+    (its own rows, then :func:`limit_arena`'s), allocated once per (handle, MjData)."""
+    f, i = limit_arena(n_bodies, nv, rest_columns)
+    return f + 6 * n_bodies + 8 * nv, i + n_bodies
+
+
 @njit(**_JIT)
 def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds, warm_start, settings,
           packed_centroids, packed_normals, packed_areas, cluster_start, cluster_octant, cluster_center,
           cluster_radius, body_clusters, body_pos, body_mat, body_com, g_hat, max_height, kind, tp, heights,
           xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol, scratch, col_v, col_w, col_groups,
-          col_count, col_max_depth, out):
+          col_count, col_max_depth, arena, iarena, out):
     """``SandHandle._limit`` compiled: stabilized wrenches ``out[:k]`` (k, 6) from the octant wrenches
     ``groups[:k]`` (k, 8, 6) of the touching bodies (handle indices ``touch[:k]``; ``jac`` (k, 6, nv) their
     Jacobians, ``radius`` (B,) their bounding radii by handle index).
@@ -282,37 +296,54 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
     ``warm`` (B, 8, R, R) and ``warm_rounds`` (B,) hold the previous evaluation's factors per (body,
     octant, round, column) and how many rounds each body went through (0: not limited); both are updated.
     The remaining arguments are those of :func:`rft_mujoco.fastkernel.wrenches` for the rest columns (the
-    RFT octant wrenches of body twists ``col_v``/``col_w`` into ``col_groups``). Returns the number of
-    solves.
+    RFT octant wrenches of body twists ``col_v``/``col_w`` into ``col_groups``). ``arena`` (float64) and
+    ``iarena`` (int64) are preallocated buffers at least as long as :func:`limit_arena` says; nothing else
+    is allocated here but the warm start's group sums and the solver's own small arrays. Returns the number
+    of solves.
     """
     ng = GROUPS_PER_BODY
     nv = minv.shape[0]
     rest_columns = int(settings[4])
     rest_speed = settings[5]
     cap = k * ng * rest_columns
-    group = np.empty(cap, dtype=np.int64)
-    rnd = np.zeros(cap, dtype=np.int64)                  # the round that added each column
-    wrench = np.empty((cap, 6))
-    q = np.empty((cap, nv))
-    mq = np.empty((cap, nv))
-    at = np.empty((cap, nv))                             # A = at[:m].T (nv, m), F-ordered: columns contiguous
+    # the buffers, carved from the arenas in the order limit_arena counts them
+    wrench = arena[0:cap * 6].reshape((cap, 6))
+    o = cap * 6
+    q = arena[o:o + cap * nv].reshape((cap, nv))
+    o += cap * nv
+    mq = arena[o:o + cap * nv].reshape((cap, nv))
+    o += cap * nv
+    at = arena[o:o + cap * nv].reshape((cap, nv))      # A = at[:m].T (nv, m), F-ordered: columns contiguous
+    o += cap * nv
+    chol = arena[o:o + nv * nv].reshape((nv, nv))
+    o += nv * nv
+    cvec = arena[o:o + nv]
+    tot = arena[o + nv:o + 2 * nv]
+    qv = arena[o + 2 * nv:o + 3 * nv]
+    twist = arena[o + 3 * nv:o + 3 * nv + 6]
+    lam = arena[o + 3 * nv + 6:o + 3 * nv + 6 + cap]
+    group = iarena[0:cap]
+    rnd = iarena[cap:2 * cap]                           # the round that added each column
+    rounds = iarena[2 * cap:2 * cap + k]
+    free = iarena[2 * cap + k:3 * cap + k].view(np.bool_)[:cap]
+    low = iarena[3 * cap + k:3 * cap + 2 * k].view(np.bool_)[:k]
+    refine = iarena[3 * cap + 2 * k:3 * cap + 3 * k].view(np.bool_)[:k]
+    rnd[:] = 0
     m = _append_columns(groups, k, jac, 0, group, rnd, wrench, q, 0)
-    chol = _cholesky(minv)
+    _cholesky(minv, chol)
     _columns(q, minv, chol, dt, 0, m, mq, at)
-    cvec = _forward(chol, qvel_pred)
+    _forward(chol, qvel_pred, cvec)
     A = at[:m].T
     # Low-speed regime per body: predicted speed below the speed change of the full impulse of all columns.
-    tot = np.zeros(nv)
+    tot[:] = 0.0
     for a in range(m):
         for d in range(nv):
             tot[d] += dt * mq[a, d]
-    twist = np.zeros(6)
-    low = np.zeros(k, dtype=np.bool_)
     for j in range(k):
         rad = radius[touch[j]]
         low[j] = _speed(jac, j, qvel_pred, rad, twist) < _speed(jac, j, tot, rad, twist)
-    free = np.zeros(cap, dtype=np.bool_)
-    lam = np.ones(cap)
+    free[:] = False
+    lam[:] = 1.0
     any_free = False
     for a in range(m):
         free[a] = low[group[a] // ng]
@@ -329,16 +360,15 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
         warmed = warm_start and _warm_starts(lam, free, group, rnd, touch, warm, warm_rounds, 0, m)
         _solve(A, cvec, group[:m], lam[:m], free[:m], True, settings, warmed)
         solves += 1
-    rounds = np.zeros(k, dtype=np.int64)
+    rounds[:] = 0
     for a in range(m):
         j = group[a] // ng
         if free[a]:
             rounds[j] = 1
         warm[touch[j], group[a] % ng, 0, 0] = lam[a]
     # Rest columns: the RFT resistance to the motion left after the step, for limited low-speed bodies.
-    qv = np.empty(nv)
     for rd in range(1, rest_columns):
-        refine = np.zeros(k, dtype=np.bool_)
+        refine[:] = False
         for a in range(m):
             if lam[a] < 1.0 - 1e-12:
                 refine[group[a] // ng] = True
@@ -358,9 +388,11 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
                 n_refine += 1
         if n_refine == 0:
             break
+        # dt = 0: the elements move along the twists, no predicted direction (``wrench`` only fills the
+        # typed accelerations argument; it is not read)
         wrenches(touch, k, packed_centroids, packed_normals, packed_areas, cluster_start, cluster_octant,
                  cluster_center, cluster_radius, body_clusters, body_pos, body_mat, body_com, col_v, col_w,
-                 np.zeros((0, 6)), 0.0, g_hat, max_height, kind, tp, heights, xi_n, coef, mu_surf, no_tension,
+                 wrench, 0.0, g_hat, max_height, kind, tp, heights, xi_n, coef, mu_surf, no_tension,
                  no_forward, no_power, tol, scratch, col_groups, col_count, col_max_depth)
         first_new = m
         m = _append_columns(col_groups, k, jac, rd, group, rnd, wrench, q, m)
@@ -394,16 +426,17 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
 @njit(**_JIT)
 def free_acceleration(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
                       body_parentid, dof_parentid, qfrc_passive, qfrc_bias, qfrc_actuator, qfrc_applied, minv,
-                      qacc):
+                      qacc, work, iwork):
     """``SandHandle._free_motion``'s free acceleration into ``qacc`` (nv,): ``M^-1`` (``minv`` (nv, nv))
     times the smooth generalized force and the user's ``xfrc_applied`` (nbody, 6) rows (at each body's
-    COM, as MuJoCo applies them). Returns False when it is not finite."""
+    COM, as MuJoCo applies them). ``work`` (>= 7 nv float) and ``iwork`` (>= 1 int) are scratch. Returns
+    False when it is not finite."""
     nv = qacc.shape[0]
-    qfrc = np.empty(nv)
+    qfrc = work[0:nv]
+    jb = work[nv:7 * nv].reshape((1, 6, nv))
+    one = iwork[0:1]
     for d in range(nv):
         qfrc[d] = qfrc_passive[d] - qfrc_bias[d] + qfrc_actuator[d] + qfrc_applied[d]
-    one = np.zeros(0, dtype=np.int64)                   # allocated at the first user wrench only
-    jb = np.zeros((0, 6, nv))
     for b in range(1, user_xfrc.shape[0]):
         nz = False
         for c in range(6):
@@ -411,9 +444,6 @@ def free_acceleration(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dof
                 nz = True
         if not nz:
             continue
-        if one.shape[0] == 0:
-            one = np.zeros(1, dtype=np.int64)
-            jb = np.zeros((1, 6, nv))
         one[0] = b
         body_jacobians(one, 1, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
                        dof_parentid, jb)
@@ -440,7 +470,7 @@ def stabilized(touch, k, ids, user_xfrc, xipos, cdof, subtree_com, qvel, qfrc_pa
                body_com, v_com, omega, g_hat, max_height, kind, tp, heights, xi_n, coef, mu_surf, no_tension,
                no_forward, no_power, tol, scratch, groups, count, max_depth, col_v, col_w, col_groups, col_count,
                col_max_depth, jac, qacc, limited, force, torque, submerged, depth_max, scale, rft_force,
-               sand_out):
+               arena, iarena, sand_out):
     """The stabilized evaluation of the touching bodies ``touch[:k]`` (handle indices; MuJoCo ids
     ``ids[touch]``): their Jacobians (``jac``), the free acceleration (``qacc``), the RFT octant wrenches
     with the predicted direction (``groups``, ``count``, ``max_depth``, as :func:`fastkernel.wrenches`),
@@ -450,20 +480,23 @@ def stabilized(touch, k, ids, user_xfrc, xipos, cdof, subtree_com, qvel, qfrc_pa
 
     Returns :data:`BAD_ACCELERATION` when the free acceleration is not finite (nothing else computed),
     else the status of :func:`fastkernel.finish` (1: a wrench is non-zero, 0: none, -1: one is not finite,
-    nothing added).
+    nothing added). ``arena`` / ``iarena``: preallocated float64 / int64 buffers of the lengths
+    :func:`arena_sizes` gives for B bodies: every working array of this call and of :func:`limit` is a
+    view into them (numba allocated 30-69 small arrays per SandAnt-v0 evaluation before, 16-70 ns each).
     """
     nv = qacc.shape[0]
-    bids = np.empty(k, dtype=np.int64)
+    acc = arena[0:6 * k].reshape((k, 6))
+    qvel_pred = arena[6 * k:6 * k + nv]
+    fa_work = arena[6 * k + nv:6 * k + 8 * nv]
+    bids = iarena[0:k]
     for j in range(k):
         bids[j] = ids[touch[j]]
     body_jacobians(bids, k, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
                    dof_parentid, jac)
     if not free_acceleration(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
                              body_parentid, dof_parentid, qfrc_passive, qfrc_bias, qfrc_actuator, qfrc_applied,
-                             minv, qacc):
+                             minv, qacc, fa_work, iarena[k:k + 1]):
         return BAD_ACCELERATION
-    acc = np.empty((k, 6))
-    qvel_pred = np.empty(nv)
     for d in range(nv):
         qvel_pred[d] = qvel[d] + dt * qacc[d]
     for j in range(k):
@@ -490,7 +523,7 @@ def stabilized(touch, k, ids, user_xfrc, xipos, cdof, subtree_com, qvel, qfrc_pa
               packed_centroids, packed_normals, packed_areas, cluster_start, cluster_octant, cluster_center,
               cluster_radius, body_clusters, body_pos, body_mat, body_com, g_hat, max_height, kind, tp,
               heights, xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol, scratch, col_v, col_w,
-              col_groups, col_count, col_max_depth, limited)
+              col_groups, col_count, col_max_depth, arena[6 * k + 8 * nv:], iarena[k + 1:], limited)
     return finish(groups, count, max_depth, v_com, omega, limited[:k] if n > 0 else limited[:0], False, touch,
                   k, ids, force, torque, submerged, depth_max, scale, rft_force, sand_out)
 
@@ -512,4 +545,5 @@ def _warm_up(packed, kind, tp, heights, coef, tol) -> None:
                np.zeros(B, i8),
                np.zeros(B), np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, GROUPS_PER_BODY, 6)), np.zeros(B, i8),
                np.zeros(B), np.zeros((B, 6, nv)), np.zeros(nv), np.zeros((B, 6)), np.zeros((B, 3)),
-               np.zeros((B, 3)), np.zeros(B, i8), np.zeros(B), np.ones(B), np.zeros((B, 3)), z6.copy())
+               np.zeros((B, 3)), np.zeros(B, i8), np.zeros(B), np.ones(B), np.zeros((B, 3)),
+               *(np.zeros(n, dtype) for n, dtype in zip(arena_sizes(B, nv, 3), (np.float64, i8))), z6.copy())

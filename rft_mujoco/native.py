@@ -48,7 +48,8 @@ FIELDS = (
     # the workspace (per MjData)
     "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "minv", "eye", "warm", "warm_rounds",
     "scratch", "groups", "count", "max_depth", "col_v", "col_w", "col_groups", "col_count", "col_max_depth",
-    "jac", "qacc", "limited", "force", "torque", "submerged", "depth_max", "scale", "rft_force",
+    "jac", "qacc", "limited", "force", "torque", "submerged", "depth_max", "scale", "rft_force", "arena",
+    "iarena",
 )
 """The table's arrays, in order; each takes SLOT int64 entries: address, then up to 4 dimensions."""
 SLOT = 5
@@ -61,7 +62,7 @@ TABLE_SIZE = _TAIL + 4
  _CLUSTER_CENTER, _CLUSTER_RADIUS, _BODY_CLUSTERS, _TP, _HEIGHTS, _COEF, _TOL, _TOUCH, _BODY_POS, _BODY_MAT,
  _BODY_COM, _V_COM, _OMEGA, _MINV, _EYE, _WARM, _WARM_ROUNDS, _SCRATCH, _GROUPS, _COUNT, _MAX_DEPTH, _COL_V,
  _COL_W, _COL_GROUPS, _COL_COUNT, _COL_MAX_DEPTH, _JAC, _QACC, _LIMITED, _FORCE, _TORQUE, _SUBMERGED,
- _DEPTH_MAX, _SCALE, _RFT_FORCE) = (SLOT * i for i in range(len(FIELDS)))
+ _DEPTH_MAX, _SCALE, _RFT_FORCE, _ARENA, _IARENA) = (SLOT * i for i in range(len(FIELDS)))
 
 # Flags (the last argument of the call).
 WARM_START, NO_TENSION, NO_FORWARD, NO_POWER = 1, 2, 4, 8
@@ -185,7 +186,7 @@ def _evaluate(t, user_addr, sand_addr, g_addr, dt, xi_n, mu_surf, max_height, fl
         _i1(t, _COUNT), _f1(t, _MAX_DEPTH), _f2(t, _COL_V), _f2(t, _COL_W), _f3(t, _COL_GROUPS),
         _i1(t, _COL_COUNT), _f1(t, _COL_MAX_DEPTH), _f3(t, _JAC), _f1(t, _QACC), _f2(t, _LIMITED),
         _f2(t, _FORCE), _f2(t, _TORQUE), _i1(t, _SUBMERGED), _f1(t, _DEPTH_MAX), _f1(t, _SCALE),
-        _f2(t, _RFT_FORCE), _carray(_as_f64(sand_addr), (nbody, 6)))
+        _f2(t, _RFT_FORCE), _f1(t, _ARENA), _i1(t, _IARENA), _carray(_as_f64(sand_addr), (nbody, 6)))
     return k * 8 + status + _STATUS_OFFSET
 
 

@@ -97,7 +97,7 @@ def test_free_acceleration_equals_mujoco(seed):
     mujoco.mj_solveM(model, data, minv, np.eye(model.nv))
     qacc = np.empty(model.nv)
     args = (data.xipos, data.cdof, data.subtree_com, *tree(model), data.qfrc_passive, data.qfrc_bias,
-            data.qfrc_actuator, data.qfrc_applied, minv, qacc)
+            data.qfrc_actuator, data.qfrc_applied, minv, qacc, np.empty(7 * model.nv), np.empty(1, np.int64))
     assert fastlimit.free_acceleration(user, *args)
     np.testing.assert_allclose(qacc, ref, rtol=1e-10, atol=1e-10)
     user[4, 2] = np.nan
@@ -227,8 +227,9 @@ def test_cholesky_factor_matches_numpy_and_survives_singular_input():
     rng = np.random.default_rng(4)
     a = rng.normal(size=(7, 7))
     M = a @ a.T + 0.1 * np.eye(7)
-    np.testing.assert_allclose(fastlimit._cholesky(M), np.linalg.cholesky(M), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(fastlimit._cholesky(M, np.full((7, 7), np.nan)), np.linalg.cholesky(M), rtol=1e-12,
+                               atol=1e-12)
     singular = np.outer(a[0], a[0])                       # rank 1: LAPACK would raise
-    C = fastlimit._cholesky(singular)
+    C = fastlimit._cholesky(singular, np.empty((7, 7)))
     assert np.all(np.isfinite(C))
     np.testing.assert_allclose(C @ C.T, singular, atol=1e-6 * np.abs(singular).max())
