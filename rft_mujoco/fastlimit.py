@@ -32,7 +32,9 @@ clears the buffer whenever time does not run on by at most one step (a reset, ``
 time), so rollouts from a reset repeat bit for bit.
 
 The inverse mass matrix is passed in dense (``mj_solveM`` of the identity, one MuJoCo call per evaluation);
-everything else reads MjData's arrays.
+everything else reads MjData's arrays. Working arrays are views into two buffers the caller allocates once
+per (handle, MjData) (:func:`arena_sizes`); only the element pass's four small buffers and the solver's own
+arrays are allocated per call.
 """
 
 from __future__ import annotations
