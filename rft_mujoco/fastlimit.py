@@ -25,8 +25,9 @@ and stops after :data:`rft_mujoco.kernel.LIMITER_WARM_ITERATIONS` (30) sweeps. M
 settling on sand (tests/test_fastlimit.py checks the same on a small scene): the kinetic energy left
 after the step exceeds that of a 3000-sweep solve by a median 5e-6 of the energy the sand removes,
 against 6e-6 for 100 cold sweeps, at half the cost. The price is in the tail: over the 429 cases of
-``python -m rft_mujoco stability`` no failure, but resting bodies kept up to 7.7e-5 m/s of jitter (3
-cases above 1e-5 m/s; 2.8e-4 and 8 with an earlier build's round-off) where the cold solves leave 1e-6,
+``python -m rft_mujoco stability`` no failure, but resting bodies kept up to 3.6e-5 m/s of jitter (5
+cases above 1e-5 m/s; 7.7e-5 and 3, 2.8e-4 and 8 with earlier builds' round-off) where the cold solves
+leave 1e-6,
 which is why it is not the default. The coupling
 clears the buffer whenever time does not run on by at most one step (a reset, ``mj_setState`` back in
 time), so rollouts from a reset repeat bit for bit.
