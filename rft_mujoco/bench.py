@@ -517,13 +517,17 @@ def _plots(out: Path, thr, quad, acc) -> list[Path]:
 
     if quad:
         fig, ax = plt.subplots(figsize=(12, 4.5))
-        labels = [f"{r['resolution']}\n{r['backend']}"
-                  f"{', no stab.' if not r['stabilize'] else ', warm start' if r['warm_start'] else ' (default)'}"
+        labels = [f"{r['resolution']}\n{r['backend']}\n"
+                  f"{'no stab.' if not r['stabilize'] else 'warm start' if r['warm_start'] else 'default'}"
                   for r in quad]
         x = np.arange(len(quad))
         ax.bar(x - 0.2, [r["bare_us"] for r in quad], 0.4, label="bare mj_step")
         ax.bar(x + 0.2, [r["sand_us"] for r in quad], 0.4, label="mj_step with sand")
-        ax.set_xticks(x, labels, fontsize=8)
+        for i, r in enumerate(quad):
+            ax.text(x[i] + 0.2, r["sand_us"], f"{r['ratio']:.0f}x", ha="center", va="bottom", fontsize=7)
+        ax.hlines([1.5 * r["bare_us"] for r in quad], x - 0.45, x + 0.45, colors="k", linestyles=":",
+                  label="target: 1.5 x bare")
+        ax.set_xticks(x, labels, fontsize=7)
         ax.set_yscale("log")
         ax.set_ylabel("us per step")
         ax.set_title("quadruped on sand: cost per step")
