@@ -17,7 +17,7 @@ structure-of-arrays form. Each evaluation walks the clusters of the touching bod
 bounding sphere lies above the highest sand is skipped whole (exact: none of its elements can be
 submerged). Inside a cluster one pass computes positions, lever arms and depths, a second pass computes
 velocity, predicted direction, leading test and the stress of every element without branches (the
-element masks become selects), which LLVM vectorizes (SIMD) even with ``fastmath=False``; a third, short
+element masks become selects), which LLVM vectorizes (SIMD) without reassociation; a third, short
 scalar pass adds the loaded elements into the cluster's octant group. All three work on a fixed
 (SCRATCH_ROWS, CLUSTER_SIZE) scratch buffer, never on per-element temporaries.
 
@@ -28,9 +28,11 @@ compiled by the kernel module itself (the same loops as its Python reference), a
 evaluation around these kernels lives in :mod:`rft_mujoco.fastlimit`; :func:`ensure_compiled` compiles
 both with the rest.
 
-Compilation: every function is ``@njit(cache=True, fastmath=False)``. The first use on a machine compiles
-(:data:`COMPILE_SECONDS`) and saves the machine code next to this file (or in ``NUMBA_CACHE_DIR``); later
-processes load it in a fraction of a second. :func:`ensure_compiled` prints one line to stderr when a
+Compilation: every function is ``@njit(cache=True)``, with ``fastmath`` off but for multiply-add fusion in the
+two element loops (:data:`_JIT_LAW`) and reassociated sums in the limiter's solver (:mod:`rft_mujoco.kernel`).
+The first use on a machine
+compiles (:data:`COMPILE_SECONDS`) and saves the machine code next to this file (or in ``NUMBA_CACHE_DIR``);
+later processes load it in a fraction of a second. :func:`ensure_compiled` prints one line to stderr when a
 compilation actually happens (cache loads are silent). numba is an optional import: :data:`AVAILABLE` is
 False when it cannot be imported, and the coupling then uses numpy. Tolerances and coefficients are
 passed at run time (numba would freeze module globals into its on-disk cache, which does not notice
@@ -432,7 +434,8 @@ LANES = 8
 
 @njit(**_INLINE)
 def _count_positive(row, n, lanes):
-    """Number of positive entries of ``row[:n]``; ``lanes[l]`` = the largest of ``row[i]``, i = l mod LANES, or 0.
+    """Number of positive entries of ``row[:n]``; ``lanes[l]``: the largest ``row[i]`` with i = l mod LANES
+    (or 0).
 
     A running maximum over one variable compiles to a branch that mispredicts when the maximum keeps
     rising (deeper and deeper elements along a cluster: +6 ns per element measured at 1e5 elements); per

@@ -306,7 +306,9 @@ def limit(jac, groups, touch, k, qvel_pred, minv, dt, radius, warm, warm_rounds,
     """
     ng = GROUPS_PER_BODY
     nv = minv.shape[0]
-    rest_columns = int(settings[4])
+    # never more rounds than the buffers were sized for (warm and the arenas are sized together from the
+    # same settings; this keeps a later edit of the settings from writing past them)
+    rest_columns = min(int(settings[4]), warm.shape[2])
     rest_speed = settings[5]
     cap = k * ng * rest_columns
     # the buffers, carved from the arenas in the order limit_arena counts them
