@@ -33,3 +33,23 @@ def test_plots_are_written_from_the_tables(tmp_path):
     for f in files:
         assert f.stat().st_size > 10_000
         assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_quick_bench_runs_every_section(tmp_path, capsys):
+    """``python -m rft_mujoco bench --quick`` end to end (what ``make bench`` runs, smaller): every table,
+    finite positive timings, the default preset's accuracy verdict and the plots. No speed is asserted."""
+    res = bench.run(quick=True, out=tmp_path)
+    text = capsys.readouterr().out
+    for heading in ("1. Element throughput", "2a. Quadruped", "2b. Ant-v5", "2c. RK4 stages",
+                    "3. Bodies above the sand", "4. Speed-accuracy"):
+        assert heading in text, heading
+    assert "default preset: worst error" in text and "%): met" in text      # the 2% accuracy target holds
+    assert [f.name for f in res["files"]] == ["throughput.png", "overhead.png", "error_vs_cost.png"]
+    quad = res["quadruped"]
+    assert len(quad) == 9                                            # 3 resolutions x 3 settings
+    assert all(np.isfinite(r["ratio"]) and r["ratio"] > 1.0 for r in quad)    # sand never makes a step cheaper
+    assert all(r["cand_elements"] >= 2000 for r in quad)             # the issue's scene size
+    ant = res["ant"]
+    if ant is not None:
+        assert 0.0 < ant["env_fraction"] < 1.5 and 0.0 < ant["fraction"] < 1.5
+    assert np.isfinite(res["above"]["per_body_ns"]) and res["above"]["fixed_us"] > 0.0
