@@ -281,9 +281,10 @@ def limit_arena(n_bodies: int, nv: int, rest_columns: int) -> tuple[int, int]:
 
 def arena_sizes(n_bodies: int, nv: int, rest_columns: int) -> tuple[int, int]:
     """Lengths (float64, int64) of the preallocated ``arena`` / ``iarena`` buffers of :func:`stabilized`
-    (its own rows, then :func:`limit_arena`'s), allocated once per (handle, MjData)."""
+    (its own: accelerations 6 B, predicted velocity nv, free-motion scratch 7 nv; body ids B and one
+    scratch id; then :func:`limit_arena`'s), allocated once per (handle, MjData)."""
     f, i = limit_arena(n_bodies, nv, rest_columns)
-    return f + 6 * n_bodies + 8 * nv, i + n_bodies
+    return f + 6 * n_bodies + 8 * nv, i + n_bodies + 1
 
 
 @njit(**_JIT)

@@ -259,3 +259,31 @@ def test_stabilized_evaluation_reads_nothing_stale_from_its_buffers(integrator):
         runs.append(np.array(qpos))
     np.testing.assert_array_equal(runs[0], runs[1])
     assert limited > 0                                      # the limiter did scale wrenches down
+
+
+def test_buffers_are_as_long_as_the_evaluation_uses():
+    """fastlimit.arena_sizes covers every view the evaluation carves (numba does not check bounds): with the
+    buffers followed by a guard zone, a limited one-body evaluation (every body touching: the largest
+    carve) leaves the guard untouched. (It caught the int buffer one word short: the rest rounds' flags
+    were written past its end.)"""
+    model = mujoco.MjModel.from_xml_string("""
+    <mujoco><option timestep="0.002"/><worldbody>
+      <body name="ball" pos="0 0 0.02"><freejoint/><geom type="sphere" size="0.05" mass="1"/></body>
+    </worldbody></mujoco>""")
+    data = mujoco.MjData(model)
+    guard = 64
+    with rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=False, backend="numba") as handle:
+        handle.native = False                       # the dispatched call: it rebuilds its arguments below
+        mujoco.mj_step(model, data)
+        work = handle._work[data]
+        n_float, n_int = fastlimit.arena_sizes(1, model.nv, int(handle._solver[4]))
+        assert (work.arena.size, work.iarena.size) == (n_float, n_int)
+        padded = np.full(n_float + guard, np.nan), np.full(n_int + guard, -7, dtype=np.int64)
+        work.arena, work.iarena = padded[0][:n_float], padded[1][:n_int]
+        work.args = None
+        limited = 0
+        for _ in range(300):
+            mujoco.mj_step(model, data)
+            limited += int(handle.diagnostics(data).scale[0] < 1.0)
+        assert limited > 0                                      # the limiter and its rest rounds ran
+        assert np.all(np.isnan(padded[0][n_float:])) and np.all(padded[1][n_int:] == -7)
