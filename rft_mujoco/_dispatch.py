@@ -6,8 +6,8 @@ one dispatcher installed with ``mujoco.set_mjcb_control``. It
 * chains a control callback the user had installed before (called first, so ``ctrl`` is final);
 * routes each evaluation to the handles of that model (several models and datas work independently);
 * owns the ``xfrc_applied`` bookkeeping per MjData, so that the row always ends as user wrench + sand
-  wrench, whether the user left the row alone (we subtract what we added), zeroed it, or assigned a new
-  wrench between steps (a row that differs from what we wrote is taken as the user's new value);
+  wrench, whether the user left the row alone (we subtract what we added), zeroed it, assigned a new
+  wrench between steps, or wrote some of its six components only (:func:`untouched_components`);
 * keeps model compilation working while installed: mujoco 4.0's compiler raises "Python exception
   raised" whenever any Python callback is installed, so the compile entry points
   (``MjModel.from_xml_string / from_xml_path / from_binary_path``, ``MjSpec.compile / recompile``) are
@@ -24,7 +24,7 @@ import weakref
 import mujoco
 import numpy as np
 
-from . import fastkernel, native
+from . import fastkernel, tol
 
 _COMPILE_ENTRY_POINTS = (
     (mujoco.MjModel, "from_xml_string", True),
@@ -36,12 +36,30 @@ _COMPILE_ENTRY_POINTS = (
 
 
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
+RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
+"""Times of RK4 stages 2-4 after the first, in steps (mj_RungeKutta evaluates at t + dt/2, t + dt/2, t + dt)."""
+
+
+def untouched_components(xfrc: np.ndarray, written: np.ndarray) -> np.ndarray:
+    """(n, 6) bool: which components of ``xfrc`` rows (n, 6) the user left as the dispatcher ``written`` them.
+
+    A row equal to what was written is untouched. In a row the user changed, a component still equal to
+    what was written counts as untouched only when that value is non-zero: a user who writes one component
+    (``xfrc_applied[b, 0] = push``) leaves the others, holding user + sand, alone; a user who zeroes or
+    reassigns the row rewrites every component, and a written 0 (the sand exactly cancelling the user's
+    previous value, as at rest) is then taken as the user's new 0. Only a user who writes exactly the
+    non-zero value the dispatcher wrote, or leaves alone a component that the sand exactly cancels while
+    changing others, is misread; values are all the dispatcher can see.
+    """
+    same = xfrc == written
+    return same & (same.all(axis=1, keepdims=True) | (written != 0.0))
 
 
 class _DataBook:
     """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
 
-    __slots__ = ("added", "written", "rows", "model", "sand", "user", "plain", "own", "state", "__weakref__")
+    __slots__ = ("added", "written", "rows", "model", "sand", "user", "nonzero", "sand_dirty", "stage",
+                 "stage_time", "__weakref__")
 
     def __init__(self, model, data) -> None:
         nbody = model.nbody
@@ -51,36 +69,12 @@ class _DataBook:
         self.rows = np.zeros(0, dtype=np.int64)
         self.sand = np.zeros((nbody, 6))     # the handles' sum of this evaluation (reused buffer)
         self.user = np.zeros((nbody, 6))      # the user's part of xfrc_applied (reused buffer)
-        # Addresses for the handles' native calls: (user wrenches, sand) when the user's part is
-        # xfrc_applied itself, and when it is ``user`` (MjData's arrays never move).
-        self.plain = (data.xfrc_applied.ctypes.data, self.sand.ctypes.data)
-        self.own = (self.user.ctypes.data, self.sand.ctypes.data)
-        # The flags and the RK4 stage tracking in one array (the native route reads and writes it too):
-        # nonzero (``added`` has a non-zero entry), sand_dirty (``sand`` needs zeroing), and for handles with
-        # rk4_stages="first" how many stages of the step have been seen (0: none pending) and the time of
-        # its first stage (s).
-        self.state = np.zeros(4)
-
-    nonzero = native.Slot("state", 0, bool)
-    sand_dirty = native.Slot("state", 1, bool)
-    stage = native.Slot("state", 2, int)
-    stage_time = native.Slot("state", 3, float)
-
-
-class _NativeEntry:
-    """The dispatcher's record of one MjData's native route (``call`` None: the model has a handle that
-    does not take the native call), valid while ``generation`` is the dispatcher's."""
-
-    __slots__ = ("data", "model", "generation", "opt", "call", "address", "route")
-
-    def __init__(self, data, model, generation: int, route) -> None:
-        self.data = weakref.ref(data)
-        self.model = model
-        self.generation = generation
-        self.opt = model.opt
-        self.call = None if route is None else native.route_entry()
-        self.address = None if route is None else route.address
-        self.route = route                   # keeps the route's arrays alive
+        self.nonzero = False                  # ``added`` has a non-zero entry
+        self.sand_dirty = False               # ``sand`` needs zeroing
+        # For handles with rk4_stages="first": how many stages of the step have been seen (0: none
+        # pending) and the time of its first stage (s).
+        self.stage = 0
+        self.stage_time = 0.0
 
 
 class Dispatcher:
@@ -91,14 +85,6 @@ class Dispatcher:
         self._books: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
         self._routes: dict = {}              # id(model) -> (model, handles, rows), rebuilt on (un)register
         self._lock = threading.RLock()
-        # Native routes: id(MjData) -> _NativeEntry, used only while its generation is current
-        # (invalidate() bumps it).
-        self._native: dict = {}
-        self._generation = 0
-        self.native_routes = True
-        """Make the whole callback one native call (:class:`rft_mujoco.native.Route`) for a model whose
-        handles all take the native call; False keeps every evaluation on the Python path (the tests
-        compare the two)."""
 
     # --- registration ---------------------------------------------------------------------------
     def register(self, handle) -> None:
@@ -107,21 +93,14 @@ class Dispatcher:
                 self._install()
             self._handles.append(handle)
             self._routes.clear()
-            self.invalidate()
 
     def unregister(self, handle) -> None:
         with self._lock:
             if handle in self._handles:
                 self._handles.remove(handle)
             self._routes.clear()
-            self.invalidate()
             if not self._handles:
                 self._uninstall()
-
-    def invalidate(self) -> None:
-        """Forget the native routes (a handle, a terrain, gravity or a setting changed): the next
-        evaluation of each MjData runs in Python and rebuilds its route."""
-        self._generation += 1
 
     @property
     def handles(self) -> tuple:
@@ -172,9 +151,7 @@ class Dispatcher:
         user = xfrc.copy()
         rows = book.rows
         if rows.size:
-            untouched = np.all(xfrc[rows] == book.written[rows], axis=1)
-            r = rows[untouched]
-            user[r] -= book.added[r]
+            user[rows] -= np.where(untouched_components(xfrc[rows], book.written[rows]), book.added[rows], 0.0)
         return user
 
     # --- the callback -----------------------------------------------------------------------------
@@ -190,16 +167,6 @@ class Dispatcher:
     def __call__(self, model, data) -> None:
         if self._chained is not None:
             self._chained(model, data)
-        fast = self._native.get(id(data))
-        if fast is not None and fast.call is not None and fast.generation == self._generation \
-                and fast.model is model and fast.data() is data:
-            opt = fast.opt
-            if fast.call(fast.address, data.time, opt.timestep, opt.integrator) == native.ROUTE_DONE:
-                return
-        self._evaluate(model, data)
-
-    def _evaluate(self, model, data) -> None:
-        """One evaluation on the Python path (what the native route does, and its reference)."""
         handles, rows = self._route(model)
         if not handles:
             return
@@ -215,19 +182,19 @@ class Dispatcher:
         fast = fastkernel.ready()
         xfrc = data.xfrc_applied
         if not book.nonzero:
-            user, addresses = xfrc, book.plain
+            user = xfrc
         elif fast:
-            user, addresses = book.user, book.own
+            user = book.user
             fastkernel.user_part(xfrc, book.written, book.added, book.rows, user)
         else:
-            user, addresses = self.user_xfrc(model, data), None
+            user = self.user_xfrc(model, data)
         sand = book.sand
         if book.sand_dirty:
             sand[:] = 0.0
         book.sand_dirty = True
         any_sand = False
         for h in handles:
-            if h._evaluate(data, user, sand, addresses) is not False:
+            if h._evaluate(data, user, sand):
                 any_sand = True
         if not any_sand and not book.nonzero:
             # Every body above the sand, as before: xfrc_applied already is the user's.
@@ -246,34 +213,6 @@ class Dispatcher:
                 book.written[rows] = xfrc[rows]
             book.nonzero = any_sand
         book.rows = rows
-        if fast and self.native_routes:
-            entry = self._native.get(id(data))
-            if entry is None or entry.generation != self._generation or entry.data() is not data:
-                self._build_route(model, data, book, handles, rows)
-
-    def _build_route(self, model, data, book: _DataBook, handles, rows) -> None:
-        """The native route of (model, data), or a record that there is none (a handle that does not take
-        the native call), valid until :meth:`invalidate`."""
-        route = None
-        works = [h._work.get(data) for h in handles]
-        if native.route_entry() is not None and all(
-                h._gravity_seen is not None and h._takes_native_call(h._g_hat)
-                and w is not None and w.native is not None and w.native.source is h._fast
-                for h, w in zip(handles, works)):
-            for h in handles:
-                h._counts[1] = 0 if h.monitor is None else h.monitor.every
-            route = native.Route(
-                dict(state=book.state, xfrc=data.xfrc_applied, written=book.written, added=book.added,
-                     rows=rows, user=book.user, sand=book.sand),
-                [dict(table=w.native, g_hat=h._g_hat, gravity=h._gravity_vec,
-                      flags=native.flags(h.warm_start, h.guards), counts=h._counts, state=w.state,
-                      xi_n=h._media.xi_n_at(h._g_mag), mu_surf=h._media.mu_surf, max_height=h._max_height)
-                 for h, w in zip(handles, works)],
-                all(h.rk4_stages == "first" for h in handles), handles[0]._opt_gravity)
-        for key, entry in list(self._native.items()):       # forget the MjData that are gone
-            if entry.data() is None:
-                del self._native[key]
-        self._native[id(data)] = _NativeEntry(data, model, self._generation, route)
 
     @staticmethod
     def _later_rk4_stage(book: _DataBook, t: float, dt: float) -> bool:
@@ -281,7 +220,7 @@ class Dispatcher:
         book saw last (mj_RungeKutta evaluates at t0 + dt/2, t0 + dt/2, t0 + dt after mj_forward at t0);
         otherwise it is a first stage (mj_step's mj_forward, or any mj_forward) and is recorded as one."""
         n = book.stage
-        if 1 <= n <= 3 and abs(t - (book.stage_time + native.RK4_STAGE_TIMES[n - 1] * dt)) <= 1e-9 * dt:
+        if 1 <= n <= 3 and abs(t - (book.stage_time + RK4_STAGE_TIMES[n - 1] * dt)) <= tol.TIME_RTOL * dt:
             book.stage = n + 1
             return True
         book.stage_time = t

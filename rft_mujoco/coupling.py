@@ -1,35 +1,32 @@
 """MuJoCo coupling: attach 3D-RFT sand to bodies of a model; plain ``mujoco.mj_step`` then includes it.
 
-Each physics evaluation (every integrator stage: once per step for Euler/implicitfast, four times for
-RK4) the dispatcher calls :meth:`SandHandle._evaluate`, which
+Each physics evaluation (every integrator stage: once per step for Euler/implicit/implicitfast, four
+times for RK4) the dispatcher (:mod:`rft_mujoco._dispatch`) calls :meth:`SandHandle._evaluate`, which
 
 1. skips bodies whose bounding sphere is above the highest point of the sand (broadphase), and finds
-   the bodies that touch the sand (an element with depth > 0); nothing else runs when none does (no
-   Jacobians, no limiter, the diagnostics are zeroed once);
-2. for the touching ones, takes element positions, normals and velocities from ``xpos``/``xmat``/``cvel``
-   (``cvel``'s linear part refers to ``subtree_com`` of the root, converted to each body's COM);
-3. computes the RFT force of every submerged leading element and the wrench about the body's COM
-   (``xipos``, where ``xfrc_applied`` acts);
-4. with ``stabilize=True`` (default), regularizes low speeds: the motion direction is blended with the
-   predicted one below ``|a_free| dt``, and below the speed change of one full RFT impulse
-   (``|F_rft| dt / m``) the octant wrenches are scaled (and mixed with the RFT resistances to the motion
-   left after the step) to minimize the kinetic energy after the step, so the sand can stop a body but
-   never reverse or accelerate it, and bodies come to exact rest. Above both speeds the published force
-   is applied unchanged unless it would add energy (see :meth:`SandHandle._limit`,
-   :func:`rft_mujoco.kernel.limit_impulses` and :mod:`rft_mujoco.stability` for the measurements);
-5. adds the wrenches to ``data.xfrc_applied`` on top of the user's own wrench;
-6. every ``monitor.every`` evaluations, checks the loaded bodies against the validity range of 3D-RFT
+   the bodies that touch the sand (an element with depth > 0); nothing else runs when none does;
+2. takes element positions and normals from ``xpos``/``xmat`` and body velocities from ``cvel`` (whose
+   linear part refers to ``subtree_com`` of the root, converted to each body's COM);
+3. with ``stabilize=True`` (default), the rest treatment of :mod:`rft_mujoco.rest`: per touching
+   *group* (the attached bodies of one MuJoCo weld group, i.e. one rigid body) the free twist at the end
+   of the step without sand, from the smooth forces of this evaluation and the constraint forces of
+   MuJoCo's previous solve (``qfrc_constraint``: contacts, equalities, joint/tendon limits,
+   frictionloss); the RFT wrench at the blended motion direction; the rest wrenches that hold every
+   group the sand can hold, solved together through ``J M^-1 J^T``, and the published force for the
+   others. With ``stabilize=False``, the published force at each element's velocity (the naive
+   coupling);
+4. adds the wrenches to ``data.xfrc_applied`` on top of the user's own wrench (the dispatcher's book);
+5. every ``monitor.every`` evaluations, checks the loaded bodies against the validity range of 3D-RFT
    (:mod:`rft_mujoco.monitor`; ``attach(monitor=False)`` switches it off).
 
-Steps 1-3 and the bookkeeping of 4-5 run in the numba-compiled kernels of :mod:`rft_mujoco.fastkernel`
-(``attach(backend="numba")``, the default when numba imports and supports the terrain) on per-MjData
-buffers, or in the numpy reference :mod:`rft_mujoco.kernel` (``backend="numpy"``); both give the same
-wrenches to round-off (tests/test_fastkernel.py). With the numba backend, step 4 (Jacobians, free motion,
-the impulse limiter) is compiled too (:mod:`rft_mujoco.fastlimit`, optionally warm-started from the previous
-step; tests/test_fastlimit.py compares it with :meth:`SandHandle._limit`), and steps 1-5 are then one
-native call per evaluation (:mod:`rft_mujoco.native`; ``handle.native = False`` calls the same compiled
-functions through numba's dispatcher, tests/test_native.py checks they agree bit for bit). Costs are
-measured by ``python -m rft_mujoco bench``.
+Steps 1-3 run compiled (:mod:`rft_mujoco.fastkernel`, :mod:`rft_mujoco.fastrest`; ``backend="numba"``,
+the default where numba imports) or in the numpy reference below (``backend="numpy"``); the tests compare
+the two. Costs are measured by ``python -m rft_mujoco bench``.
+
+Why the constraint forces of the previous solve: MuJoCo calls ``mjcb_control`` before its constraint
+solve, so no force computed there can know this step's contact, weld or limit forces; the previous
+solve's are the best estimate, exact once the scene rests (``../shared/reference/mujoco-notes.md``;
+the design and its alternatives are measured in docs/rest.md).
 """
 
 from __future__ import annotations
@@ -43,26 +40,27 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from . import fastkernel, fastlimit, kernel, native, surface
-from .monitor import ValidityMonitor
+from . import fastkernel, fastrest, kernel, law, rest, surface, tol
 from ._dispatch import DISPATCHER
-from . import law
 from .law import PUBLISHED, Guards, gravity_direction
 from .media import Media, get_media
+from .monitor import ValidityMonitor
 from .terrain import Terrain, as_terrain
 
 
 @dataclasses.dataclass
 class Diagnostics:
-    """Per-body sand state of the latest evaluation of one MjData (arrays over ``SandHandle.body_ids``).
+    """Per-body sand state of one evaluation of one MjData (arrays over ``SandHandle.body_ids``).
 
     Attributes:
         force: (B, 3) N, world frame, applied at each body's COM.
         torque: (B, 3) N m, world frame, about each body's COM.
         submerged: (B,) int, number of submerged leading elements that carried stress.
         max_depth: (B,) m, deepest loaded element (0 when none).
-        scale: (B,) the impulse-limiter factor applied to the RFT wrench (1 = full published force).
-        rft_force: (B, 3) N, the RFT force before the impulse limiter.
+        scale: (B,) ``|applied wrench| / |RFT wrench|`` (torques over the body's radius): 1 in flow,
+            the fraction of its capacity the sand uses to hold a resting body.
+        rft_force: (B, 3) N, the RFT force at the body's motion direction (its capacity at rest).
+        resting: (B,) bool, the body is held at rest by the sand (False: in flow, or not loaded).
     """
 
     force: np.ndarray
@@ -71,94 +69,63 @@ class Diagnostics:
     max_depth: np.ndarray
     scale: np.ndarray
     rft_force: np.ndarray
+    resting: np.ndarray
 
     @classmethod
     def zeros(cls, n: int) -> "Diagnostics":
         return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, dtype=np.int64), np.zeros(n),
-                   np.ones(n), np.zeros((n, 3)))
+                   np.ones(n), np.zeros((n, 3)), np.zeros(n, dtype=bool))
+
+    def copy(self) -> "Diagnostics":
+        """A snapshot that later evaluations do not change."""
+        return Diagnostics(*(np.array(getattr(self, f.name)) for f in dataclasses.fields(self)))
+
+    def clear(self) -> None:
+        """Zero wrenches, counts and depths; scale 1; nothing resting (an evaluation without sand)."""
+        self.force[:] = 0.0
+        self.torque[:] = 0.0
+        self.submerged[:] = 0
+        self.max_depth[:] = 0.0
+        self.scale[:] = 1.0
+        self.rft_force[:] = 0.0
+        self.resting[:] = False
 
 
-def _clear(diag: Diagnostics) -> None:
-    diag.force[:] = 0.0
-    diag.torque[:] = 0.0
-    diag.submerged[:] = 0
-    diag.max_depth[:] = 0.0
-    diag.scale[:] = 1.0
-    diag.rft_force[:] = 0.0
-
-
-def _follow_time(work: "_Workspace", t: float, dt: float) -> None:
-    """The limiter's warm start carries over only while time runs on by at most one step (RK4 stages
-    included): a reset or a jump in time starts cold, so rollouts from a reset are reproducible."""
-    if not 0.0 <= t - work.last_time <= dt * (1.0 + 1e-9):
-        work.warm_rounds[:] = 0
-        work.warm[:] = 0.0
-    work.last_time = t
-
-
-def _nothing_touches(work: "_Workspace") -> None:
-    """No body touches the sand: zero the diagnostics and the warm start, once."""
-    if not work.clean:
-        _clear(work.diag)
-        work.warm_rounds[:] = 0
-        work.warm[:] = 0.0
-        work.clean = True
-
-
-_NO_ROWS = np.zeros((0, 6))
-"""Empty (0, 6) float array: "no accelerations" / "no limiter result" for the compiled kernel."""
+BACKENDS = ("auto", "numba", "numpy")
+"""Kernel backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.fastkernel`,
+:mod:`rft_mujoco.fastrest`) or numpy (:mod:`rft_mujoco.kernel`, :mod:`rft_mujoco.rest`, the readable
+reference); "auto" is numba when it imports and supports the terrain, numpy otherwise."""
 RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
-BACKENDS = ("auto", "numba", "numpy")
-"""Kernel backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.fastkernel`) or numpy
-(:mod:`rft_mujoco.kernel`, the readable reference); "auto" is numba when it imports and supports the
-terrain, numpy otherwise."""
 
 
 class _Workspace:
-    """Per-MjData buffers of one handle (datas may be stepped in different threads): the diagnostics,
-    and rows 0..k-1 of the touching bodies' poses, velocities and octant wrenches."""
+    """Per-MjData state of one handle (datas may be stepped in different threads): the diagnostics, the
+    time of the last evaluation, and rows 0..k-1 of the touching bodies' poses and velocities."""
 
-    __slots__ = ("diag", "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "groups",
-                 "count", "max_depth", "col_groups", "col_count", "col_max_depth", "scratch", "col_v", "col_w",
-                 "jac", "qacc", "minv", "eye", "limited", "warm", "warm_rounds", "arena", "iarena", "state", "args",
-                 "native")
+    __slots__ = ("diag", "touch", "body_pos", "body_mat", "body_com", "v_com", "omega", "groups", "count",
+                 "max_depth", "scratch", "last_time", "clean", "fast")
 
-    def __init__(self, n_bodies: int, compiled: bool, nv: int, rest_columns: int) -> None:
+    def __init__(self, n_bodies: int, compiled: bool) -> None:
         b = n_bodies
         self.diag = Diagnostics.zeros(b)
-        # (clean, last time s) in one array, read and written by the native route as well.
-        self.state = np.array([1.0, -math.inf])
         self.touch = np.zeros(b, dtype=np.int64)
         self.body_pos, self.body_com, self.v_com, self.omega = (np.zeros((b, 3)) for _ in range(4))
         self.body_mat = np.zeros((b, 9))
         self.groups = np.zeros((b, kernel.GROUPS_PER_BODY, 6))
         self.count = np.zeros(b, dtype=np.int64)
         self.max_depth = np.zeros(b)
-        self.col_groups = np.zeros((b, kernel.GROUPS_PER_BODY, 6))
-        self.col_count = np.zeros(b, dtype=np.int64)
-        self.col_max_depth = np.zeros(b)
         self.scratch = np.zeros((fastkernel.SCRATCH_ROWS, fastkernel.CLUSTER_SIZE)) if compiled else None
-        # The compiled stabilized path (fastlimit): Jacobians, free acceleration, M^-1, limiter output and
-        # the previous evaluation's limiter factors (its warm start).
-        self.col_v, self.col_w = np.zeros((b, 3)), np.zeros((b, 3))
-        self.jac = np.zeros((b, 6, nv))
-        self.qacc = np.zeros(nv)
-        self.minv = np.zeros((nv, nv))
-        self.eye = np.eye(nv)
-        self.limited = np.zeros((b, 6))
-        r = rest_columns
-        self.warm = np.zeros((b, kernel.GROUPS_PER_BODY, r, r))
-        self.warm_rounds = np.zeros(b, dtype=np.int64)
-        # every other working array of the compiled stabilized evaluation, carved per call (fastlimit)
-        n_float, n_int = fastlimit.arena_sizes(b, nv, r) if compiled else (0, 0)
-        self.arena = np.zeros(n_float)
-        self.iarena = np.zeros(n_int, dtype=np.int64)
-        self.args = None            # the compiled calls' fixed arguments (SandHandle._fixed_args)
-        self.native = None          # the native call's argument table (SandHandle._native_table)
+        self.last_time = -math.inf
+        self.clean = True
+        self.fast = None            # the compiled rest evaluation's buffers (rft_mujoco.fastrest.Buffers)
 
-    clean = native.Slot("state", 0, bool, "Whether the diagnostics and the warm start are already zero.")
-    last_time = native.Slot("state", 1, float, "The time of the last evaluation, s (warm-start continuity).")
+    def follow_time(self, t: float, dt: float) -> bool:
+        """Record an evaluation at time ``t``; True when time advanced by at most one step since the last
+        one (RK4 stages included): only then is MuJoCo's previous constraint solve this motion's."""
+        continuous = 0.0 <= t - self.last_time <= dt * (1.0 + tol.TIME_RTOL)
+        self.last_time = t
+        return continuous
 
 
 def _body_id(model, name) -> int:
@@ -193,6 +160,39 @@ def _check_element_count(model, body_id: int, name: str, size: float) -> None:
                          f"{dict(surface.RESOLUTIONS)}")
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class Groups:
+    """The attached bodies of one handle grouped by MuJoCo weld group (bodies welded together move as one).
+
+    Attributes:
+        of_body: (B,) int, the group of each attached body.
+        ref: (G,) int, the attached body (index into ``body_ids``) whose COM is the group's reference point.
+        radius: (G,) m, radius about the reference point of a sphere holding the group's elements.
+    """
+
+    of_body: np.ndarray
+    ref: np.ndarray
+    radius: np.ndarray
+
+
+def _groups(model, body_ids: np.ndarray, centroids: np.ndarray, elem_body: np.ndarray, size: float) -> Groups:
+    weld = model.body_weldid[body_ids]
+    keys, of_body = np.unique(weld, return_inverse=True)
+    ref = np.array([int(np.flatnonzero(of_body == g)[0]) for g in range(keys.size)], dtype=np.int64)
+    data = mujoco.MjData(model)                 # the relative poses inside a weld group never change
+    mujoco.mj_kinematics(model, data)
+    radius = np.full(keys.size, size)
+    for i, b in enumerate(body_ids):
+        pts = centroids[elem_body == i]
+        if not pts.size:
+            continue
+        world = data.xpos[b] + pts @ data.xmat[b].reshape(3, 3).T
+        g = of_body[i]
+        far = float(np.linalg.norm(world - data.xipos[body_ids[ref[g]]], axis=1).max())
+        radius[g] = max(radius[g], far + size)
+    return Groups(of_body.astype(np.int64), ref, radius)
+
+
 class SandHandle:
     """Sand attached to some bodies of one MjModel. Create with :func:`attach`; remove with :meth:`detach`.
 
@@ -204,16 +204,9 @@ class SandHandle:
         body_names: their names.
         n_elements: total surface elements (candidates) over those bodies.
         evaluations: sand evaluations so far (all MjData together).
+        stabilize: the rest treatment is on (see :func:`attach`).
+        rk4_stages: with integrator="RK4", "all" or "first" (see :func:`attach`).
     """
-
-    _ROUTED = frozenset({"native", "stabilize", "passive", "compiled_limiter", "warm_start", "guards", "monitor",
-                         "rk4_stages", "attached", "_fast", "_max_height", "_media", "_g_addr"})
-    """Attributes the dispatcher's native routes were built from: setting one rebuilds them."""
-
-    def __setattr__(self, name, value) -> None:
-        object.__setattr__(self, name, value)
-        if name in SandHandle._ROUTED:
-            DISPATCHER.invalidate()
 
     def __init__(self, model, media: Media, body_ids: Sequence[int], terrain: Terrain, size: float,
                  guards: Guards, stabilize: bool, passive: bool, monitor: bool | ValidityMonitor = True,
@@ -221,7 +214,6 @@ class SandHandle:
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
         self._backend_request = None
-        self._counts = np.zeros(2, dtype=np.int64)       # evaluations, monitor period (the native route's)
         self.model = model
         self.media = media
         self.terrain = terrain
@@ -267,48 +259,36 @@ class SandHandle:
                 center = 0.5 * (lo + hi)
                 self._bound_center[i] = center
                 self._bound_radius[i] = np.linalg.norm(pts - center, axis=1).max() + size
-        self._elem_slices = np.concatenate([[0], np.cumsum(counts)])
+        self._elem_slices = np.ascontiguousarray(np.concatenate([[0], np.cumsum(counts)]), dtype=np.int64)
         self.elem_octant = kernel.octants(self.local_centroids, self._bound_center[self.elem_body])
+        self.groups = _groups(model, self.body_ids, self.local_centroids, self.elem_body, size)
         self._work: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-        self._root = model.body_rootid[self.body_ids]
+        self._root = np.ascontiguousarray(model.body_rootid[self.body_ids], dtype=np.int64)
         self._jacp = np.zeros((3, model.nv))
         self._jacr = np.zeros((3, model.nv))
         self.attached = False
-        self.evaluations = 0
+        self._evaluations = np.zeros(1, dtype=np.int64)
         self.monitor = (monitor if isinstance(monitor, ValidityMonitor) else
                         ValidityMonitor() if monitor else None)
         self._replaced: list[tuple[int, int, int]] = []
-        # Per-evaluation constants and the compiled kernel's inputs.
-        self._elem_slices = np.ascontiguousarray(self._elem_slices, dtype=np.int64)
-        self._root64 = np.ascontiguousarray(self._root, dtype=np.int64)
         self._opt = model.opt
         self._opt_gravity = model.opt.gravity            # a live view: gravity changes are seen
         self._gravity_seen = None
-        self._fast_checked = None
-        self._fast_seen = None
         self._tol = fastkernel.tolerances()
-        self._solver = fastlimit.solver_settings()
+        self._settings = np.array([rest.DEPENDENT_TOL, rest.WEIGHT_FLOOR, rest.CAPACITY_TOL, tol.TINY])
         self._tree = tuple(np.ascontiguousarray(a, dtype=np.int64) for a in (
-            model.body_rootid, model.body_dofnum, model.body_dofadr, model.body_parentid, model.dof_parentid))
-        self.warm_start = False
-        """Compiled stabilized path: start the limiter from the previous evaluation's factors (False: from
-        the published force every time, as the numpy reference does); see :func:`attach`."""
+            model.body_rootid, model.body_dofnum, model.body_dofadr, model.body_parentid, model.dof_parentid,
+            model.M_rownnz, model.M_rowadr, model.M_colind))
+        self._layout_ok = None                          # fastrest.check_layout, once
         self.rk4_stages = "all"
-        """With integrator="RK4": "all" evaluates at every stage, "first" holds the first stage's wrench
-        (see :func:`attach`)."""
-        self.native = True
-        """With the numba backend and stabilize=True: make the whole evaluation one native call
-        (:mod:`rft_mujoco.native`, same results, no numba dispatch); False uses numba's dispatcher (the
-        tests compare the two). Ignored where :func:`rft_mujoco.native.available` is False."""
-        self.compiled_limiter = True
-        """With the numba backend and stabilize=True: the free motion and the limiter run compiled
-        (:mod:`rft_mujoco.fastlimit`); False runs :meth:`_free_motion` and :meth:`_limit` in numpy around
-        the compiled kernels (the reference the tests compare with)."""
         self._backend_request = backend
         self._select_backend()
 
     # --- public -------------------------------------------------------------------------------------
-    evaluations = native.Slot("_counts", 0, int, "Sand evaluations so far (all MjData together).")
+    @property
+    def evaluations(self) -> int:
+        """Sand evaluations so far (all MjData together)."""
+        return int(self._evaluations[0])
 
     @property
     def media(self) -> Media:
@@ -348,7 +328,8 @@ class SandHandle:
             self.model.geom_conaffinity[gid] = 0
 
     def diagnostics(self, data) -> Diagnostics:
-        """Per-body force, torque, submerged element count and max depth of the latest evaluation."""
+        """Per-body force, torque, submerged element count, max depth and rest state of the latest
+        evaluation of ``data`` (a live view, updated by later steps; ``.copy()`` keeps a snapshot)."""
         work = self._work.get(data)
         return work.diag if work is not None else Diagnostics.zeros(len(self.body_ids))
 
@@ -409,73 +390,187 @@ class SandHandle:
                 f"attached={self.attached})")
 
     # --- per evaluation -----------------------------------------------------------------------------
-    def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, addresses=None) -> bool:
-        """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero.
-        ``addresses``: (address of user_xfrc, of sand_out) when the caller knows them (the native call)."""
-        self._counts[0] += 1
+    def _workspace(self, data) -> _Workspace:
         work = self._work.get(data)
         if work is None:
-            work = self._work[data] = _Workspace(len(self.body_ids), self._fast is not None, self.model.nv,
-                                                 int(self._solver[4]))
+            work = self._work[data] = _Workspace(len(self.body_ids), self._fast is not None)
+        return work
+
+    def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray) -> bool:
+        """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero."""
+        self._evaluations[0] += 1
+        work = self._workspace(data)
         g_hat = self._gravity()
-        if self._takes_native_call(g_hat):
-            return self._evaluate_native(data, work, user_xfrc, sand_out, addresses)
+        dt = self._opt.timestep
+        lagged = work.follow_time(data.time, dt)
         diag = work.diag
         # 1. Broadphase and depth pre-pass: the bodies with at least one submerged element.
         touch = self._touching_fast(data, g_hat, work) if self._fast is not None else \
             self._touching_numpy(data, g_hat, work)
         if touch.size == 0:
-            _nothing_touches(work)
+            if not work.clean:
+                diag.clear()
+                work.clean = True
             return False
         work.clean = False
         k = touch.size
-        v_com, omega = work.v_com[:k], work.omega[:k]
-        dt = self._opt.timestep
-        if self.stabilize and self._fast is not None and self.compiled_limiter:
-            # 2-5 compiled in one call: free motion, RFT octant wrenches, impulse limiter, diagnostics and
-            # the wrenches into sand_out (fastlimit.stabilized).
-            status = self._stabilized_fast(data, user_xfrc, work, touch, dt, g_hat, sand_out)
-            max_depth = work.max_depth[:k]
+        if self.stabilize and self._fast is not None and self._compiled_rest():
+            status = self._evaluate_rest_fast(data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out)
+        elif self.stabilize:
+            status = self._evaluate_rest(data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out)
         else:
-            status, max_depth = self._evaluate_steps(data, user_xfrc, work, touch, dt, g_hat, sand_out)
+            status = self._evaluate_naive(work, touch, g_hat, sand_out)
         if status < 0:
             self._raise_not_finite(diag, touch)
-        if self.monitor is not None and self._counts[0] % self.monitor.every == 0:
-            self.monitor.check(self, data, touch, v_com, omega, max_depth)
+        if self.monitor is not None and self._evaluations[0] % self.monitor.every == 0:
+            self.monitor.check(self, data, touch, work.v_com[:k], work.omega[:k], work.max_depth[:k])
         return bool(status)
 
-    def _evaluate_steps(self, data, user_xfrc, work, touch, dt, g_hat, sand_out):
-        """Steps 2-5 of :meth:`_evaluate` with the numpy limiter (around the numpy or the compiled kernels).
-        Returns (status of :func:`fastkernel.finish`, max depths (k,))."""
+    def _evaluate_naive(self, work, touch, g_hat, sand_out) -> int:
+        """``stabilize=False``: the published force at each element's velocity (``passive``: a body's
+        wrench is dropped when it would do positive work). Returns the status of :meth:`_commit`."""
         k = touch.size
-        diag = work.diag
         v_com, omega = work.v_com[:k], work.omega[:k]
-        acc = None
-        limited = None
-        if self.stabilize:
-            jac, qvel_pred, qacc_free = self._free_motion(data, self.body_ids[touch], user_xfrc, dt)
-            acc = jac @ qacc_free                      # (k, 6): [linear at COM, angular]
-        # 2. RFT octant wrenches (k, 8, 6) of the touching bodies.
-        groups, count, max_depth, loaded = self._wrenches(work, touch, v_com, omega, acc, dt, g_hat,
-                                                          work.groups, work.count, work.max_depth)
-        # 3. Impulse limiter (stabilize) and diagnostics.
-        if loaded and self.stabilize:
-            def column(v_lin, v_ang):
-                # RFT octant wrenches (k, 8, 6) for the element motions of body twists (no blend).
-                return self._wrenches(work, touch, np.ascontiguousarray(v_lin), np.ascontiguousarray(v_ang),
-                                      None, 0.0, g_hat, work.col_groups, work.col_count,
-                                      work.col_max_depth)[0].copy()
-            limited = self._limit(data, jac, groups, qvel_pred, dt, self._bound_radius[touch], column)
+        wrench, count, max_depth = self._rft(work, touch, v_com, omega, g_hat)
+        applied = wrench.copy()
+        if self.passive:
+            power = np.einsum("ij,ij->i", wrench[:, :3], v_com) + np.einsum("ij,ij->i", wrench[:, 3:], omega)
+            applied[power > 0.0] = 0.0
+        return self._commit(work.diag, touch, applied, wrench, count, max_depth, np.zeros(k, dtype=bool),
+                            sand_out)
+
+    def _rft(self, work, touch, v_com, omega, g_hat):
+        """RFT wrenches (k, 6) about each touching body's COM for body twists (v_com, omega) (k, 3), with
+        the submerged leading element counts (k,) and deepest loaded depths (k,) m."""
+        k = touch.size
+        media, guards = self._media, self.guards
         if self._fast is not None:
-            status = fastkernel.finish(groups, count, max_depth, v_com, omega,
-                                       _NO_ROWS if limited is None else np.ascontiguousarray(limited),
-                                       self.passive and not self.stabilize, touch, k, self.body_ids,
-                                       diag.force, diag.torque, diag.submerged, diag.max_depth, diag.scale,
-                                       diag.rft_force, sand_out)
-        else:
-            status = self._finish_numpy(diag, groups, count, max_depth, v_com, omega, limited, touch,
-                                        sand_out)
-        return status, max_depth
+            arrays, kind, tp, heights = self._fast
+            fastkernel.wrenches(
+                touch, k, *arrays, work.body_pos, work.body_mat, work.body_com, np.ascontiguousarray(v_com),
+                np.ascontiguousarray(omega), _NO_ROWS, 0.0, g_hat, self._max_height, kind, tp, heights,
+                media.xi_n_at(self._g_mag), law.COEFFICIENTS, media.mu_surf, guards.no_tension,
+                guards.no_forward_tangential, guards.no_positive_power, self._tol, work.scratch, work.groups,
+                work.count, work.max_depth)
+            return work.groups[:k].sum(axis=1), work.count[:k].copy(), work.max_depth[:k].copy()
+        sel = np.concatenate([np.arange(self._elem_slices[i], self._elem_slices[i + 1]) for i in touch])
+        remap = np.empty(len(self.body_ids), dtype=np.int64)
+        remap[touch] = np.arange(k)
+        groups, count, max_depth = kernel.body_wrenches(
+            self.local_centroids[sel], self.local_normals[sel], self.areas[sel], remap[self.elem_body[sel]],
+            k, work.body_pos[:k], work.body_mat[:k].reshape(k, 3, 3), work.body_com[:k], v_com, omega,
+            self.terrain, g_hat, self._gravity_vec, media, guards)
+        work.max_depth[:k] = max_depth
+        return groups.sum(axis=1), count, max_depth
+
+    def _evaluate_rest(self, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out) -> int:
+        """The rest treatment (:mod:`rft_mujoco.rest`) of the touching bodies, in numpy (the reference of
+        :mod:`rft_mujoco.fastrest`). Returns the status of :meth:`_commit`."""
+        m, grp = self.model, self.groups
+        k = touch.size
+        group_of = grp.of_body[touch]                      # (k,) group of each touching body
+        active = np.unique(group_of)                       # (G,) touching groups
+        slot = np.searchsorted(active, group_of)           # (k,) row of each body's group in ``active``
+        ref = self.body_ids[grp.ref[active]]               # (G,) MuJoCo ids of the reference bodies
+        radius = grp.radius[active]
+        jac, free, twist = self._free_twists(data, user_xfrc, ref, dt, lagged)
+        # Element motions of the blended twists, at each touching body's COM.
+        u = rest.blend(twist, free, radius)
+        arm = work.body_com[:k] - data.xipos[ref[slot]]    # (k, 3) reference point -> body COM
+        omega = u[slot, 3:]
+        v_com = u[slot, :3] + np.cross(omega, arm)
+        wrench, count, max_depth = self._rft(work, touch, v_com, omega, g_hat)
+        # The groups' RFT wrenches at their reference points, their mobility, the rest wrenches.
+        rft_g = np.zeros((active.size, 6))
+        np.add.at(rft_g, slot, np.hstack([wrench[:, :3], wrench[:, 3:] + np.cross(arm, wrench[:, :3])]))
+        flat = jac.reshape(-1, m.nv)
+        minv_jt = np.empty_like(flat)
+        mujoco.mj_solveM(m, data, minv_jt, flat)
+        applied_g, resting_g = rest.rest_wrenches(free, flat @ minv_jt.T, rft_g, u, radius, dt)
+        applied = _share(applied_g, rft_g, resting_g, wrench, slot, arm, radius)
+        return self._commit(work.diag, touch, applied, wrench, count, max_depth, resting_g[slot], sand_out)
+
+    def _compiled_rest(self) -> bool:
+        """Whether the compiled rest evaluation reads MuJoCo's mass-matrix factor correctly (checked once)."""
+        if self._layout_ok is None:
+            self._layout_ok = fastrest.check_layout(self.model, mujoco.MjData(self.model))
+            if not self._layout_ok:
+                warnings.warn("rft_mujoco: MuJoCo's mass-matrix factor (qLD) is not laid out as this version "
+                              f"of rft_mujoco reads it (mujoco {mujoco.__version__}); the rest treatment runs "
+                              "in numpy (same forces, slower). Install the mujoco version of pyproject.toml.",
+                              RuntimeWarning, stacklevel=4)
+        return self._layout_ok
+
+    def _evaluate_rest_fast(self, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out) -> int:
+        """:meth:`_evaluate_rest` compiled (:func:`rft_mujoco.fastrest.evaluate`)."""
+        m, grp, media, guards, diag = self.model, self.groups, self._media, self.guards, work.diag
+        mujoco.mj_fwdActuation(m, data)
+        if work.fast is None:
+            work.fast = fastrest.Buffers(len(self.body_ids), grp.ref.size, m.nv)
+        arrays, kind, tp, heights = self._fast
+        status = fastrest.evaluate(
+            touch, touch.size, self.body_ids, grp.of_body, grp.ref, grp.radius, self._bound_radius, data.xipos,
+            data.cdof, data.subtree_com, data.qvel, data.qfrc_passive, data.qfrc_bias, data.qfrc_actuator,
+            data.qfrc_applied, data.qfrc_constraint, data.qLD, data.qLDiagInv, *self._tree, user_xfrc, lagged, dt,
+            *arrays, work.body_pos, work.body_mat, work.body_com, work.v_com, work.omega, g_hat, self._max_height,
+            kind, tp, heights, media.xi_n_at(self._g_mag), law.COEFFICIENTS, media.mu_surf, guards.no_tension,
+            guards.no_forward_tangential, guards.no_positive_power, self._tol, self._settings, work.scratch,
+            work.groups, work.count, work.max_depth, *work.fast.arrays(), diag.force, diag.torque,
+            diag.submerged, diag.max_depth, diag.scale, diag.rft_force, diag.resting, sand_out)
+        if status == fastrest.BAD_ACCELERATION:
+            self._free_twists(data, user_xfrc, self.body_ids[grp.ref], dt, lagged)   # raises, naming the bodies
+        return status
+
+    def _free_twists(self, data, user_xfrc, ref, dt, lagged):
+        """Jacobians (G, 6, nv) of the reference bodies' COMs, their free twists (G, 6) at the end of the step
+        without sand, and their twists now (G, 6).
+
+        The free acceleration uses the smooth forces of this evaluation (passive, bias, actuators, applied,
+        the user's xfrc_applied) plus, when ``lagged``, the constraint forces of MuJoCo's previous solve.
+        """
+        m = self.model
+        jac = np.empty((ref.size, 6, m.nv))
+        for i, b in enumerate(ref):
+            mujoco.mj_jacBodyCom(m, data, self._jacp, self._jacr, int(b))
+            jac[i, :3] = self._jacp
+            jac[i, 3:] = self._jacr
+        mujoco.mj_fwdActuation(m, data)
+        qfrc = data.qfrc_passive - data.qfrc_bias + data.qfrc_actuator + data.qfrc_applied
+        if lagged:
+            qfrc = qfrc + data.qfrc_constraint
+        for b in np.flatnonzero(np.any(user_xfrc[1:] != 0.0, axis=1)) + 1:
+            mujoco.mj_applyFT(m, data, user_xfrc[b, :3].copy(), user_xfrc[b, 3:].copy(), data.xipos[b].copy(),
+                              int(b), qfrc)
+        qacc = np.empty(m.nv)
+        mujoco.mj_solveM(m, data, qacc.reshape(1, -1), qfrc.reshape(1, -1))
+        if not np.all(np.isfinite(qacc)):
+            names = [m.body(int(b)).name for b in ref]
+            raise FloatingPointError(
+                f"non-finite acceleration without sand while computing sand forces on bodies {names}: "
+                "data.ctrl, data.qfrc_applied or data.xfrc_applied holds NaN/inf (or the model's "
+                "actuators produce it); fix the input before stepping")
+        twist = jac @ data.qvel
+        return jac, twist + dt * (jac @ qacc), twist
+
+    def _commit(self, diag, touch, applied, rft, count, max_depth, resting, sand_out) -> int:
+        """Diagnostics of the touching bodies and ``applied`` (k, 6) into ``sand_out``. Returns 1 when a
+        wrench is non-zero, 0 when none is, -1 (``sand_out`` untouched) when one is not finite."""
+        diag.clear()
+        radius = self._bound_radius[touch][:, None]
+        rft_norm = np.linalg.norm(np.hstack([rft[:, :3], rft[:, 3:] / radius]), axis=1)
+        app_norm = np.linalg.norm(np.hstack([applied[:, :3], applied[:, 3:] / radius]), axis=1)
+        loaded = rft_norm > 0.0
+        diag.force[touch] = applied[:, :3]
+        diag.torque[touch] = applied[:, 3:]
+        diag.rft_force[touch] = rft[:, :3]
+        diag.submerged[touch] = count
+        diag.max_depth[touch] = max_depth
+        diag.scale[touch[loaded]] = app_norm[loaded] / rft_norm[loaded]
+        diag.resting[touch] = resting & loaded
+        if not np.all(np.isfinite(applied)):
+            return -1
+        np.add.at(sand_out, self.body_ids[touch], applied)
+        return int(np.any(applied != 0.0))
 
     def _gravity(self) -> np.ndarray:
         """Unit gravity direction (3,), recomputed only when ``model.opt.gravity`` changed."""
@@ -483,31 +578,30 @@ class SandHandle:
         if g != self._gravity_seen:
             g_hat, self._g_mag = gravity_direction(g)
             self._g_hat = np.ascontiguousarray(g_hat)
-            self._g_addr = self._g_hat.ctypes.data
             self._gravity_vec = np.array(g)
             self._gravity_seen = g
         return self._g_hat
 
-    def _stabilized_fast(self, data, user_xfrc, work, touch, dt, g_hat, sand_out) -> int:
-        """Steps 2-5 of the stabilized evaluation in one compiled call (:func:`fastlimit.stabilized`): the
-        same as :meth:`_evaluate_steps` with :meth:`_free_motion`, :meth:`_wrenches`, :meth:`_limit` and
-        :func:`fastkernel.finish`, the limiter warm-started from the previous evaluation
-        (``self.warm_start``). Returns the status of :func:`fastkernel.finish`."""
-        m = self.model
-        a = work.args or self._fixed_args(data, work)
-        _follow_time(work, data.time, dt)
-        mujoco.mj_fwdActuation(m, data)
-        if m.nv:
-            mujoco.mj_solveM(m, data, work.minv, work.eye)
-        _, kind, tp, heights = self._fast
-        media, guards = self._media, self.guards
-        status = fastlimit.stabilized(
-            touch, touch.size, self.body_ids, user_xfrc, *a[2], dt, *a[3], self.warm_start, *a[4], g_hat,
-            self._max_height, kind, tp, heights, media.xi_n_at(self._g_mag), law.COEFFICIENTS, media.mu_surf,
-            guards.no_tension, guards.no_forward_tangential, guards.no_positive_power, self._tol, *a[5], sand_out)
-        if status == fastlimit.BAD_ACCELERATION:
-            self._free_motion(data, self.body_ids[touch], user_xfrc, dt)   # raises, naming the bodies
-        return status
+    def _touching_fast(self, data, g_hat, work) -> np.ndarray:
+        """Compiled :meth:`_touching_numpy` (same result) straight from the MjData arrays."""
+        arrays, kind, tp, heights = self._fast
+        if not self._fast_touching_ok(g_hat):         # tilted gravity on a heightfield: numpy explains
+            return self._touching_numpy(data, g_hat, work)
+        p = self._packed
+        k = fastkernel.touching(self.body_ids, self._root, data.xpos, data.xmat, data.xipos, data.cvel,
+                                data.subtree_com, data.qpos, data.qvel, self._bound_center, self._bound_radius,
+                                p.centroids, p.cluster_start, p.cluster_center, p.cluster_radius,
+                                p.body_clusters, g_hat, self._max_height, kind, tp, heights, work.touch,
+                                work.body_pos, work.body_mat, work.body_com, work.v_com, work.omega)
+        if k < 0:
+            return self._touching_numpy(data, g_hat, work)  # raises the non-finite state error
+        return work.touch[:k]
+
+    def _fast_touching_ok(self, g_hat) -> bool:
+        """Whether the compiled broadphase handles this terrain and gravity (not: tilted gravity on a
+        heightfield, which the numpy pre-pass explains)."""
+        _, kind, tp, _ = self._fast
+        return (kind == fastkernel.FLAT and tp[6] == 0.0) or g_hat[2] <= -1.0 + tol.VERTICAL_GRAVITY_TOL
 
     def _touching_numpy(self, data, g_hat, work) -> np.ndarray:
         """Numpy broadphase and depth pre-pass: indices (k,) into ``body_ids`` of the bodies with a
@@ -541,105 +635,6 @@ class SandHandle:
             self._root[touch]])
         return touch
 
-    def _call_arrays(self, data, work) -> dict:
-        """Every array the compiled calls read or write, by the argument names of
-        :data:`rft_mujoco.native.FIELDS`: MjData's, the handle's and the workspace's."""
-        _, _, tp, heights = self._fast
-        packed, diag = self._packed, work.diag
-        return dict(
-            xpos=data.xpos, xmat=data.xmat, xipos=data.xipos, cvel=data.cvel, subtree_com=data.subtree_com,
-            qpos=data.qpos, qvel=data.qvel, cdof=data.cdof, qfrc_passive=data.qfrc_passive,
-            qfrc_bias=data.qfrc_bias, qfrc_actuator=data.qfrc_actuator, qfrc_applied=data.qfrc_applied,
-            ids=self.body_ids, root=self._root64, bound_center=self._bound_center, bound_radius=self._bound_radius,
-            body_rootid=self._tree[0], body_dofnum=self._tree[1], body_dofadr=self._tree[2],
-            body_parentid=self._tree[3], dof_parentid=self._tree[4], settings=self._solver,
-            centroids=packed.centroids, normals=packed.normals, areas=packed.areas,
-            cluster_start=packed.cluster_start, cluster_octant=packed.cluster_octant,
-            cluster_center=packed.cluster_center, cluster_radius=packed.cluster_radius,
-            body_clusters=packed.body_clusters, tp=tp, heights=heights, coef=law.COEFFICIENTS, tol=self._tol,
-            touch=work.touch, body_pos=work.body_pos, body_mat=work.body_mat, body_com=work.body_com,
-            v_com=work.v_com, omega=work.omega, minv=work.minv, eye=work.eye, warm=work.warm,
-            warm_rounds=work.warm_rounds, scratch=work.scratch, groups=work.groups, count=work.count,
-            max_depth=work.max_depth, col_v=work.col_v, col_w=work.col_w, col_groups=work.col_groups,
-            col_count=work.col_count, col_max_depth=work.col_max_depth, jac=work.jac, qacc=work.qacc,
-            limited=work.limited, force=diag.force, torque=diag.torque, submerged=diag.submerged,
-            depth_max=diag.max_depth, scale=diag.scale, rft_force=diag.rft_force, arena=work.arena,
-            iarena=work.iarena)
-
-    # The argument runs of the dispatched calls (fastkernel.touching, fastlimit.stabilized) between their
-    # per-call arguments, in signature order.
-    _ARG_RUNS = (
-        ("ids", "root", "xpos", "xmat", "xipos", "cvel", "subtree_com", "qpos", "qvel", "bound_center",
-         "bound_radius", "centroids", "cluster_start", "cluster_center", "cluster_radius", "body_clusters"),
-        ("touch", "body_pos", "body_mat", "body_com", "v_com", "omega"),
-        ("xipos", "cdof", "subtree_com", "qvel", "qfrc_passive", "qfrc_bias", "qfrc_actuator", "qfrc_applied",
-         "minv", "body_rootid", "body_dofnum", "body_dofadr", "body_parentid", "dof_parentid"),
-        ("bound_radius", "warm", "warm_rounds"),
-        ("settings", "centroids", "normals", "areas", "cluster_start", "cluster_octant", "cluster_center",
-         "cluster_radius", "body_clusters", "body_pos", "body_mat", "body_com", "v_com", "omega"),
-        ("scratch", "groups", "count", "max_depth", "col_v", "col_w", "col_groups", "col_count",
-         "col_max_depth", "jac", "qacc", "limited", "force", "torque", "submerged", "depth_max", "scale",
-         "rft_force", "arena", "iarena"))
-
-    def _fixed_args(self, data, work) -> tuple:
-        """The arguments of the dispatched compiled calls that are the same at every evaluation of ``data``,
-        built once per workspace: the runs of :attr:`_ARG_RUNS` (touching before g_hat, touching after
-        heights, stabilized after user_xfrc, after dt, after warm_start, after tol)."""
-        arrays = self._call_arrays(data, work)
-        work.args = tuple(tuple(arrays[name] for name in run) for run in self._ARG_RUNS)
-        return work.args
-
-    def _takes_native_call(self, g_hat) -> bool:
-        """Whether an evaluation is one native call (:meth:`_evaluate_native`; the route needs it of every
-        handle of the model)."""
-        return (self.native and self.stabilize and self.compiled_limiter and self._fast is not None
-                and self._fast_touching_ok(g_hat) and native.available())
-
-    def _fast_touching_ok(self, g_hat) -> bool:
-        """Whether the compiled broadphase handles this terrain and gravity (not: tilted gravity on a
-        heightfield, which the numpy pre-pass explains)."""
-        if self._gravity_seen is not self._fast_checked or self._fast is not self._fast_seen:
-            _, kind, tp, _ = self._fast
-            self._fast_checked = self._gravity_seen
-            self._fast_seen = self._fast
-            self._fast_gravity_ok = (kind == fastkernel.FLAT and tp[6] == 0.0) or g_hat[2] <= -1.0 + 1e-9
-        return self._fast_gravity_ok
-
-    def _native_table(self, data, work) -> native.Table:
-        """The native call's argument table for ``data`` (built once per workspace and terrain)."""
-        return native.Table(self._call_arrays(data, work), self.model, data, self._fast[1], self._fast)
-
-    def _evaluate_native(self, data, work, user_xfrc, sand_out, addresses) -> bool:
-        """:meth:`_evaluate` for the compiled stabilized path as one native call (:mod:`rft_mujoco.native`):
-        the same broadphase, MuJoCo calls and compiled evaluation as :meth:`_touching_fast` and
-        :meth:`_stabilized_fast`, without numba's per-argument dispatch."""
-        table = work.native
-        if table is None or table.source is not self._fast:
-            table = work.native = self._native_table(data, work)
-        if addresses is None:
-            addresses = (user_xfrc.ctypes.data, sand_out.ctypes.data)
-        dt = self._opt.timestep
-        _follow_time(work, data.time, dt)
-        media = self._media
-        code = native.entry()(table.address, addresses[0], addresses[1], self._g_addr, dt,
-                              media.xi_n_at(self._g_mag), media.mu_surf, self._max_height,
-                              native.flags(self.warm_start, self.guards))
-        if code == native.NOT_FINITE_STATE:
-            self._touching_numpy(data, self._g_hat, work)    # raises the non-finite state error
-        k, status = native.decode(code)
-        if k == 0:
-            _nothing_touches(work)
-            return False
-        work.clean = False
-        touch = work.touch[:k]
-        if status == fastlimit.BAD_ACCELERATION:
-            self._free_motion(data, self.body_ids[touch], user_xfrc, dt)   # raises, naming the bodies
-        if status < 0:
-            self._raise_not_finite(work.diag, touch)
-        if self.monitor is not None and self._counts[0] % self.monitor.every == 0:
-            self.monitor.check(self, data, touch, work.v_com[:k], work.omega[:k], work.max_depth[:k])
-        return bool(status)
-
     def _raise_not_finite(self, diag, touch) -> None:
         bad = [self.body_names[i] for i in touch
                if not (np.all(np.isfinite(diag.force[i])) and np.all(np.isfinite(diag.torque[i])))]
@@ -647,175 +642,46 @@ class SandHandle:
                                  "xfrc_applied. Check the model's inputs (ctrl, qfrc_applied, "
                                  "xfrc_applied, masses) for NaN/inf")
 
-    def _touching_fast(self, data, g_hat, work) -> np.ndarray:
-        """Compiled :meth:`_touching_numpy` (same result) straight from the MjData arrays."""
-        _, kind, tp, heights = self._fast
-        if not self._fast_touching_ok(g_hat):         # tilted gravity on a heightfield: numpy explains
-            return self._touching_numpy(data, g_hat, work)
-        a = work.args or self._fixed_args(data, work)
-        k = fastkernel.touching(*a[0], g_hat, self._max_height, kind, tp, heights, *a[1])
-        if k < 0:
-            return self._touching_numpy(data, g_hat, work)  # raises the non-finite state error
-        return work.touch[:k]
 
-    def _wrenches(self, work, touch, v_com, omega, acc, dt, g_hat, groups, count, max_depth):
-        """RFT octant wrenches (k, 8, 6), counts (k,), max depths (k,) of the touching bodies (rows of
-        the workspace pose buffers), and whether any is non-zero. ``acc`` (k, 6) or None."""
-        k = touch.size
-        media, guards = self._media, self.guards
-        if self._fast is not None:
-            arrays, kind, tp, heights = self._fast
-            n = fastkernel.wrenches(
-                touch, k, *arrays, work.body_pos, work.body_mat, work.body_com, v_com, omega,
-                _NO_ROWS if acc is None else acc, dt if self.stabilize else 0.0, g_hat, self._max_height,
-                kind, tp, heights, media.xi_n_at(self._g_mag), law.COEFFICIENTS, media.mu_surf,
-                guards.no_tension, guards.no_forward_tangential, guards.no_positive_power, self._tol,
-                work.scratch, groups, count, max_depth)
-            return groups[:k], count[:k], max_depth[:k], n > 0
-        sel = np.concatenate([np.arange(self._elem_slices[i], self._elem_slices[i + 1]) for i in touch])
-        remap = np.empty(len(self.body_ids), dtype=np.int64)
-        remap[touch] = np.arange(k)
-        out = kernel.body_wrenches(
-            self.local_centroids[sel], self.local_normals[sel], self.areas[sel], remap[self.elem_body[sel]],
-            k, work.body_pos[:k], work.body_mat[:k].reshape(k, 3, 3), work.body_com[:k], v_com, omega,
-            self.terrain, g_hat, self._gravity_vec, media, guards, None if acc is None else acc[:, :3],
-            None if acc is None else acc[:, 3:], dt if self.stabilize else 0.0, self.elem_octant[sel])
-        return (*out, bool(np.any(out[0] != 0.0)))
+_NO_ROWS = np.zeros((0, 6))
+"""Empty (0, 6) float array: "no predicted accelerations" for the compiled element kernel."""
 
-    def _finish_numpy(self, diag, groups, count, max_depth, v_com, omega, limited, touch, sand_out) -> int:
-        """Numpy reference of :func:`rft_mujoco.fastkernel.finish`: applied wrenches and diagnostics.
-        Returns 1 when a wrench is non-zero, 0 when none, -1 when one is not finite (nothing written)."""
-        _clear(diag)
-        wrench = groups.sum(axis=1)
-        diag.rft_force[touch] = wrench[:, :3]
-        loaded = np.flatnonzero(np.any(wrench != 0.0, axis=1))
-        if loaded.size and limited is not None:
-            rft_norm = np.linalg.norm(wrench[loaded], axis=1)
-            diag.scale[touch[loaded]] = np.linalg.norm(limited[loaded], axis=1) / rft_norm
-            wrench = limited
-        elif loaded.size and self.passive and not self.stabilize:
-            power = np.einsum("ij,ij->i", wrench[loaded, :3], v_com[loaded]) + \
-                np.einsum("ij,ij->i", wrench[loaded, 3:], omega[loaded])
-            pos = power > 0.0
-            wrench[loaded[pos]] = 0.0
-            diag.scale[touch[loaded[pos]]] = 0.0
-        diag.force[touch] = wrench[:, :3]
-        diag.torque[touch] = wrench[:, 3:]
-        diag.submerged[touch] = count
-        diag.max_depth[touch] = max_depth
-        if not np.all(np.isfinite(wrench)):
-            return -1
-        sand_out[self.body_ids[touch]] += wrench
-        return int(np.any(wrench != 0.0))
 
-    def _free_motion(self, data, bids, user_xfrc, dt):
-        """Body Jacobians at the COM (k, 6, nv), predicted qvel (nv,) and free qacc (nv,) without sand.
+def _share(applied_g, rft_g, resting_g, rft, slot, arm, radius) -> np.ndarray:
+    """Each touching body's part (k, 6) of its group's wrench (about the body's COM).
 
-        The free acceleration uses the smooth forces (passive, bias, actuators, applied, user xfrc) and
-        ignores constraint forces (rigid contacts, limits).
-        """
-        m = self.model
-        jac = np.empty((bids.size, 6, m.nv))
-        for i, b in enumerate(bids):
-            mujoco.mj_jacBodyCom(m, data, self._jacp, self._jacr, int(b))
-            jac[i, :3] = self._jacp
-            jac[i, 3:] = self._jacr
-        mujoco.mj_fwdActuation(m, data)
-        qfrc = data.qfrc_passive - data.qfrc_bias + data.qfrc_actuator + data.qfrc_applied
-        rows = np.flatnonzero(np.any(user_xfrc[1:] != 0.0, axis=1)) + 1
-        for b in rows:
-            mujoco.mj_applyFT(m, data, user_xfrc[b, :3].copy(), user_xfrc[b, 3:].copy(),
-                              data.xipos[b].copy(), int(b), qfrc)
-        qacc = np.empty(m.nv)
-        mujoco.mj_solveM(m, data, qacc.reshape(1, -1), qfrc.reshape(1, -1))
-        if not np.all(np.isfinite(qacc)):
-            names = [m.body(int(b)).name for b in bids]
-            raise FloatingPointError(
-                f"non-finite acceleration without sand while computing sand forces on bodies {names}: "
-                "data.ctrl, data.qfrc_applied or data.xfrc_applied holds NaN/inf (or the model's "
-                "actuators produce it); fix the input before stepping")
-        return jac, data.qvel + dt * qacc, qacc
-
-    def _limit(self, data, jac, groups, qvel_pred, dt, radius, column):
-        """Stabilized wrenches (k, 6) of the candidate bodies from their RFT octant wrenches (k, 8, 6).
-
-        A body is in the low-speed regime when its predicted speed (without sand) is below the speed
-        change the full RFT impulse of one step would cause. Its octant wrenches get factors in [0, 1]
-        that minimize the kinetic energy after the step (:func:`rft_mujoco.kernel.limit_impulses`): the
-        sand stops it at most, never reverses or accelerates it. A body in flow gets the published force
-        (every factor 1), unless that would add kinetic energy to the step; then every body is limited
-        (passivity always holds). When the limiter binds on a low-speed body, up to
-        ``kernel.REST_COLUMNS - 1`` more columns are added: the octant wrenches of the RFT resistance to
-        the motion the body would still have after the step, sharing each octant's capacity with the
-        first (convex combination). The sand can then supply any wrench
-        of the convex hull of its resistances to several motions, which is what holds a tilted body at
-        rest (one motion direction alone often cannot cancel both the weight and the sideways push).
-
-        Args:
-            jac: (k, 6, nv) body Jacobians at the COM; groups: (k, 8, 6) RFT octant wrenches;
-            qvel_pred: (nv,) velocity after the step without sand; dt: step in s;
-            radius: (k,) m, bounding radii (angular speeds count as ``radius * |omega|``);
-            column: ``(v_lin (k, 3), v_ang (k, 3)) -> (k, 8, 6)`` RFT octant wrenches for body twists.
-        """
-        m = self.model
-        n_groups = kernel.GROUPS_PER_BODY
-        k = jac.shape[0]
-
-        def minv(q):
-            out = np.empty_like(q)
-            mujoco.mj_solveM(m, data, out, np.ascontiguousarray(q))
-            return out
-
-        def speed(twist):
-            return np.linalg.norm(twist[:, :3], axis=1) + radius * np.linalg.norm(twist[:, 3:], axis=1)
-
-        flat = groups.reshape(-1, 6)
-        group = np.flatnonzero(np.any(flat != 0.0, axis=1))       # (body, octant) of each column entry
-        wrench = flat[group]
-        q = np.einsum("kin,ki->kn", jac[group // n_groups], wrench)   # generalized forces J^T W
-        minv_q = minv(q)
-        G, h = dt * dt * (q @ minv_q.T), dt * (q @ qvel_pred)
-        # Low-speed regime: the full RFT impulse of one step changes the body's speed by more than its
-        # predicted speed. Those bodies get the energy-minimizing factors; bodies in flow keep the
-        # published force (factor 1) unless it would add kinetic energy to the step, then all are limited.
-        low = speed(jac @ qvel_pred) < speed(jac @ (dt * minv_q.sum(axis=0)))
-        free = low[group // n_groups]
-        lam = kernel.limit_impulses(G, h, group, free=free, ensure_passive=False) if free.any() else \
-            np.ones(group.size)
-        if 0.5 * lam @ G @ lam + h @ lam > 0.0:
-            free[:] = True
-            lam = kernel.limit_impulses(G, h, group)
-        for _ in range(kernel.REST_COLUMNS - 1):
-            refine = np.zeros(k, dtype=bool)
-            refine[group[lam < 1.0 - 1e-12] // n_groups] = True
-            refine &= low
-            twist = jac @ (qvel_pred + dt * (minv_q.T @ lam))          # after the step, (k, 6)
-            refine &= speed(twist) > kernel.REST_SPEED
-            if not refine.any():
-                break
-            twist[~refine] = 0.0
-            extra = column(twist[:, :3], twist[:, 3:]).reshape(-1, 6)
-            new = np.flatnonzero(np.any(extra != 0.0, axis=1))
-            if new.size == 0:
-                break
-            q_new = np.einsum("kin,ki->kn", jac[new // n_groups], extra[new])
-            group = np.concatenate([group, new])
-            wrench = np.concatenate([wrench, extra[new]])
-            q = np.concatenate([q, q_new])
-            minv_q = np.concatenate([minv_q, minv(q_new)])
-            free = np.concatenate([free, np.ones(new.size, dtype=bool)])
-            lam = kernel.limit_impulses(dt * dt * (q @ minv_q.T), dt * (q @ qvel_pred), group,
-                                        np.concatenate([lam, np.zeros(new.size)]), free)
-        out = np.zeros((k, 6))
-        np.add.at(out, group // n_groups, wrench * lam[:, None])
-        return out
+    A group in flow gives each body its own RFT wrench times the group's factor; a resting group's rest
+    wrench is shared in proportion to the bodies' RFT wrenches (torques over the group radius), with the
+    torque chosen so that the parts add up to the group's wrench about its reference point. The bodies of
+    a group are welded together, so the split changes the diagnostics only, never the motion.
+    """
+    k = slot.size
+    out = np.zeros((k, 6))
+    r = radius[slot][:, None]
+    size = np.linalg.norm(np.hstack([rft[:, :3], rft[:, 3:] / r]), axis=1)
+    total = np.bincount(slot, weights=size, minlength=rft_g.shape[0])
+    g_norm = np.linalg.norm(np.hstack([rft_g[:, :3], rft_g[:, 3:] / radius[:, None]]), axis=1)
+    a_norm = np.linalg.norm(np.hstack([applied_g[:, :3], applied_g[:, 3:] / radius[:, None]]), axis=1)
+    for j in range(k):
+        g = slot[j]
+        if total[g] <= 0.0:
+            continue
+        if not resting_g[g]:
+            out[j] = rft[j] * (a_norm[g] / g_norm[g] if g_norm[g] > 0.0 else 0.0)
+            continue
+        share = size[j] / total[g]
+        out[j, :3] = share * applied_g[g, :3]
+    for g in np.flatnonzero(resting_g):
+        mine = np.flatnonzero(slot == g)
+        moment = applied_g[g, 3:] - np.cross(arm[mine], out[mine, :3]).sum(axis=0)
+        out[mine, 3:] = (size[mine] / total[g])[:, None] * moment[None, :] if total[g] > 0.0 else 0.0
+    return out
 
 
 def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
            surface_height: float | Terrain = 0.0, resolution: str | float = "default", *,
            guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True,
-           monitor: bool | ValidityMonitor = True, backend: str = "auto", warm_start: bool = False,
-           rk4_stages: str = "all") -> SandHandle:
+           monitor: bool | ValidityMonitor = True, backend: str = "auto", rk4_stages: str = "all") -> SandHandle:
     """Attach 3D-RFT sand to ``model``: from now on ``mujoco.mj_step(model, data)`` includes it.
 
     Args:
@@ -826,26 +692,19 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             :class:`HeightfieldSurface`, :class:`SandRegion`).
         resolution: element size: a preset name (``rft_mujoco.surface.RESOLUTIONS``) or metres.
         guards: clean-ups of the fit's artefacts (default none: the published law).
-        stabilize: low-speed regularization and impulse limiting, which gives real rest on sand and
-            guarantees the sand never adds kinetic energy in a step (default True); the published force
-            is recovered to ``(|a_free| dt / v)^3`` at speeds ``v`` above ``|F_rft| dt / m``
-            (:mod:`rft_mujoco.stability`). False applies the published force at every element's current
-            velocity (the naive coupling: bodies chatter instead of resting).
+        stabilize: the rest treatment (default True, :mod:`rft_mujoco.rest`): a body the sand can hold is
+            held at rest, whatever loads it (its own weight, a payload through a contact or weld, a joint
+            or tendon limit), and the sand never adds kinetic energy in a step; a body in flow gets the
+            published force (to ``(|dv| / v)^3`` above the speed change ``dv`` of one step). False applies
+            the published force at every element's current velocity (the naive coupling: bodies chatter
+            instead of resting).
         passive: with ``stabilize=False``, zero a body's wrench whenever it would do positive work.
         monitor: warn (:class:`rft_mujoco.RFTValidityWarning`, once per reason) when a loaded body leaves
             the quasi-static regime or the validated depth (:mod:`rft_mujoco.monitor`); a
             :class:`ValidityMonitor` to set the check interval; False switches it off.
-        backend: the per-evaluation kernel: "numba" (compiled, :mod:`rft_mujoco.fastkernel`; compiled
-            once per machine and cached), "numpy" (:mod:`rft_mujoco.kernel`, the readable reference), or
-            "auto" (default: numba when it imports and supports the terrain, else numpy). Both give the
-            same forces to round-off.
-        warm_start: with stabilize=True and the numba backend, start the impulse limiter's solver from
-            its factors of the previous step and stop it after fewer sweeps: 2x faster on a standing
-            quadruped and as accurate on average, but resting bodies keep 0.08-0.3 mm/s of jitter in a
-            few of the stability cases, against 1e-6 m/s by default (:mod:`rft_mujoco.fastlimit`). Like
-            MuJoCo's own solver warm start, the result then depends on the previous step as well as on the
-            state; it is cleared whenever time does not advance by at most one step (resets), so rollouts
-            from a reset are reproducible. False (default): every step is a function of the state alone.
+        backend: "numba" (compiled, cached after the first use on a machine), "numpy" (the readable
+            reference), or "auto" (default: numba when it imports and supports the terrain, else numpy).
+            Both give the same forces to round-off.
         rk4_stages: with ``integrator="RK4"``, "all" (default) evaluates the sand at each of the four
             stages of a step; "first" evaluates it at the first stage (the state at the start of the step)
             and holds that wrench through stages 2-4, a quarter of the cost. It applies only while every
@@ -875,7 +734,6 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         raise ValueError("no bodies to attach sand to: the model has no body with surface geoms")
     gravity_direction(model.opt.gravity)  # raises on zero gravity
     handle = SandHandle(model, media, ids, terrain, size, guards, stabilize, passive, monitor, backend)
-    handle.warm_start = bool(warm_start)
     handle.rk4_stages = rk4_stages
     DISPATCHER.register(handle)
     handle.attached = True

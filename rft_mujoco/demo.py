@@ -42,6 +42,8 @@ class DemoLog:
     trunk: list = dataclasses.field(default_factory=list)
     foot_force: list = dataclasses.field(default_factory=list)
     foot_depth: list = dataclasses.field(default_factory=list)
+    leg_force: list = dataclasses.field(default_factory=list)
+    total_force: list = dataclasses.field(default_factory=list)
 
     def arrays(self):
         return (np.array(self.time), np.array(self.trunk), np.array(self.foot_force), np.array(self.foot_depth))
@@ -58,6 +60,9 @@ class Demo:
         self.gait = TrotGait.from_model(self.model, **{**DEMO_GAIT, **gait_kwargs})
         self.stand_s = stand_s
         self.feet = [self.sand.body_names.index(f) for f in FOOT_BODIES]
+        # each leg's bodies (its hip, thigh, calf and foot: the prefix of its foot's name)
+        self.legs = [[i for i, n in enumerate(self.sand.body_names) if n.startswith(f.split("_")[0] + "_")]
+                     for f in FOOT_BODIES]
         self.trunk = self.model.body("trunk").id
 
     def step(self) -> None:
@@ -71,6 +76,8 @@ class Demo:
         log.trunk.append(self.data.xpos[self.trunk].copy())
         log.foot_force.append(d.force[self.feet].copy())
         log.foot_depth.append(d.max_depth[self.feet].copy())
+        log.leg_force.append([d.force[leg, 2].sum() for leg in self.legs])
+        log.total_force.append(d.force[:, 2].sum())
 
     def close(self) -> None:
         self.sand.detach()
@@ -171,18 +178,22 @@ def run(seconds: float = 5.0, stand_s: float = 1.0, out: Path = Path("out"), vid
         "standing_trunk_sinkage_m": z0 - float(trunk[standing, 2].mean()),
         "standing_foot_depth_m": depth[standing].mean(0),
         "standing_foot_force_N": force[standing, :, 2].mean(0),
+        "standing_leg_force_N": np.array(log.leg_force)[standing].mean(0),
+        "standing_total_force_N": float(np.array(log.total_force)[standing].mean()),
+        "weight_N": float(demo.model.body_subtreemass[1] * -demo.model.opt.gravity[2]),
         "trot_speed_mps": float(np.polyfit(t[trotting], trunk[trotting, 0], 1)[0]) if trotting.sum() > 2 else 0.0,
         "trot_peak_foot_force_N": np.abs(force[trotting, :, 2]).max(0) if trotting.any() else np.zeros(4),
         "trot_mean_foot_depth_m": depth[trotting].mean(0) if trotting.any() else np.zeros(4),
     }
     print("\nper-foot sand load              " + "  ".join(f"{f:>8s}" for f in FOOT_BODIES))
     print("  standing vertical force (N)   " + "  ".join(f"{v:8.1f}" for v in summary["standing_foot_force_N"]))
+    print("  ... whole leg, foot + calf    " + "  ".join(f"{v:8.1f}" for v in summary["standing_leg_force_N"]))
     print("  standing foot depth (mm)      " + "  ".join(f"{1e3 * v:8.1f}" for v in summary["standing_foot_depth_m"]))
     print("  trotting peak force (N)       " + "  ".join(f"{v:8.1f}" for v in summary["trot_peak_foot_force_N"]))
     print("  trotting mean depth (mm)      " + "  ".join(f"{1e3 * v:8.1f}" for v in summary["trot_mean_foot_depth_m"]))
-    print(f"trunk sinkage while standing: {1e3 * summary['standing_trunk_sinkage_m']:.1f} mm; "
-          f"trot speed on sand: {summary['trot_speed_mps']:.3f} m/s; robot weight "
-          f"{demo.model.body_subtreemass[1] * 9.81:.1f} N")
+    print(f"trunk sinkage while standing: {1e3 * summary['standing_trunk_sinkage_m']:.1f} mm; total sand force "
+          f"{summary['standing_total_force_N']:.1f} N against the robot's weight {summary['weight_N']:.1f} N; "
+          f"trot speed on sand: {summary['trot_speed_mps']:.3f} m/s")
     print(f"speed: {summary['sim_seconds_per_wall_second']:.2f} simulated s per wall s")
     print(f"plot: {_plot(log, out, stand_s)}")
     if video:

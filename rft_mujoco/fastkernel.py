@@ -23,10 +23,8 @@ scalar pass adds the loaded elements into the cluster's octant group. All three 
 
 Terrains: :class:`~rft_mujoco.terrain.FlatSurface`, :class:`~rft_mujoco.terrain.HeightfieldSurface` and
 :class:`~rft_mujoco.terrain.SandRegion` are compiled (:func:`terrain_spec`); anything else makes the
-coupling fall back to numpy. The impulse limiter's solver (:func:`rft_mujoco.kernel.limit_impulses`) is
-compiled by the kernel module itself (the same loops as its Python reference), and the stabilized
-evaluation around these kernels lives in :mod:`rft_mujoco.fastlimit`; :func:`ensure_compiled` compiles
-both with the rest.
+coupling fall back to numpy. The rest evaluation around these kernels lives in :mod:`rft_mujoco.fastrest`;
+:func:`ensure_compiled` compiles it with the rest.
 
 Compilation: every function is ``@njit(cache=True)``, with ``fastmath`` off but for multiply-add fusion in the
 two element loops (:data:`_JIT_LAW`) and reassociated sums in the limiter's solver (:mod:`rft_mujoco.kernel`).
@@ -67,9 +65,8 @@ PAD = 16
 twice) never run a scalar remainder."""
 CHUNK = 256
 """Elements per chunk of :func:`element_forces`."""
-COMPILE_SECONDS = 60
-"""Rough first-use compile time in s on a 2-core machine (measured 54 s with the native entry point of
-:mod:`rft_mujoco.native`, rounded up), for the notice."""
+COMPILE_SECONDS = 30
+"""Rough first-use compile time in s on a 2-core machine (measured 17-25 s, rounded up), for the notice."""
 
 # Terrain kinds of :func:`terrain_spec` (the compiled depth switches on them).
 FLAT = 0
@@ -699,14 +696,6 @@ def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, bo
     return groups, count, max_depth
 
 
-def limit_impulses(G, h, group=None, start=None, **kwargs) -> np.ndarray:
-    """:func:`rft_mujoco.kernel.limit_impulses` with its compiled solver (the kernel module compiles its
-    projected Gauss-Seidel loops itself; this is the same function, here for symmetry)."""
-    from . import kernel
-
-    return kernel.limit_impulses(G, h, group, start, compiled=True, **kwargs)
-
-
 # --- the coupling's fast path --------------------------------------------------------------------------
 @njit(**_JIT)
 def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_center, bound_radius,
@@ -861,15 +850,15 @@ def finish(groups, count, depth_max, v_com, omega, limited, passive, touch, n_to
 @njit(**_JIT)
 def user_part(xfrc, written, added, rows, user):
     """The dispatcher's user wrench (nbody, 6) into ``user``: ``xfrc`` with the sand ``added`` last time
-    taken out of every row in ``rows`` that still holds what was ``written`` (a row the user overwrote is
-    the user's)."""
+    taken out of the components of rows ``rows`` the user left alone (the rule of
+    :func:`rft_mujoco._dispatch.untouched_components`)."""
     user[:] = xfrc
     for r in rows:
-        same = True
+        whole = True
         for k in range(6):
-            same = same and xfrc[r, k] == written[r, k]
-        if same:
-            for k in range(6):
+            whole = whole and xfrc[r, k] == written[r, k]
+        for k in range(6):
+            if xfrc[r, k] == written[r, k] and (whole or written[r, k] != 0.0):
                 user[r, k] -= added[r, k]
 
 
@@ -903,9 +892,8 @@ def _require() -> None:
 
 
 def ensure_compiled(verbose: bool = True) -> float:
-    """Compile (or load from numba's cache) every kernel of this module, and the impulse limiter's solver
-    (:func:`rft_mujoco.kernel.limit_impulses`), for the argument types the package uses, once per
-    process. Returns the seconds it took (0 when already done).
+    """Compile (or load from numba's cache) every kernel of this module and the rest evaluation
+    (:mod:`rft_mujoco.fastrest`), for the argument types the package uses, once per process. Returns the seconds it took (0 when already done).
 
     Prints one line to stderr (and logs it on the "rft_mujoco" logger) only when numba actually compiles
     something -- on the first use on a machine, or after the source changed; cache loads are silent.
@@ -943,7 +931,7 @@ def ensure_compiled(verbose: bool = True) -> float:
         return seconds
 
 
-_KERNEL_MODULES = ("fastkernel", "fastlimit", "kernel", "native", "law")
+_KERNEL_MODULES = ("fastkernel", "fastrest", "kernel", "law")
 """The modules whose compiled functions call one another (the package's numba cache)."""
 
 
@@ -983,8 +971,6 @@ def _drop_stale_cache() -> None:
 
 def _warm_up() -> None:
     """Call every kernel once on tiny inputs of exactly the types the package passes."""
-    from . import fastlimit, kernel   # the stabilized evaluation around these kernels; the limiter's solver
-
     i8 = np.int64
     c3 = np.zeros((2, 3))
     nrm = np.tile([0.0, 0.0, 1.0], (2, 1))
@@ -1011,12 +997,10 @@ def _warm_up() -> None:
                  vcom, om)
         wrenches(touch, 0, *packed.arrays(), pos, mat, com, vcom, om, np.zeros((0, 6)), 0.0, g, 0.0, kind, tp,
                  heights, 1.0, coef, 0.4, False, False, False, tol, scratch, groups, count, mdep)
-        fastlimit._warm_up(packed, kind, tp, heights, coef, tol)
+        from . import fastrest      # the rest evaluation around these kernels
+        fastrest.warm_up(packed.arrays(), kind, tp, heights, coef, tol)
     finish(groups, count, mdep, vcom, om, np.zeros((0, 6)), False, touch, 0, ids, np.zeros((B, 3)),
            np.zeros((B, 3)), np.zeros(B, dtype=i8), np.zeros(B), np.ones(B), np.zeros((B, 3)), np.zeros((2, 6)))
     x6 = np.zeros((2, 6))
     user_part(x6, x6.copy(), x6.copy(), ids, x6.copy())
     commit(x6, x6.copy(), x6.copy(), ids, x6.copy(), x6.copy())
-    kernel.limit_impulses(np.eye(2), np.zeros(2), np.arange(2), compiled=True)
-    from . import native                # the stabilized evaluation as one native call
-    native.build()

@@ -249,9 +249,9 @@ class _StageRecorder:
         self.q = []
         evaluate = handle._evaluate
 
-        def wrapped(data, user, sand_out, addresses=None):
+        def wrapped(data, user, sand_out):
             before = sand_out[body].copy()
-            loaded = evaluate(data, user, sand_out, addresses)
+            loaded = evaluate(data, user, sand_out)
             w = sand_out[body] - before
             q = np.zeros(model.nv)
             mujoco.mj_applyFT(model, data, w[:3].copy(), w[3:].copy(), data.xipos[body].copy(), body, q)
@@ -572,8 +572,47 @@ def plot_naive(results: list[Result], path: Path) -> None:
     plt.close(fig)
 
 
+def run_load_paths(*, quick: bool = False, out: Path, stream=sys.stdout) -> list:
+    """The load-path subset (:mod:`rft_mujoco.loadpaths`): progress, a table per scene, ``loadpaths.csv``."""
+    from . import loadpaths
+
+    results = []
+    t0 = time.perf_counter()
+    todo = loadpaths.cases(quick)
+    for k, (name, dt, integ) in enumerate(todo, 1):
+        r = loadpaths.run_case(name, dt, integ)
+        results.append(r)
+        print(f"[{k:3d}/{len(todo)} {time.perf_counter() - t0:6.0f}s] load path {r.label} t_rest={_fmt(r.t_rest, '.3g')} "
+              f"final speed={_fmt(r.final_speed, '.1e')} balance={_fmt(r.balance, '.1e')} "
+              f"{'FAIL: ' + '; '.join(r.failures) if r.failures else ''}", file=stream, flush=True)
+    with open(out / "loadpaths.csv", "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["scene", "dt_ms", "integrator", "nan", "max_gain_J", "t_rest_s", "final_speed", "balance",
+                         "sinkage_m", "wall_s", "failures"])
+        for r in results:
+            writer.writerow([r.scene, r.dt * 1e3, r.integrator, r.nan, f"{r.max_gain:.4g}", f"{r.t_rest:.4g}",
+                             f"{r.final_speed:.4g}", f"{r.balance:.4g}", f"{r.sinkage:.5g}", f"{r.wall:.2f}",
+                             "; ".join(r.failures)])
+    print(f"\nLoad paths: rest within {loadpaths.DEADLINE:g} s (every body < {loadpaths.REST_SPEED * 1e3:g} mm/s and "
+          f"mrad/s), sand force against the load (balance), largest energy added by the sand in a step",
+          file=stream)
+    print(f"{'scene':16s} {'cases':>5s} {'NaN':>3s} {'at rest':>8s} {'t_rest max':>10s} {'final speed max':>15s} "
+          f"{'balance max':>11s} {'max dE (J)':>10s} {'fail':>4s}", file=stream)
+    for name in dict.fromkeys(r.scene for r in results):
+        rs = [r for r in results if r.scene == name]
+        ok = [r for r in rs if not r.nan]
+        print(f"{name:16s} {len(rs):5d} {sum(r.nan for r in rs):3d} "
+              f"{f'{sum(r.t_rest <= loadpaths.DEADLINE for r in rs)}/{len(rs)}':>8s} "
+              f"{_fmt(max((r.t_rest for r in ok), default=math.nan), '.3g'):>10s} "
+              f"{_fmt(max((r.final_speed for r in ok), default=math.nan), '.1e'):>15s} "
+              f"{_fmt(max((r.balance for r in ok), default=math.nan), '.1e'):>11s} "
+              f"{_fmt(max(r.max_gain for r in rs), '.1e'):>10s} {sum(bool(r.failures) for r in rs):4d}", file=stream)
+    return results
+
+
 def run(*, quick: bool = False, out: str | Path = "out/stability", plots: bool = True, stream=sys.stdout):
-    """Run the study; print progress and tables; write CSV and plot. Returns the results."""
+    """Run the study; print progress and tables; write CSV and plot. Returns the results (the load-path
+    cases of :func:`run_load_paths` are appended as ``rft_mujoco.loadpaths.Result`` objects)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cases = matrix(quick)
@@ -599,11 +638,16 @@ def run(*, quick: bool = False, out: str | Path = "out/stability", plots: bool =
           ">= 1 mm/s.", file=stream)
     for line in summary(results):
         print(line, file=stream)
+    load = run_load_paths(quick=quick, out=out, stream=stream)
     stab_fail = [r for r in results if r.failures and r.case.stabilize]
     naive_fail = [r for r in results if r.failures and not r.case.stabilize]
-    print(f"\nFailures of the stabilized coupling: {len(stab_fail)}", file=stream)
+    load_fail = [r for r in load if r.failures]
+    print(f"\nFailures of the stabilized coupling: {len(stab_fail)} of {len(results) - len(naive_fail)} drop, drag "
+          f"and rotate cases, {len(load_fail)} of {len(load)} load-path cases", file=stream)
     for r in stab_fail:
         print(f"  {r.case.label}: {'; '.join(r.failures)}", file=stream)
+    for r in load_fail:
+        print(f"  load path {r.label}: {'; '.join(r.failures)}", file=stream)
     print(f"Naive coupling (for comparison, not a failure of the library): {len(naive_fail)} of "
           f"{sum(not r.case.stabilize for r in results)} cases fail the same criteria", file=stream)
     invalid = [r for r in results if r.validity_warnings]
@@ -612,10 +656,10 @@ def run(*, quick: bool = False, out: str | Path = "out/stability", plots: bool =
     if plots:
         plot(results, out / "stability_map.png")
         plot_naive(results, out / "stability_naive.png")
-    print(f"wrote {out / 'stability.csv'}" + (f", {out / 'stability_map.png'} and {out / 'stability_naive.png'}"
-                                               if plots else "")
+    print(f"wrote {out / 'stability.csv'}, {out / 'loadpaths.csv'}"
+          + (f", {out / 'stability_map.png'} and {out / 'stability_naive.png'}" if plots else "")
           + f" ({time.perf_counter() - t0:.0f} s)", file=stream)
-    return results
+    return results + load
 
 
 def main(argv: list[str] | None = None, command: str = "stability") -> int:
@@ -626,7 +670,7 @@ def main(argv: list[str] | None = None, command: str = "stability") -> int:
     parser.add_argument("--no-plots", action="store_true", help="table and CSV only")
     args = parser.parse_args(argv)
     results = run(quick=args.quick, out=args.out, plots=not args.no_plots)
-    return 1 if any(r.failures and r.case.stabilize for r in results) else 0
+    return 1 if any(r.failures and getattr(getattr(r, "case", None), "stabilize", True) for r in results) else 0
 
 
 if __name__ == "__main__":

@@ -122,6 +122,47 @@ def test_user_xfrc_is_preserved(user_action):
     np.testing.assert_allclose(data.xfrc_applied[b], user + sand_wrench, rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_user_writing_one_component_keeps_the_others(compiled, monkeypatch):
+    """A user who writes only the x force of a row each step (a push): the other five components keep
+    user + sand, and the sand is not added again on top of itself (this launched a resting ball before)."""
+    if not compiled:
+        monkeypatch.setattr(rft_mujoco.fastkernel, "ready", lambda: False)
+    model, data = make()
+    sand = rft_mujoco.attach(model, MEDIA, bodies=["ball"], resolution=0.02)
+    b = model.body("ball").id
+    data.qpos[2] = -0.03
+    for _ in range(200):
+        data.xfrc_applied[b, 0] = 2.0
+        mujoco.mj_step(model, data)
+    d = sand.diagnostics(data)
+    np.testing.assert_allclose(data.xfrc_applied[b], np.r_[2.0 + d.force[0, 0], d.force[0, 1:], d.torque[0]],
+                               rtol=1e-12, atol=1e-12)
+    assert abs(d.force[0, 2] - 9.81) < 0.05 and abs(data.qvel[2]) < 1e-3, "the ball rests on the sand"
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_zeroing_after_the_sand_cancelled_a_push_removes_the_push(compiled, monkeypatch):
+    """At rest the sand cancels a sideways push exactly (that row component reads 0); a user who then zeroes
+    xfrc_applied has removed the push, and the sand must stop pushing back."""
+    if not compiled:
+        monkeypatch.setattr(rft_mujoco.fastkernel, "ready", lambda: False)
+    model, data = make()
+    sand = rft_mujoco.attach(model, MEDIA, bodies=["ball"], resolution=0.02)
+    b = model.body("ball").id
+    data.qpos[2] = -0.03
+    for _ in range(300):
+        data.xfrc_applied[b] = [0.5, 0.0, 0.0, 0.0, 0.002, 0.0]
+        mujoco.mj_step(model, data)
+    assert sand.diagnostics(data).resting[0]
+    for _ in range(3):
+        data.xfrc_applied[:] = 0.0
+        mujoco.mj_step(model, data)
+    d = sand.diagnostics(data)
+    assert abs(d.force[0, 0]) < 1e-9 and abs(d.torque[0, 1]) < 1e-9, "no phantom push left"
+    np.testing.assert_allclose(data.xfrc_applied[b], np.r_[d.force[0], d.torque[0]], atol=1e-12)
+
+
 def test_detach_restores_plain_model():
     model, data = make()
     plain = mujoco.MjData(model)

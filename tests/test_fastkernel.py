@@ -184,19 +184,6 @@ def test_heightfield_needs_vertical_gravity_in_both():
             impl.body_wrenches(*args)
 
 
-@pytest.mark.parametrize("k", [1, 2, 5, 12])
-def test_limit_impulses_compiled_equals_python_loops(k):
-    rng = np.random.default_rng(k)
-    for _ in range(20):
-        a = rng.normal(size=(k, k + 2))
-        G = a @ a.T
-        h = rng.normal(size=k) * 2.0
-        group = rng.integers(0, max(1, k // 2), k)
-        ref = kernel.limit_impulses(G, h, group, compiled=False)
-        got = fastkernel.limit_impulses(G, h, group)
-        assert np.allclose(got, ref, rtol=RTOL, atol=RTOL)
-
-
 # --- the coupling with backend="numba" against backend="numpy" -----------------------------------------
 SCENE = """
 <mujoco>
@@ -245,17 +232,14 @@ def trajectory(integrator, terrain, stabilize, guards, steps=40, seed=0):
     return model, states
 
 
-def evaluate_states(model, states, backend, terrain, stabilize, guards, compiled_limiter=False):
-    """xfrc_applied (user wrench on the ball + sand) and diagnostics after mj_forward at every state
-    (``compiled_limiter=False``: the numpy limiter around the compiled kernels, so that SandHandle._limit can
-    be replaced; tests/test_fastlimit.py compares the compiled limiter with it)."""
+def evaluate_states(model, states, backend, terrain, stabilize, guards):
+    """xfrc_applied (user wrench on the ball + sand) and diagnostics after mj_forward at every state."""
     data = mujoco.MjData(model)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     xfrc, diags = [], []
     with rft_mujoco.attach(model, MEDIA, None, terrain, 0.01, guards=guards, stabilize=stabilize,
                            monitor=False, backend=backend) as handle:
         assert handle.backend == backend
-        handle.compiled_limiter = compiled_limiter
         for i, state in enumerate(states):
             mujoco.mj_setState(model, data, state, spec)
             data.xfrc_applied[:] = 0.0
@@ -265,56 +249,25 @@ def evaluate_states(model, states, backend, terrain, stabilize, guards, compiled
             xfrc.append(data.xfrc_applied.copy())
             d = handle.diagnostics(data)
             diags.append(np.concatenate([d.force, d.torque, d.max_depth[:, None], d.scale[:, None],
-                                         d.rft_force, d.submerged[:, None]], axis=1))
+                                         d.rft_force, d.submerged[:, None], d.resting[:, None]], axis=1))
     return np.array(xfrc), np.array(diags)
-
-
-def smooth_limiter(self, data, jac, groups, qvel_pred, dt, radius, column):
-    """A smooth stand-in for SandHandle._limit (the real one is discontinuous in its inputs: a binding
-    threshold or a degenerate QP turns round-off into percent-level changes), so that the backends' whole
-    path -- column callback and limiter result included -- can be compared to round-off."""
-    twist = jac @ qvel_pred
-    extra = column(0.5 * twist[:, :3], 0.5 * twist[:, 3:])
-    return 0.7 * groups.sum(axis=1) + 0.2 * extra.sum(axis=1)
 
 
 @pytest.mark.parametrize("integrator,stabilize,terrain_i", [
     ("Euler", True, 0), ("RK4", True, 2), ("implicitfast", False, 4), ("Euler", False, 5), ("Euler", True, 3)])
-def test_attach_numba_equals_numpy(integrator, stabilize, terrain_i, monkeypatch):
-    """Both backends at the same states (along a rollout) write the same xfrc_applied and diagnostics."""
+def test_attach_numba_equals_numpy(integrator, stabilize, terrain_i):
+    """Both backends at the same states (along a rollout) write the same xfrc_applied and diagnostics, the
+    rest treatment included (tests/test_fastrest.py compares its pieces)."""
     terrain = terrains(np.random.default_rng(11))[terrain_i]
     guards = law.Guards.all() if terrain_i % 2 else law.PUBLISHED
     model, states = trajectory(integrator, terrain, stabilize, guards)
-    monkeypatch.setattr(rft_mujoco.SandHandle, "_limit", smooth_limiter)
     ref, dref = evaluate_states(model, states, "numpy", terrain, stabilize, guards)
     got, dgot = evaluate_states(model, states, "numba", terrain, stabilize, guards)
     assert np.abs(ref).max() > 0.1                                       # sand forces were applied
-    assert np.count_nonzero(dref[:, :, -1]) > 10                         # on many bodies and states
+    assert np.count_nonzero(dref[:, :, -2]) > 10                         # on many bodies and states
     for k in range(len(states)):                                          # each evaluation on its own scale
         assert close(got[k], ref[k]), k
         assert close(dgot[k], dref[k]), k
-
-
-def test_limiter_gets_the_same_inputs(monkeypatch):
-    """With the real limiter, both backends hand it the same octant wrenches (its later columns depend on
-    its own iterative solution, so they are compared with the smooth stand-in above)."""
-    terrain = FlatSurface(0.0)
-    model, states = trajectory("Euler", terrain, True, law.PUBLISHED)
-    real = rft_mujoco.SandHandle._limit
-    calls = {"numpy": [], "numba": []}
-
-    def recording(self, data, jac, groups, qvel_pred, dt, radius, column):
-        calls[self.backend].append((groups.copy(), jac.copy(), qvel_pred.copy()))
-        return real(self, data, jac, groups, qvel_pred, dt, radius, column)
-
-    monkeypatch.setattr(rft_mujoco.SandHandle, "_limit", recording)
-    for backend in calls:
-        evaluate_states(model, states, backend, terrain, True, law.PUBLISHED)
-    assert len(calls["numpy"]) > 10
-    assert len(calls["numba"]) == len(calls["numpy"])
-    for got, ref in zip(calls["numba"], calls["numpy"]):
-        for a, b in zip(got, ref):
-            assert close(a, b)
 
 
 def test_unsupported_terrain_falls_back_to_numpy():

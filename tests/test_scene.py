@@ -63,5 +63,7 @@ def test_demo_stands_and_trots(tmp_path):
     assert (tmp_path / "demo_quadruped.png").exists()
     # Stands in the sand (sinks a few cm, does not fall through) and trots forward.
     assert 0.02 < summary["standing_trunk_sinkage_m"] < 0.15
-    assert np.all(summary["standing_foot_force_N"] > 5.0)
+    # Standing, the sand carries the whole robot (the split among the legs is statically indeterminate).
+    assert abs(summary["standing_total_force_N"] - summary["weight_N"]) < 0.01 * summary["weight_N"]
+    assert summary["standing_leg_force_N"].sum() > 0.9 * summary["weight_N"]
     assert summary["trot_speed_mps"] > 0.1

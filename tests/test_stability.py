@@ -1,4 +1,4 @@
-"""Stability at the extremes (issue 5): drops come to rest, the sand never adds energy, flow keeps the
+"""Stability at the extremes: drops come to rest, the sand never adds energy, flow keeps the
 published force, bad input is explained, and the validity monitor warns once."""
 
 import dataclasses
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import rft_mujoco
-from rft_mujoco import kernel, stability
+from rft_mujoco import stability
 from rft_mujoco.stability import Case
 
 MEDIA = rft_mujoco.MPM_VALIDATION
@@ -136,58 +136,13 @@ def test_passivity_sand_never_adds_energy_in_a_step(stabilize):
 
 
 def test_passivity_effect_on_drag_accuracy():
-    """Dragged fast (flow), the stabilized force is the published one; slow, the limiter takes over."""
-    fast = stability.run_case(Case("drag", "capsule", 0.1, 0.002, "implicitfast", load=1.0, group="drag"))
+    """Dragged fast (flow), the stabilized force is the published one; below capacity, the body is held."""
+    # A pull of three times the weight: above what the sand holds (at 1x weight it now rests, see
+    # rest.rest_wrenches: its capacity is the resistance along the impending motion).
+    fast = stability.run_case(Case("drag", "capsule", 0.1, 0.002, "implicitfast", load=3.0, group="drag"))
     assert fast.force_err_flow < 1e-3 and fast.max_gain_rel <= stability.GAIN_RTOL and not fast.nan
     held = stability.run_case(Case("drag", "sphere", 10.0, 0.002, "implicitfast", load=0.1, group="drag"))
     assert held.held and held.jitter < 1e-9       # a pull below the sand's capacity is held at rest
-
-
-# --- the limiter's QP ----------------------------------------------------------------------------------
-def random_qp(rng, k_groups=6, columns=3, rank=6):
-    group = np.repeat(np.arange(k_groups), columns)
-    a = rng.normal(size=(rank, group.size))
-    G = a.T @ a
-    h = a.T @ rng.normal(size=rank) * 3.0
-    return G, h, group
-
-
-def brute_force(G, h, group):
-    from scipy.optimize import minimize
-    k = h.size
-    cons = [{"type": "ineq", "fun": (lambda x, g=g: 1.0 - x[group == g].sum())} for g in np.unique(group)]
-    best = None
-    for start in (np.zeros(k), np.full(k, 1.0 / 3.0)):
-        r = minimize(lambda x: 0.5 * x @ G @ x + h @ x, start, jac=lambda x: G @ x + h, method="SLSQP",
-                     bounds=[(0.0, 1.0)] * k, constraints=cons, options={"ftol": 1e-14, "maxiter": 1000})
-        if best is None or r.fun < best.fun:
-            best = r
-    return best.fun
-
-
-@pytest.mark.parametrize("seed", range(8))
-def test_limit_impulses_solves_the_qp(seed):
-    rng = np.random.default_rng(seed)
-    G, h, group = random_qp(rng)
-    lam = kernel.limit_impulses(G, h, group, start=np.tile([1.0, 0.0, 0.0], 6))
-    slow = kernel.limit_impulses(G, h, group, start=np.tile([1.0, 0.0, 0.0], 6), compiled=False)
-    np.testing.assert_allclose(lam, slow, atol=1e-12)            # compiled = plain loops
-    assert np.all(lam >= 0.0)
-    assert np.all(np.bincount(group, weights=lam) <= 1.0 + 1e-12)
-    obj = 0.5 * lam @ G @ lam + h @ lam
-    assert obj <= 0.0
-    assert obj <= brute_force(G, h, group) + 1e-6 * (1.0 + abs(obj))
-
-
-def test_limit_impulses_box_case_and_fixed_variables():
-    G = np.array([[2.0, 0.0], [0.0, 1.0]])
-    h = np.array([-1.0, 3.0])
-    np.testing.assert_allclose(kernel.limit_impulses(G, h), [0.5, 0.0])
-    lam = kernel.limit_impulses(G, h, free=np.array([True, False]), ensure_passive=False)
-    np.testing.assert_allclose(lam, [0.5, 1.0])
-    # with passivity, the fixed variable's energy gain is scaled away
-    lam = kernel.limit_impulses(G, h, free=np.array([True, False]))
-    assert 0.5 * lam @ G @ lam + h @ lam <= 0.0
 
 
 # --- bad input never reaches MuJoCo as NaN -------------------------------------------------------------

@@ -1,0 +1,150 @@
+"""The compiled rest evaluation (rft_mujoco.fastrest) against MuJoCo and against the numpy reference."""
+
+import mujoco
+import numpy as np
+import pytest
+
+import rft_mujoco
+from rft_mujoco import fastrest, law
+from rft_mujoco.terrain import FlatSurface, HeightfieldSurface
+
+MEDIA = rft_mujoco.LI_LOOSE_GLASS_BEADS
+
+SCENE = """
+<mujoco>
+  <option timestep="0.002" integrator="{integrator}"/>
+  <worldbody>
+    <body name="ball" pos="0 0 0.03"><freejoint/><geom type="sphere" size="0.05" mass="1"/></body>
+    <body name="brick" pos="0.3 0 0.0"><freejoint/>
+      <geom type="box" size="0.04 0.03 0.02" euler="0.2 0.1 0" mass="0.5"/>
+      <geom type="capsule" size="0.01 0.03" pos="-0.03 0 0.02" mass="0.1"/>
+      <body name="brick_lid" pos="0 0 -0.02"><geom type="box" size="0.03 0.03 0.005" mass="0.05"/></body>
+    </body>
+    <body name="trunk" pos="-0.3 0 0.25"><freejoint/>
+      <geom type="box" size="0.1 0.05 0.03" mass="3" contype="0" conaffinity="0"/>
+      <body name="leg" pos="0.05 0 -0.03"><joint type="hinge" axis="0 1 0" range="-1 1"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.2" size="0.015" mass="0.2"/>
+        <body name="foot" pos="0 0 -0.2"><joint type="slide" axis="0 0 1" range="-0.02 0.02"/>
+          <geom type="sphere" size="0.025" mass="0.05"/></body>
+      </body>
+      <body name="leg2" pos="-0.05 0 -0.03"><joint type="hinge" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.22" size="0.015" mass="0.2"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+BODIES = ["ball", "brick", "brick_lid", "leg", "foot", "leg2"]      # brick and brick_lid: one weld group
+
+
+@pytest.fixture(autouse=True)
+def _clean():
+    yield
+    rft_mujoco.detach_all()
+
+
+def test_solve_m_equals_mujoco_and_the_layout_check_passes():
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    data.qpos[:] = model.qpos0
+    data.qvel[:] = rng.normal(size=model.nv)
+    mujoco.mj_forward(model, data)
+    assert fastrest.check_layout(model, mujoco.MjData(model))
+    for _ in range(5):
+        y = rng.normal(size=model.nv)
+        ref = np.zeros(model.nv)
+        mujoco.mj_solveM(model, data, ref.reshape(1, -1), y.reshape(1, -1))
+        x = y.copy()
+        fastrest.solve_m(model.M_rownnz.astype(np.int64), model.M_rowadr.astype(np.int64),
+                         model.M_colind.astype(np.int64), data.qLD, data.qLDiagInv, x)
+        np.testing.assert_allclose(x, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+
+
+def test_jacobian_equals_mj_jacbodycom():
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    data = mujoco.MjData(model)
+    data.qvel[:] = np.random.default_rng(1).normal(size=model.nv)
+    mujoco.mj_forward(model, data)
+    i8 = np.int64
+    out = np.zeros((6, model.nv))
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    for b in range(1, model.nbody):
+        p = data.xipos[b]
+        fastrest.jacobian(b, p[0], p[1], p[2], data.cdof, data.subtree_com, model.body_rootid.astype(i8),
+                          model.body_dofnum.astype(i8), model.body_dofadr.astype(i8), model.body_parentid.astype(i8),
+                          model.dof_parentid.astype(i8), out, 0)
+        mujoco.mj_jacBodyCom(model, data, jacp, jacr, b)
+        np.testing.assert_allclose(out[:3], jacp, atol=1e-14)
+        np.testing.assert_allclose(out[3:], jacr, atol=1e-14)
+
+
+def rollout_states(integrator, terrain, steps=60, seed=0):
+    """Physics states along a rollout with sand (numpy backend)."""
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator=integrator))
+    data = mujoco.MjData(model)
+    data.qvel[:] = np.random.default_rng(seed).normal(size=model.nv) * 0.3
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    states = []
+    with rft_mujoco.attach(model, MEDIA, BODIES, terrain, 0.01, monitor=False, backend="numpy"):
+        for _ in range(steps):
+            mujoco.mj_step(model, data)
+            s = np.empty(mujoco.mj_stateSize(model, spec))
+            mujoco.mj_getState(model, data, s, spec)
+            states.append(s)
+    return model, states
+
+
+def evaluate_at(model, states, backend, terrain, guards):
+    """xfrc_applied and diagnostics after one mj_forward at every state (a user wrench on odd states)."""
+    data = mujoco.MjData(model)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    out = []
+    with rft_mujoco.attach(model, MEDIA, BODIES, terrain, 0.01, guards=guards, monitor=False,
+                           backend=backend) as handle:
+        assert handle.backend == backend
+        for i, state in enumerate(states):
+            mujoco.mj_setState(model, data, state, spec)
+            data.xfrc_applied[:] = 0.0
+            if i % 2:
+                data.xfrc_applied[model.body("ball").id] = [0.5, 0.0, -3.0, 0.0, 0.01, 0.0]
+            mujoco.mj_forward(model, data)
+            d = handle.diagnostics(data)
+            out.append((data.xfrc_applied.copy(), np.concatenate([
+                d.force, d.torque, d.rft_force, d.max_depth[:, None], d.scale[:, None], d.submerged[:, None],
+                d.resting[:, None]], axis=1)))
+    return out
+
+
+@pytest.mark.parametrize("integrator,terrain_kind", [("Euler", "flat"), ("RK4", "heightfield"),
+                                                     ("implicitfast", "flat")])
+def test_compiled_rest_equals_the_numpy_reference(integrator, terrain_kind):
+    if terrain_kind == "flat":
+        terrain = FlatSurface(0.0)
+    else:
+        x = np.linspace(-1, 1, 21)
+        terrain = HeightfieldSurface(0.01 * np.sin(3 * x)[None, :] * np.cos(2 * x)[:, None], (-1, 1), (-1, 1))
+    guards = law.Guards.all() if integrator == "RK4" else law.PUBLISHED
+    model, states = rollout_states(integrator, terrain)
+    ref = evaluate_at(model, states, "numpy", terrain, guards)
+    got = evaluate_at(model, states, "numba", terrain, guards)
+    loaded = resting = 0
+    for (x_ref, d_ref), (x_got, d_got) in zip(ref, got):
+        scale = max(1.0, np.abs(x_ref).max())
+        np.testing.assert_allclose(x_got, x_ref, rtol=1e-8, atol=1e-8 * scale)
+        np.testing.assert_allclose(d_got, d_ref, rtol=1e-8, atol=1e-8 * max(1.0, np.abs(d_ref).max()))
+        loaded += int(np.count_nonzero(d_ref[:, 2]))
+        resting += int(d_ref[:, -1].sum())
+    assert loaded > 50 and resting > 5            # many loaded bodies, some of them held at rest
+
+
+def test_weld_groups_and_their_shares():
+    """Bodies welded together form one group: their wrenches add up to the group's, about its reference
+    point, whatever the split (the split only changes the diagnostics)."""
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    handle = rft_mujoco.attach(model, MEDIA, BODIES, 0.0, 0.01, monitor=False)
+    g = handle.groups
+    names = handle.body_names
+    assert g.of_body[names.index("brick")] == g.of_body[names.index("brick_lid")]
+    assert len(set(g.of_body.tolist())) == len(BODIES) - 1
+    assert np.all(g.radius > 0.0)

@@ -1,0 +1,39 @@
+"""Loads through MuJoCo's constraints rest on sand (rft_mujoco.loadpaths, the stability study's subset)."""
+
+import numpy as np
+import pytest
+
+import rft_mujoco
+from rft_mujoco import loadpaths
+
+
+@pytest.fixture(autouse=True)
+def _clean():
+    yield
+    rft_mujoco.detach_all()
+
+
+CASES = [(name, 0.002, "implicitfast") for name in loadpaths.SCENES]
+CASES += [("contact", 0.0005, "Euler"), ("weld", 0.005, "RK4"), ("joint_limit", 0.005, "Euler"),
+          ("chain", 0.001, "implicit"), ("tendon_limit", 0.0005, "RK4"), ("rock", 0.005, "implicit")]
+
+
+@pytest.mark.parametrize("name,dt,integrator", CASES)
+def test_load_path_rests_and_the_sand_carries_the_load(name, dt, integrator):
+    r = loadpaths.run_case(name, dt, integrator)
+    assert not r.nan
+    assert r.max_gain_rel <= loadpaths.GAIN_RTOL, f"the sand added {r.max_gain} J in a step"
+    assert r.t_rest <= loadpaths.DEADLINE, f"still moving at {r.final_speed}"
+    assert r.balance <= loadpaths.BALANCE_RTOL
+    assert r.failures == ()
+
+
+def test_without_the_previous_constraint_forces_a_payload_sinks_forever(monkeypatch):
+    """The regression this design fixes: ignoring MuJoCo's constraint forces (as the earlier treatment
+    did), the plate under a 2 kg payload sinks at (M/m) g dt, forever."""
+    from rft_mujoco import coupling
+
+    monkeypatch.setattr(coupling._Workspace, "follow_time", lambda self, t, dt: False)
+    r = loadpaths.run_case("contact", 0.002, "Euler")
+    assert r.t_rest == np.inf
+    np.testing.assert_allclose(r.final_speed, 2.0 / 0.2 * 9.81 * 0.002, rtol=0.05)

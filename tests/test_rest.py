@@ -1,0 +1,188 @@
+"""The rest treatment's pure functions (rft_mujoco.rest) against plain, independent computations."""
+
+import numpy as np
+import pytest
+
+from rft_mujoco import rest
+
+
+def random_mobility(rng, n_groups, rank=None):
+    """A (6G, 6G) symmetric PSD mobility ``J M^-1 J^T`` of ``rank`` (default full)."""
+    n = 6 * n_groups
+    j = rng.normal(size=(n, rank or n))
+    m_inv = np.diag(rng.uniform(0.5, 2.0, j.shape[1]))
+    return j @ m_inv @ j.T
+
+
+# --- pivoted_solve --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("n", [1, 6, 12, 24])
+def test_pivoted_solve_equals_a_direct_solve_on_well_conditioned_systems(n):
+    rng = np.random.default_rng(n)
+    a = random_mobility(rng, 1)[:1, :1] + 1.0 if n == 1 else random_mobility(rng, n // 6) + np.eye(n)
+    b = rng.normal(size=n)
+    np.testing.assert_allclose(rest.pivoted_solve(a, b, np.ones(b.size), rest.DEPENDENT_TOL, 1e-300), np.linalg.solve(a, b),
+                               rtol=1e-9, atol=1e-12)
+
+
+def test_pivoted_solve_is_the_minimum_norm_solution_of_a_rank_deficient_system():
+    """Rank 18 of 24 (four feet on 18 dofs), consistent right-hand side (as free twists are): every row
+    holds and the solution is numpy's minimum-norm one."""
+    rng = np.random.default_rng(3)
+    a = random_mobility(rng, 4, rank=18)
+    b = a @ rng.normal(size=24)
+    x = rest.pivoted_solve(a, b, np.ones(b.size), rest.DEPENDENT_TOL, 1e-300)
+    np.testing.assert_allclose(a @ x, b, rtol=0, atol=1e-8 * np.abs(b).max())
+    np.testing.assert_allclose(x, np.linalg.pinv(a, rcond=1e-10) @ b, rtol=1e-6, atol=1e-9 * np.abs(x).max())
+
+
+def test_pivoted_solve_leaves_out_nearly_implied_rows_instead_of_huge_solutions():
+    """A row that is implied by the others up to 1e-6 of its mobility is left out: the solution stays of
+    the size of the data, where an exact solve would be a million times larger."""
+    rng = np.random.default_rng(4)
+    j = rng.normal(size=(3, 6))
+    j = np.vstack([j, j[0] + j[1] + 1e-3 * rng.normal(size=6)])   # row 3 ~ row 0 + row 1
+    a = j @ j.T
+    b = rng.normal(size=4)
+    exact = np.linalg.solve(a, b)
+    x = rest.pivoted_solve(a, b, np.ones(b.size), rest.DEPENDENT_TOL, 1e-300)
+    assert np.abs(exact).max() > 1e4 * np.abs(x).max()
+    held = np.abs(a @ x - b) <= 1e-9 * np.abs(b).max()
+    assert held.sum() == 3                          # three rows held exactly, the nearly implied one left out
+
+
+def test_pivoted_solve_shares_in_proportion_to_the_weights():
+    """Two rows tied to one degree of freedom: the load splits as the weights."""
+    a = np.ones((2, 2))
+    x = rest.pivoted_solve(a, np.array([3.0, 3.0]), np.array([1.0, 2.0]), rest.DEPENDENT_TOL, 1e-300)
+    np.testing.assert_allclose(x, [1.0, 2.0])
+
+
+def test_pivoted_solve_skips_rows_without_mobility():
+    a = np.diag([2.0, 0.0, 4.0])
+    x = rest.pivoted_solve(a, np.array([2.0, 5.0, 8.0]), np.ones(3), rest.DEPENDENT_TOL, 1e-300)
+    np.testing.assert_allclose(x, [1.0, 0.0, 2.0])
+
+
+# --- blend -----------------------------------------------------------------------------------------------
+def test_blend_is_the_free_twist_at_rest_and_the_twist_in_flow():
+    radius = np.array([0.1])
+    free = np.array([[0.0, 0.0, -0.02, 0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(rest.blend(np.zeros((1, 6)), free, radius), free)
+    for ratio in (10.0, 100.0):
+        twist = np.array([[0.02 * ratio, 0.0, 0.0, 0.0, 0.0, 0.0]])
+        u = rest.blend(twist, twist + free, radius)
+        cos = u[0, :3] @ twist[0, :3] / np.linalg.norm(u[0, :3]) / np.linalg.norm(twist[0, :3])
+        assert 1.0 - cos < 2.0 / ratio**6, "the direction must be the published one to (s/v)^3"
+
+
+def test_twist_speed_counts_rotation_over_the_radius():
+    np.testing.assert_allclose(rest.twist_speed(np.array([[3.0, 4.0, 0.0, 0.0, 0.0, 2.0]]), np.array([0.5])), [6.0])
+
+
+# --- rest_wrenches ---------------------------------------------------------------------------------------
+def one_body(mass=2.0, inertia=0.01):
+    """A free rigid body: mobility diag(1/m, 1/I)."""
+    return np.diag([1 / mass] * 3 + [1 / inertia] * 3)
+
+
+def test_a_body_within_capacity_stops_in_one_step():
+    dt, a = 0.002, one_body()
+    free = np.array([[0.01, 0.0, -0.03, 0.0, 0.2, 0.0]])            # the load pushes down, sideways, rolls
+    rft = np.array([[-50.0, 0.0, 200.0, 0.0, -3.0, 0.0]])             # a large resistance to that motion
+    w, resting = rest.rest_wrenches(free, a, rft, free, np.array([0.1]), dt)
+    assert resting[0]
+    np.testing.assert_allclose(free[0] + dt * a @ w[0], 0.0, atol=1e-12)
+
+
+def test_a_load_above_capacity_flows_with_the_published_wrench():
+    dt, a = 0.002, one_body(mass=2.0)
+    free = np.array([[0.0, 0.0, -2.0, 0.0, 0.0, 0.0]])              # falling fast: stopping needs 2000 N
+    rft = np.array([[0.0, 0.0, 30.0, 0.0, 0.0, 0.0]])
+    w, resting = rest.rest_wrenches(free, a, rft, free, np.array([0.1]), dt)
+    assert not resting[0]
+    np.testing.assert_allclose(w, rft)                              # the published wrench, unscaled
+
+
+def test_flow_never_overshoots_and_positive_power_is_dropped():
+    dt, a = 0.002, one_body(mass=2.0)
+    radius = np.array([0.1])
+    # A capacity test that fails (the sand resists little along u) while the RFT impulse would reverse the
+    # motion in its own direction: the factor stops at the kinetic-energy minimum.
+    free = np.array([[0.01, 0.0, -0.01, 0.0, 0.0, 0.0]])
+    rft = np.array([[-2000.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    w, resting = rest.rest_wrenches(free, a, rft, np.array([[0.0, 0.0, -1.0, 0.0, 0.0, 0.0]]), radius, dt)
+    assert not resting[0]
+    v_after = free[0] + dt * a @ w[0]
+    assert v_after[0] == pytest.approx(0.0, abs=1e-12)              # stopped along the wrench, not reversed
+    # The fit's artefact: a wrench along the motion (positive power) is not applied.
+    w, _ = rest.rest_wrenches(free, a, -rft, np.array([[0.0, 0.0, -1.0, 0.0, 0.0, 0.0]]), radius, dt)
+    np.testing.assert_allclose(w, 0.0)
+
+
+def test_rest_capacity_is_the_resistance_along_the_impending_motion():
+    """A sideways pull equal to the weight on a 1 kg body whose sand lifts strongly but drags weakly. The
+    stop wrench (-9.81, 0, 9.81) N resists 13.9 N along the impending (45 deg down-sideways) motion; the
+    sand resists 11.3 N there, so the body flows, although the RFT wrench is larger than the stop wrench
+    in norm (15.0 against 13.9 N). With more drag (17.7 N along the motion) it rests."""
+    dt, g = 0.002, 9.81
+    a = one_body(mass=1.0)
+    free = np.array([[g * dt, 0.0, -g * dt, 0.0, 0.0, 0.0]])
+    weak = np.array([[-1.0, 0.0, 15.0, 0.0, 0.0, 0.0]])
+    assert np.linalg.norm(weak) > np.sqrt(2.0) * g
+    _, resting = rest.rest_wrenches(free, a, weak, free, np.array([0.1]), dt)
+    assert not resting[0]
+    strong = np.array([[-10.0, 0.0, 15.0, 0.0, 0.0, 0.0]])
+    w, resting = rest.rest_wrenches(free, a, strong, free, np.array([0.1]), dt)
+    assert resting[0]
+    np.testing.assert_allclose(w[0, :3], [-g, 0.0, g], rtol=1e-9)
+
+
+def test_coupled_groups_rest_together():
+    """Two bodies rigidly tied (same mobility rows twice): neither alone can hold the load, together they
+    can; the solve shares it and stops both."""
+    dt = 0.002
+    one = one_body(mass=2.0)
+    a = np.block([[one, one], [one, one]])                          # two groups of one rigid body
+    free = np.array([[0.0, 0.0, -9.81 * dt, 0.0, 0.0, 0.0]] * 2)
+    rft = np.array([[0.0, 0.0, 15.0, 0.0, 0.0, 0.0]] * 2)           # 15 N each, 19.6 N needed
+    w, resting = rest.rest_wrenches(free, a, rft, free, np.array([0.1, 0.1]), dt)
+    assert resting.all()
+    np.testing.assert_allclose(w[:, 2].sum(), 2.0 * 9.81, rtol=1e-6)
+    np.testing.assert_allclose(free[0] + dt * one @ (w[0] + w[1]), 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_the_sand_never_adds_kinetic_energy(seed):
+    """Random groups, mobilities, free twists and RFT wrenches (including the fit's tensile/forward
+    artefacts): the kinetic-energy change of the stacked impulse, dt W.Vf + dt^2 W.A.W / 2, is never
+    positive."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 4))
+    dt = 10.0 ** rng.uniform(-3.5, -2)
+    a = random_mobility(rng, n, rank=int(rng.integers(1, 6 * n + 1)))
+    free = rng.normal(size=(n, 6)) * 10.0 ** rng.uniform(-3, 0)
+    rft = rng.normal(size=(n, 6)) * 10.0 ** rng.uniform(0, 3)
+    u = free + rng.normal(size=(n, 6)) * 0.1 * np.abs(free).max()
+    w, _ = rest.rest_wrenches(free, a, rft, u, rng.uniform(0.02, 0.3, n), dt)
+    flat = w.reshape(-1)
+    gain = dt * flat @ free.reshape(-1) + 0.5 * dt * dt * flat @ a @ flat
+    assert gain <= 1e-12 * (abs(dt * flat @ free.reshape(-1)) + 1e-300)
+
+
+def test_unloaded_groups_get_nothing_and_shapes_are_checked():
+    dt, a = 0.002, one_body()
+    w, resting = rest.rest_wrenches(np.ones((1, 6)), a, np.zeros((1, 6)), np.ones((1, 6)), np.array([0.1]), dt)
+    assert not resting[0] and np.all(w == 0.0)
+    with pytest.raises(ValueError, match="mobility"):
+        rest.rest_wrenches(np.ones((2, 6)), a, np.ones((2, 6)), np.ones((2, 6)), np.array([0.1, 0.1]), dt)
+
+
+def test_a_barely_touching_group_beside_a_loaded_one_stays_finite():
+    """Capacities 1e-4 N and 10 N on two coupled groups (measured in SandQuadruped-v0: the unfloored
+    capacity weights made the rest solve singular and the wrench NaN)."""
+    rng = np.random.default_rng(5)
+    a = random_mobility(rng, 2, rank=9)
+    free = (a @ rng.normal(size=12)).reshape(2, 6) * 1e-2
+    rft = np.vstack([rng.normal(size=6) * 1e-4, rng.normal(size=6) * 10.0])
+    w, _ = rest.rest_wrenches(free, a, rft, free, np.array([0.03, 0.03]), 0.002)
+    assert np.all(np.isfinite(w))
