@@ -77,7 +77,7 @@ def _type_name(t: int) -> str:
 
 
 def _check_type(geom_type) -> int:
-    if isinstance(geom_type, (bool, np.bool_)) or not isinstance(geom_type, (int, np.integer)):
+    if isinstance(geom_type, (bool, np.bool_)) or not isinstance(geom_type, (int, np.integer, _GEOM)):
         raise ValueError(f"geom_type must be a mujoco.mjtGeom (an int), got {geom_type!r}")
     t = int(geom_type)
     if t in TERRAIN_TYPES or t in _SIZE_ENTRIES:
