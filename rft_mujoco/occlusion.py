@@ -305,7 +305,7 @@ class Occluder:
             keep = _winding_numbers(local[idx], self.triangles) > 0.5
             idx = idx[keep]
             if margin > 0 and idx.size:
-                idx = idx[~_near_triangles(local[idx], self.triangles, _check_margin(margin))]
+                idx = idx[~_near_triangles(local[idx], self.triangles, float(margin))]
             inside = np.zeros_like(inside)
             inside[idx] = True
         return inside
