@@ -1,7 +1,9 @@
 """MuJoCo geoms and meshes -> flat surface elements (centroid, outward unit normal, area), computed once.
 
 3D-RFT sums a stress over small flat pieces of an intruder's surface. This module cuts each geom into
-such pieces, in the geom frame (:func:`geom_elements`) or the body frame (:func:`body_elements`).
+such pieces, in the geom frame (:func:`geom_elements`) or the body frame (:func:`body_elements`). A
+body's elements that lie strictly inside another of its geoms are culled by default
+(:func:`body_elements`, :func:`body_elements_with_culled`; the geometry is in :mod:`rft_mujoco.occlusion`).
 
 Element size is a target edge length in m: a preset name from :data:`RESOLUTIONS` or a float
 (:func:`element_size`). Small geoms keep a minimum tessellation (:data:`MIN_CIRCLE_SEGMENTS` around any
@@ -30,6 +32,8 @@ from typing import Sequence
 
 import mujoco
 import numpy as np
+
+from . import occlusion
 
 # --- presets and tolerances: one place -------------------------------------------------------------
 RESOLUTIONS = types.MappingProxyType({
@@ -89,7 +93,7 @@ MERGE_TOL = 1e-9
 """Mesh vertices closer than ``MERGE_TOL * (bounding-box diagonal)`` count as one for the topology check."""
 
 _GEOM = mujoco.mjtGeom
-_TERRAIN_TYPES = (int(_GEOM.mjGEOM_PLANE), int(_GEOM.mjGEOM_HFIELD))
+_TERRAIN_TYPES = occlusion.TERRAIN_TYPES
 _SUPPORTED = "sphere, ellipsoid, box, cylinder, capsule, mesh"
 
 
@@ -536,36 +540,71 @@ def geom_elements(model, geom_id: int, size: float) -> Elements:
                      f"{hint}; supported types: {_SUPPORTED}")
 
 
-def body_elements(model, body_id: int, size: float) -> Elements:
+def body_elements(model, body_id: int, size: float, *, cull: bool = True) -> Elements:
     """Surface elements of the geoms of one body, in the BODY frame.
 
     When a body has both collidable geoms (``contype`` or ``conaffinity`` non-zero) and visual-only
     geoms, only the collidable ones are used (a visual mesh over collision primitives would otherwise
-    count the same surface twice); a body with only visual geoms uses all of them. Each geom's elements are placed by ``model.geom_pos`` / ``model.geom_quat``. Plane and hfield geoms
-    are skipped (terrain, not intruders); sdf geoms are skipped with a UserWarning. A body without
-    surface geoms gives zero elements.
+    count the same surface twice); a body with only visual geoms uses all of them
+    (:func:`rft_mujoco.occlusion.surface_geoms`). Each geom's elements are placed by
+    ``model.geom_pos`` / ``model.geom_quat``. Plane and hfield geoms are skipped (terrain, not
+    intruders); sdf geoms are skipped with a UserWarning. A body without surface geoms gives zero
+    elements.
+
+    With ``cull`` (the default), elements of a geom whose centroid is strictly inside ANOTHER geom of
+    the same body (deeper than :data:`rft_mujoco.occlusion.OCCLUSION_TOL`) are removed: no sand reaches
+    them. A geom entirely inside another contributes nothing; the outermost surface is always kept
+    (points on a surface are not inside it). Where the occluding geom is a non-convex mesh, the test is
+    the mesh itself (winding number); the run-time test against other bodies' geoms
+    (:func:`rft_mujoco.occlusion.occluded` without ``exact_mesh``) uses a mesh's convex hull, which is
+    what MuJoCo collides with. A body with one geom is returned unchanged.
+
+    Approximated: an element is kept or removed whole, by its centroid, so the exposed area converges
+    with the element size: the error is at most about (element size) x (length of the curves where
+    geoms' surfaces cross), and smaller in practice as the straddling elements' errors partly cancel.
+    Not handled: surfaces that coincide (coplanar flush faces, two identical geoms, faces of two geoms
+    pressed together) are on, not inside, each other, so both copies are kept.
+    Only same-body overlaps are removed; overlaps with neighbouring bodies' geoms move with the joints
+    and are not.
 
     Args:
         model: the ``mujoco.MjModel``.
         body_id: body index, ``0 <= body_id < model.nbody``.
         size: target element edge length in m.
+        cull: remove elements inside the body's other geoms (see above); ``False`` keeps every geom's
+            full surface.
     """
-    b = int(body_id)
-    if not 0 <= b < model.nbody:
-        raise ValueError(f"body_id must be in 0..{model.nbody - 1}, got {body_id}")
-    parts = []
-    geoms = np.flatnonzero(np.asarray(model.geom_bodyid) == b)
-    collidable = (model.geom_contype[geoms] != 0) | (model.geom_conaffinity[geoms] != 0)
-    if collidable.any() and not collidable.all():
-        geoms = geoms[collidable]
-    for g in geoms:
+    kept, _ = _body_elements(model, body_id, size, cull)
+    return kept
+
+
+def body_elements_with_culled(model, body_id: int, size: float) -> tuple[Elements, Elements]:
+    """``(kept, culled)``: :func:`body_elements` with ``cull=True`` and the elements it removed (in the
+    BODY frame; ``culled.area()`` is the hidden area in m^2, zero elements when nothing is hidden).
+    ``kept`` and ``culled`` together are ``body_elements(..., cull=False)`` (same elements, other order).
+    """
+    return _body_elements(model, body_id, size, True)
+
+
+def _body_elements(model, body_id: int, size: float, cull: bool) -> tuple[Elements, Elements]:
+    parts, owners = [], []
+    for g in occlusion.surface_geoms(model, body_id):
         t = int(model.geom_type[g])
-        if t in _TERRAIN_TYPES:
-            continue
         if t == _GEOM.mjGEOM_SDF:
             warnings.warn(f"{_geom_label(model, int(g))} is an sdf geom; sdf surfaces are not supported and "
-                          "it feels no sand; add a mesh or primitive geom for it", UserWarning, stacklevel=2)
+                          "it feels no sand; add a mesh or primitive geom for it", UserWarning, stacklevel=3)
             continue
         el = geom_elements(model, int(g), size)
         parts.append(el.transformed(model.geom_pos[g], _quat_to_mat(model.geom_quat[g])))
-    return Elements.concatenate(parts)
+        owners.append(np.full(len(el), g, dtype=np.int64))
+    el = Elements.concatenate(parts)
+    none = Elements.concatenate([])
+    if not cull or len(parts) < 2:
+        return el, none
+    hidden = occlusion.occluded(el.centroids, occlusion.geom_occluders(model, body_id),
+                                owner=np.concatenate(owners), exact_mesh=True)
+    if not hidden.any():
+        return el, none
+    keep = ~hidden
+    return (Elements(el.centroids[keep], el.normals[keep], el.areas[keep]),
+            Elements(el.centroids[hidden], el.normals[hidden], el.areas[hidden]))

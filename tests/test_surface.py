@@ -1,6 +1,7 @@
 """Surface elements: convergence to analytic areas/volumes, meshes from inline MJCF, frames, errors."""
 
 import math
+import os
 import warnings
 
 import mujoco
@@ -10,8 +11,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import special
 
-from rft_mujoco import surface
+from rft_mujoco import occlusion, surface
+from rft_mujoco.models import __file__ as _models_init
 from rft_mujoco.surface import Elements
+
+MODELS = os.path.dirname(_models_init)
 
 SIZES = [surface.RESOLUTIONS[k] for k in ("coarse", "default", "fine", "reference")]
 FINE_TOL = 0.01        # relative area/volume error allowed at the "fine" preset
@@ -402,3 +406,126 @@ def test_body_elements_skip_visual_geoms_over_collision_geoms():
     assert only_collision.area() == pytest.approx(4 * np.pi * 0.02**2)
     only_visual = surface.body_elements(model, model.body("v").id, 0.01)
     assert only_visual.area() == pytest.approx(4 * np.pi * 0.02**2)
+
+
+# --- culling: surface inside another geom of the same body ------------------------------------------------
+CULL_SIZES = (0.01, 0.005, 0.0025)
+CULL_C = 0.5     # |exposed area error| <= CULL_C * size * (length of the intersection curves); measured <= 0.26
+
+
+def one_body(geoms, assets=""):
+    model = mujoco.MjModel.from_xml_string(
+        f"<mujoco><asset>{assets}</asset><worldbody><body name='b' pos='0.1 0.2 0.3' euler='10 20 30'>"
+        f"{geoms}</body></worldbody></mujoco>")
+    return model, model.body("b").id
+
+
+R1, R2, L1, L2 = 0.03, 0.02, 0.08, 0.07     # two capsules end to end along z, radius R1 then R2
+_Z0 = math.sqrt(R1**2 - R2**2)             # R2's side is inside R1's end ball up to here
+BA, BB, BC, BX, BY = 0.05, 0.0213, 0.0171, 0.0037, -0.0051    # cube a, small box (b, b, c) at (x, y, a)
+SCENES = {
+    # name: (geoms, exact exposed area m^2, length m of the intersection curves counted on both surfaces)
+    "two spheres": ("<geom type='sphere' size='0.05'/><geom type='sphere' size='0.05' pos='0.06 0 0'/>",
+                    2 * (4 * math.pi * 0.05**2 - 2 * math.pi * 0.05 * (0.05 - 0.03)),
+                    2 * 2 * math.pi * math.sqrt(0.05**2 - 0.03**2)),
+    "sphere inside capsule": ("<geom type='capsule' size='0.03 0.05'/><geom type='sphere' size='0.02' "
+                              "pos='0.005 0 0.03'/>", 2 * math.pi * 0.03 * 0.1 + 4 * math.pi * 0.03**2, 0.0),
+    "capsules end to end": (f"<geom type='capsule' fromto='0 0 {-L1} 0 0 0' size='{R1}'/>"
+                            f"<geom type='capsule' fromto='0 0 0 0 0 {L2}' size='{R2}'/>",
+                            # R1: side, far end, the near end ball less its polar cap of radius R2;
+                            # R2: side beyond _Z0, far end (its near end ball is inside R1's)
+                            2 * math.pi * R1 * (L1 + R1 + _Z0) + 2 * math.pi * R2 * (L2 - _Z0 + R2),
+                            2 * 2 * math.pi * R2),
+    "box poking out of a box": (f"<geom type='box' size='{BA} {BA} {BA}'/><geom type='box' size='{BB} {BB} "
+                                f"{BC}' pos='{BX} {BY} {BA}'/>",
+                                # the cube less the covered 2b x 2b patch, the small box's part above
+                                24 * BA**2 - 4 * BB**2 + 4 * BB**2 + 8 * BB * BC, 2 * 8 * BB),
+}
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_culled_area_matches_analytic_exposed_area(name):
+    geoms, exact, curves = SCENES[name]
+    model, b = one_body(geoms)
+    for h in CULL_SIZES:
+        kept = surface.body_elements(model, b, h)
+        err = abs(kept.area() - exact)
+        assert err <= CULL_C * h * curves + 1e-12 * exact, (name, h, err / exact)
+        full = surface.body_elements(model, b, h, cull=False)
+        assert abs(full.area() - exact) > 2 * (CULL_C * h * curves + 1e-12 * exact)   # culling matters here
+
+
+def test_culling_with_meshes_convex_and_not():
+    # a sphere half sunk into the top face of a box mesh: its lower half and a disc of the face go
+    he, r = (0.03, 0.02, 0.012), 0.01
+    box_v = " ".join(f"{x * he[0]} {y * he[1]} {z * he[2]}" for x in (-1, 1) for y in (-1, 1) for z in (-1, 1))
+    model, b = one_body(f"<geom type='mesh' mesh='m'/><geom type='sphere' size='{r}' pos='0.004 -0.003 {he[2]}'/>",
+                        f"<mesh name='m' vertex='{box_v}'/>")
+    exact = 8 * (he[0] * he[1] + he[1] * he[2] + he[0] * he[2]) + math.pi * r * r
+    for h in CULL_SIZES:
+        assert abs(surface.body_elements(model, b, h).area() - exact) <= CULL_C * h * 4 * math.pi * r + 1e-6 * exact
+    # an L-shaped prism (non-convex) and a ball in its notch: inside the hull, outside the mesh: all kept
+    xy = np.array([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], dtype=float) * 0.03
+    v = np.concatenate([np.column_stack([xy, np.full(6, -0.015)]), np.column_stack([xy, np.full(6, 0.015)])])
+    fan = [(3, 4, 5), (3, 5, 0), (3, 0, 1), (3, 1, 2)]
+    f = [(a + 6, b_ + 6, c + 6) for a, b_, c in fan] + [(a, c, b_) for a, b_, c in fan]
+    f += [t for i in range(6) for t in ((i, (i + 1) % 6, (i + 1) % 6 + 6), (i, (i + 1) % 6 + 6, i + 6))]
+    asset = (f"<mesh name='L' vertex='{' '.join(map(str, v.ravel()))}' "
+             f"face='{' '.join(map(str, np.ravel(f)))}'/>")
+    for pos, hidden in (("0.038 0.038 0", 0.0), ("0.015 0.015 0", 4 * math.pi * 0.006**2)):
+        model, b = one_body(f"<geom type='mesh' mesh='L'/><geom type='sphere' size='0.006' pos='{pos}'/>", asset)
+        kept, culled = surface.body_elements_with_culled(model, b, 0.005)
+        assert culled.area() == pytest.approx(hidden, rel=1e-9, abs=1e-15), pos
+    model, b = one_body("<geom type='mesh' mesh='L'/><geom type='sphere' size='0.006' pos='0.038 0.038 0'/>", asset)
+    n_ball = len(surface.geom_elements(model, 1, 0.005))
+    ball = surface.body_elements(model, b, 0.005, cull=False).centroids[-n_ball:]
+    # the run-time meaning (convex hull, what MuJoCo collides with) would hide the ball in the notch
+    assert occlusion.occluded(ball, occlusion.geom_occluders(model, b)[:1]).all()
+
+
+def test_single_geom_bodies_are_unchanged_bit_for_bit():
+    for xml in ("<geom type='sphere' size='0.02'/>", "<geom type='capsule' size='0.01 0.03'/>",
+                "<geom type='box' size='0.03 0.02 0.01' pos='0.1 0 0' euler='0 30 0'/>",
+                # a visual-only geom over it is not part of the surface, so it culls nothing either
+                "<geom type='sphere' size='0.02'/><geom type='sphere' size='0.05' contype='0' conaffinity='0'/>"):
+        model, b = one_body(xml)
+        new, old = surface.body_elements(model, b, 0.005), surface.body_elements(model, b, 0.005, cull=False)
+        for a in ("centroids", "normals", "areas"):
+            assert np.array_equal(getattr(new, a), getattr(old, a)), (xml, a)
+        assert len(surface.body_elements_with_culled(model, b, 0.005)[1]) == 0
+    for path in ("sand_swimmer.xml", "quadruped.xml"):
+        model = mujoco.MjModel.from_xml_path(os.path.join(MODELS, path))
+        for b in range(model.nbody):
+            new, old = surface.body_elements(model, b, 0.01), surface.body_elements(model, b, 0.01, cull=False)
+            assert all(np.array_equal(getattr(new, a), getattr(old, a)) for a in ("centroids", "normals", "areas"))
+
+
+def test_kept_and_culled_partition_the_full_surface():
+    geoms = SCENES["capsules end to end"][0] + "<geom type='sphere' size='0.01' pos='0 0 -0.04'/>"
+    model, b = one_body(geoms)
+    full = surface.body_elements(model, b, 0.005, cull=False)
+    kept, culled = surface.body_elements_with_culled(model, b, 0.005)
+    assert len(kept) + len(culled) == len(full)
+    assert kept.area() + culled.area() == pytest.approx(full.area(), rel=1e-12)
+    key = lambda el: np.sort(np.column_stack([el.centroids, el.normals, el.areas]).view("f8,f8,f8,f8,f8,f8,f8"), axis=0)
+    both = Elements.concatenate([kept, culled])
+    assert np.array_equal(key(both), key(full))
+    # the small sphere lies wholly inside the R1 capsule: every one of its elements is culled
+    assert culled.area() >= 4 * math.pi * 0.01**2
+    assert np.array_equal(surface.body_elements(model, b, 0.005).centroids, kept.centroids)
+
+
+def test_nested_touching_and_coincident_geoms():
+    sphere_area = lambda r: 4 * math.pi * r * r
+    # nested: only the outermost remains
+    model, b = one_body("<geom type='sphere' size='0.01'/><geom type='sphere' size='0.03'/>"
+                        "<geom type='sphere' size='0.02' pos='0.005 0 0'/>")
+    assert surface.body_elements(model, b, 0.005).area() == pytest.approx(sphere_area(0.03), rel=1e-12)
+    # tangent spheres and a box standing on a box: surfaces touch, nothing is inside, nothing is culled
+    for xml in ("<geom type='sphere' size='0.02'/><geom type='sphere' size='0.02' pos='0.04 0 0'/>",
+                "<geom type='box' size='0.02 0.02 0.02'/><geom type='box' size='0.01 0.01 0.01' pos='0 0 0.03'/>"):
+        model, b = one_body(xml)
+        assert len(surface.body_elements_with_culled(model, b, 0.005)[1]) == 0, xml
+    # two identical geoms: each lies on, not inside, the other; both copies stay (documented), never none
+    model, b = one_body("<geom type='sphere' size='0.02'/><geom type='sphere' size='0.02'/>")
+    assert surface.body_elements(model, b, 0.005).area() == pytest.approx(2 * sphere_area(0.02), rel=1e-12)
