@@ -24,8 +24,8 @@ import mujoco
 import numpy as np
 
 import rft_mujoco
-from rft_mujoco.media import MU_INT_RANGE, RHO_C_RANGE, Media
-from rft_mujoco.terrain import HeightfieldSurface
+from rft_mujoco.physics.media import MU_INT_RANGE, RHO_C_RANGE, Media
+from rft_mujoco.physics.terrain import HeightfieldSurface
 
 FOOT_NAME_PATTERN = re.compile(r"foot|feet|toe|paw|shin|calf|ankle", re.IGNORECASE)
 """Body names that :func:`auto_sand_bodies` takes as touching the ground."""
@@ -194,7 +194,7 @@ class SandBed:
         model: the MjModel, usually compiled from a spec edited by :func:`make_sand_floor`.
         media: a :class:`rft_mujoco.Media` or a preset name.
         bodies: body names or ids, or ``"auto"`` (:func:`auto_sand_bodies`).
-        resolution: element size, a preset name or metres (see ``rft_mujoco.surface.RESOLUTIONS``).
+        resolution: element size, a preset name or metres (see ``rft_mujoco.geometry.surface.RESOLUTIONS``).
         surface: the free surface: names or ids of floor geoms (:func:`surface_of`), a height in m or a
             terrain object (``rft_mujoco.FlatSurface``, ``HeightfieldSurface``, ``SandRegion``).
         media_ranges: per-episode randomization (:meth:`randomize`), or None.

@@ -6,7 +6,7 @@ import numpy as np
 from gymnasium import utils
 from gymnasium.spaces import Box
 
-from rft_mujoco.media import Media
+from rft_mujoco.physics.media import Media
 
 from .sand_bed import MediaRanges
 from .sand_task import SandTaskEnv

@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 from gymnasium.envs.mujoco import MujocoEnv
 
-from rft_mujoco.media import Media
+from rft_mujoco.physics.media import Media
 
 from .sand_bed import FEATURES_PER_BODY, MediaRanges, SandBed, initialize_sand_simulation, step_with_sand
 

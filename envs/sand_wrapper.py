@@ -26,7 +26,7 @@ from gymnasium.envs.mujoco.walker2d_v5 import Walker2dEnv
 from gymnasium.envs.registration import load_env_creator
 from gymnasium.spaces import Box
 
-from rft_mujoco.media import Media
+from rft_mujoco.physics.media import Media
 
 from .sand_bed import FEATURES_PER_BODY, MediaRanges, SandBed, initialize_sand_simulation, step_with_sand
 

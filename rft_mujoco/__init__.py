@@ -11,13 +11,13 @@ Quick start::
     sand.detach()
 """
 
-from .law import PUBLISHED, Guards, element_forces, stress_per_depth
-from .media import (DEM_GLASS_BEADS, LI_LOOSE_GLASS_BEADS, MALADEN_GLASS_BEADS, MPM_VALIDATION, PRESETS,
+from rft_mujoco.physics.law import PUBLISHED, Guards, element_forces, stress_per_depth
+from rft_mujoco.physics.media import (DEM_GLASS_BEADS, LI_LOOSE_GLASS_BEADS, MALADEN_GLASS_BEADS, MPM_VALIDATION, PRESETS,
                     Media, get_media)
-from .terrain import FlatSurface, HeightfieldSurface, SandRegion
-from .coupling import Diagnostics, SandHandle, attach, detach_all
-from .monitor import RFTValidityWarning, ValidityMonitor
-from .scene import attach_scene
+from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
+from rft_mujoco.coupling.handle import Diagnostics, SandHandle, attach, detach_all
+from rft_mujoco.coupling.monitor import RFTValidityWarning, ValidityMonitor
+from rft_mujoco.coupling.scene import attach_scene
 
 __all__ = [
     "Media", "PRESETS", "get_media", "MPM_VALIDATION", "DEM_GLASS_BEADS", "LI_LOOSE_GLASS_BEADS",

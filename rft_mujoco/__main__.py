@@ -1,5 +1,5 @@
 import sys
 
-from .cli import main
+from rft_mujoco.studies.cli import main
 
 sys.exit(main())

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from rft_mujoco import bench, fastkernel
+from rft_mujoco.studies import bench
+from rft_mujoco.compiled import elements as fastkernel
 
 pytestmark = pytest.mark.skipif(not fastkernel.AVAILABLE, reason="numba is not installed")
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import rft_mujoco
-from rft_mujoco import surface
+from rft_mujoco.geometry import surface
 
 MEDIA = rft_mujoco.MPM_VALIDATION
 
@@ -127,7 +127,7 @@ def test_user_writing_one_component_keeps_the_others(compiled, monkeypatch):
     """A user who writes only the x force of a row each step (a push): the other five components keep
     user + sand, and the sand is not added again on top of itself (this launched a resting ball before)."""
     if not compiled:
-        monkeypatch.setattr(rft_mujoco.fastkernel, "ready", lambda: False)
+        monkeypatch.setattr(rft_mujoco.compiled.elements, "ready", lambda: False)
     model, data = make()
     sand = rft_mujoco.attach(model, MEDIA, bodies=["ball"], resolution=0.02)
     b = model.body("ball").id
@@ -146,7 +146,7 @@ def test_zeroing_after_the_sand_cancelled_a_push_removes_the_push(compiled, monk
     """At rest the sand cancels a sideways push exactly (that row component reads 0); a user who then zeroes
     xfrc_applied has removed the push, and the sand must stop pushing back."""
     if not compiled:
-        monkeypatch.setattr(rft_mujoco.fastkernel, "ready", lambda: False)
+        monkeypatch.setattr(rft_mujoco.compiled.elements, "ready", lambda: False)
     model, data = make()
     sand = rft_mujoco.attach(model, MEDIA, bodies=["ball"], resolution=0.02)
     b = model.body("ball").id

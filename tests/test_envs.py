@@ -64,7 +64,7 @@ def test_library_does_not_import_gymnasium():
     import subprocess
     import sys
 
-    code = "import sys, rft_mujoco, rft_mujoco.coupling; sys.exit('gymnasium' in sys.modules)"
+    code = "import sys, rft_mujoco, rft_mujoco.coupling.handle; sys.exit('gymnasium' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
 
@@ -352,4 +352,4 @@ def test_compiling_and_two_env_kinds_in_one_process():
     ant.close()
     swimmer.step(swimmer.action_space.sample())
     swimmer.close()
-    assert not rft_mujoco.coupling.DISPATCHER.handles
+    assert not rft_mujoco.coupling.dispatch.DISPATCHER.handles

@@ -1,4 +1,4 @@
-"""The compiled kernels (rft_mujoco.fastkernel) against the numpy reference (rft_mujoco.kernel / law).
+"""The compiled kernels (rft_mujoco.compiled.elements) against the numpy reference (rft_mujoco.physics.elements / law).
 
 Agreement is to RTOL relative (round-off: the compiled loop sums in a different order than BLAS), on random
 element sets, poses, velocities, accelerations, guards, octants and all three terrain types.
@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 import rft_mujoco
-from rft_mujoco import fastkernel, kernel, law
-from rft_mujoco.terrain import FlatSurface, HeightfieldSurface, SandRegion
+from rft_mujoco.compiled import elements as fastkernel
+from rft_mujoco.physics import elements as kernel
+from rft_mujoco.physics import law
+from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
 
 pytestmark = pytest.mark.skipif(not fastkernel.AVAILABLE, reason="numba not importable")
 

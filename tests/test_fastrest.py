@@ -1,12 +1,13 @@
-"""The compiled rest evaluation (rft_mujoco.fastrest) against MuJoCo and against the numpy reference."""
+"""The compiled rest evaluation (rft_mujoco.compiled.rest) against MuJoCo and against the numpy reference."""
 
 import mujoco
 import numpy as np
 import pytest
 
 import rft_mujoco
-from rft_mujoco import fastrest, law
-from rft_mujoco.terrain import FlatSurface, HeightfieldSurface
+from rft_mujoco.compiled import rest as fastrest
+from rft_mujoco.physics import law
+from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface
 
 MEDIA = rft_mujoco.LI_LOOSE_GLASS_BEADS
 

@@ -1,4 +1,4 @@
-"""The 3D-RFT stress law (rft_mujoco.law) against a slow reference and the model's known properties.
+"""The 3D-RFT stress law (rft_mujoco.physics.law) against a slow reference and the model's known properties.
 
 Source of the model and of every golden value here: Agarwal, Goldman & Kamrin, PNAS 120 (2023)
 e2214017120 (SI Table S3), restated in ../shared/reference/3d-rft.md.
@@ -15,9 +15,9 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from rft_mujoco import law
-from rft_mujoco.law import Guards, alpha_gen, element_forces, stress_per_depth
-from rft_mujoco.media import DEM_GLASS_BEADS, MPM_VALIDATION, Media
+from rft_mujoco.physics import law
+from rft_mujoco.physics.law import Guards, alpha_gen, element_forces, stress_per_depth
+from rft_mujoco.physics.media import DEM_GLASS_BEADS, MPM_VALIDATION, Media
 
 G = (0.0, 0.0, -9.81)
 G_HAT = np.array([0.0, 0.0, -1.0])

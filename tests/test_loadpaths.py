@@ -1,10 +1,10 @@
-"""Loads through MuJoCo's constraints rest on sand (rft_mujoco.loadpaths, the stability study's subset)."""
+"""Loads through MuJoCo's constraints rest on sand (rft_mujoco.studies.loadpaths, the stability study's subset)."""
 
 import numpy as np
 import pytest
 
 import rft_mujoco
-from rft_mujoco import loadpaths
+from rft_mujoco.studies import loadpaths
 
 
 @pytest.fixture(autouse=True)
@@ -31,7 +31,7 @@ def test_load_path_rests_and_the_sand_carries_the_load(name, dt, integrator):
 def test_without_the_previous_constraint_forces_a_payload_sinks_forever(monkeypatch):
     """The regression this design fixes: ignoring MuJoCo's constraint forces (as the earlier treatment
     did), the plate under a 2 kg payload sinks at (M/m) g dt, forever."""
-    from rft_mujoco import coupling
+    from rft_mujoco.coupling import handle as coupling
 
     monkeypatch.setattr(coupling._Workspace, "follow_time", lambda self, t, dt: False)
     r = loadpaths.run_case("contact", 0.002, "Euler")

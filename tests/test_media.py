@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rft_mujoco import media
-from rft_mujoco.media import (DEM_GLASS_BEADS, LI_LOOSE_GLASS_BEADS, MALADEN_GLASS_BEADS, MPM_VALIDATION,
+from rft_mujoco.physics import media
+from rft_mujoco.physics.media import (DEM_GLASS_BEADS, LI_LOOSE_GLASS_BEADS, MALADEN_GLASS_BEADS, MPM_VALIDATION,
                               PRESETS, Media, f_hat, get_media)
 
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy import spatial
 
-from rft_mujoco import occlusion, surface
+from rft_mujoco.geometry import occlusion
+from rft_mujoco.geometry import surface
 from rft_mujoco.models import __file__ as _models_init
 
 G = mujoco.mjtGeom

@@ -1,4 +1,4 @@
-"""The bundled quadruped (models/quadruped.xml) and its scripted trot (rft_mujoco.gait) on a rigid floor."""
+"""The bundled quadruped (models/quadruped.xml) and its scripted trot (rft_mujoco.studies.gait) on a rigid floor."""
 
 import dataclasses
 import importlib.resources
@@ -7,7 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from rft_mujoco import gait
+from rft_mujoco.studies import gait
 
 TOTAL_MASS_KG = 12.0
 STAND_HEIGHT_RANGE_M = (0.2, 0.4)

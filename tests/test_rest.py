@@ -1,9 +1,9 @@
-"""The rest treatment's pure functions (rft_mujoco.rest) against plain, independent computations."""
+"""The rest treatment's pure functions (rft_mujoco.physics.rest) against plain, independent computations."""
 
 import numpy as np
 import pytest
 
-from rft_mujoco import rest
+from rft_mujoco.physics import rest
 
 
 def random_mobility(rng, n_groups, rank=None):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import rft_mujoco
-from rft_mujoco import demo
+from rft_mujoco.studies import demo
 
 SCENE = """
 <mujoco>
@@ -55,7 +55,7 @@ def test_attach_scene_errors():
     bad = SCENE.replace("rft/mud/region", "rft/mud/regoin")
     with pytest.raises(ValueError, match="unknown sand field 'rft/mud/regoin'"):
         rft_mujoco.attach_scene(mujoco.MjModel.from_xml_string(bad))
-    assert not rft_mujoco.coupling.DISPATCHER.handles, "a failed attach_scene leaves nothing attached"
+    assert not rft_mujoco.coupling.dispatch.DISPATCHER.handles, "a failed attach_scene leaves nothing attached"
 
 
 def test_demo_stands_and_trots(tmp_path):

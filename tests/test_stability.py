@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import rft_mujoco
-from rft_mujoco import stability
-from rft_mujoco.stability import Case
+from rft_mujoco.studies import stability
+from rft_mujoco.studies.stability import Case
 
 MEDIA = rft_mujoco.MPM_VALIDATION
 
@@ -203,14 +203,14 @@ def test_absurd_media(kwargs):
 # --- the validity monitor ------------------------------------------------------------------------------
 def test_validity_numbers():
     media = rft_mujoco.DEM_GLASS_BEADS
-    i_mac, i_micro, ratio = rft_mujoco.monitor.validity_numbers([0.1], [0.05], [0.02], media)
+    i_mac, i_micro, ratio = rft_mujoco.coupling.monitor.validity_numbers([0.1], [0.05], [0.02], media)
     xi = media.xi_n_at(9.81)
     assert i_mac[0] == pytest.approx(0.1 * math.sqrt(2500.0 / (xi * 0.05)))
     assert i_micro[0] == pytest.approx(0.1 / 0.05 * 3e-3 * math.sqrt(2500.0 / (xi * 0.02)))
-    shallow = rft_mujoco.monitor.validity_numbers([0.1], [0.05], [1e-4], media)[1]
+    shallow = rft_mujoco.coupling.monitor.validity_numbers([0.1], [0.05], [1e-4], media)[1]
     assert shallow[0] == pytest.approx(0.1 / 0.05 * 3e-3 * math.sqrt(2500.0 / (xi * 3e-3)))  # one grain deep
     assert ratio[0] == pytest.approx(0.4)
-    _, no_d, _ = rft_mujoco.monitor.validity_numbers([0.1], [0.05], [0.02], MEDIA)
+    _, no_d, _ = rft_mujoco.coupling.monitor.validity_numbers([0.1], [0.05], [0.02], MEDIA)
     assert math.isnan(no_d[0])
 
 

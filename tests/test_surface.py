@@ -11,9 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import special
 
-from rft_mujoco import occlusion, surface
+from rft_mujoco.geometry import occlusion
+from rft_mujoco.geometry import surface
 from rft_mujoco.models import __file__ as _models_init
-from rft_mujoco.surface import Elements
+from rft_mujoco.geometry.surface import Elements
 
 MODELS = os.path.dirname(_models_init)
 

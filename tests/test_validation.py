@@ -1,4 +1,4 @@
-"""The validation CLI (rft_mujoco.validation) and its mesh shapes (rft_mujoco.shapes)."""
+"""The validation CLI (rft_mujoco.studies.validation) and its mesh shapes (rft_mujoco.studies.shapes)."""
 
 import io
 import math
@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 
 import rft_mujoco
-from rft_mujoco import cli, shapes, surface, validation
-from rft_mujoco.rollout import kinematic_rollout
+from rft_mujoco.studies import cli
+from rft_mujoco.studies import shapes
+from rft_mujoco.geometry import surface
+from rft_mujoco.studies import validation
+from rft_mujoco.coupling.rollout import kinematic_rollout
 
 SIZE = surface.RESOLUTIONS["default"]
 RADII = validation.ELLIPSOID_RADII

@@ -31,7 +31,7 @@ import warnings
 
 import numpy as np
 
-from .media import Media
+from rft_mujoco.physics.media import Media
 
 I_MAC_MAX = 0.15
 """Largest macro-inertial number of the quasi-static regime (Agarwal et al. 2023)."""

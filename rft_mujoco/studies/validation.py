@@ -1,7 +1,7 @@
 """The paper's validation intrusions as scripted rollouts: ``python -m rft_mujoco validate``.
 
 Reproduces the validation set of Agarwal, Goldman & Kamrin, PNAS 2023 (see the project's
-``3d-rft.md``, "The paper's own validation cases") with :func:`rft_mujoco.rollout.kinematic_rollout`
+``3d-rft.md``, "The paper's own validation cases") with :func:`rft_mujoco.coupling.rollout.kinematic_rollout`
 and the published law (``stabilize=False, passive=False``), prints tables and writes CSVs and plots to
 ``out/validation/`` (``--out``).
 
@@ -26,7 +26,7 @@ Shapes (:func:`validation_shapes`; lengths in cm in the names' descriptions):
 * ``half_ellipsoid``: the part z <= 0 of the ellipsoid above (dome down, flat face up).
 * ``quarter_ellipsoid``: the part z <= 0, x >= 0 (flat faces up and towards -x).
 
-Prisms and partial ellipsoids are closed triangle meshes from :mod:`rft_mujoco.shapes`, inline in the
+Prisms and partial ellipsoids are closed triangle meshes from :mod:`rft_mujoco.studies.shapes`, inline in the
 MJCF; curved meshes use facets of half the element size (volume within ~1% of the analytic value at
 the coarse size, 0.2% at the default).
 
@@ -67,12 +67,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from . import shapes as mesh_shapes
-from . import surface
-from .coupling import attach
-from .law import PUBLISHED, Guards, element_forces
-from .media import DEM_GLASS_BEADS, MPM_VALIDATION, Media
-from .rollout import Rollout, kinematic_rollout
+from rft_mujoco.studies import shapes as mesh_shapes
+from rft_mujoco.geometry import surface
+from rft_mujoco.coupling.handle import attach
+from rft_mujoco.physics.law import PUBLISHED, Guards, element_forces
+from rft_mujoco.physics.media import DEM_GLASS_BEADS, MPM_VALIDATION, Media
+from rft_mujoco.coupling.rollout import Rollout, kinematic_rollout
 
 # --- the protocol: one place -------------------------------------------------------------------------
 CENTRE_DEPTH = 0.27
@@ -359,7 +359,7 @@ def mirror_residual(model, angles_deg, *, size: float, check_y: bool) -> float:
 
 def mesh_forces(shape: Shape, angles_deg, *, size: float, depth: float = CENTRE_DEPTH,
                 media: Media = MPM_VALIDATION, guards: Guards = PUBLISHED) -> np.ndarray:
-    """(D, 3) N: the force on a mesh shape's float64 mesh (:func:`rft_mujoco.surface.mesh`) at the centre
+    """(D, 3) N: the force on a mesh shape's float64 mesh (:func:`rft_mujoco.geometry.surface.mesh`) at the centre
     depth, summed with :func:`rft_mujoco.element_forces` (no MuJoCo): the reference for the coupling."""
     if shape.mesh is None:
         raise ValueError(f"shape {shape.name!r} is not a mesh shape")

@@ -3,7 +3,7 @@
 3D-RFT sums a stress over small flat pieces of an intruder's surface. This module cuts each geom into
 such pieces, in the geom frame (:func:`geom_elements`) or the body frame (:func:`body_elements`). A
 body's elements that lie strictly inside another of its geoms are culled by default
-(:func:`body_elements`, :func:`body_elements_with_culled`; the geometry is in :mod:`rft_mujoco.occlusion`).
+(:func:`body_elements`, :func:`body_elements_with_culled`; the geometry is in :mod:`rft_mujoco.geometry.occlusion`).
 
 Element size is a target edge length in m: a preset name from :data:`RESOLUTIONS` or a float
 (:func:`element_size`). Small geoms keep a minimum tessellation (:data:`MIN_CIRCLE_SEGMENTS` around any
@@ -33,7 +33,7 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
-from . import occlusion
+from rft_mujoco.geometry import occlusion
 
 # --- presets and tolerances: one place -------------------------------------------------------------
 RESOLUTIONS = types.MappingProxyType({
@@ -546,17 +546,17 @@ def body_elements(model, body_id: int, size: float, *, cull: bool = True) -> Ele
     When a body has both collidable geoms (``contype`` or ``conaffinity`` non-zero) and visual-only
     geoms, only the collidable ones are used (a visual mesh over collision primitives would otherwise
     count the same surface twice); a body with only visual geoms uses all of them
-    (:func:`rft_mujoco.occlusion.surface_geoms`). Each geom's elements are placed by
+    (:func:`rft_mujoco.geometry.occlusion.surface_geoms`). Each geom's elements are placed by
     ``model.geom_pos`` / ``model.geom_quat``. Plane and hfield geoms are skipped (terrain, not
     intruders); sdf geoms are skipped with a UserWarning. A body without surface geoms gives zero
     elements.
 
     With ``cull`` (the default), elements of a geom whose centroid is strictly inside ANOTHER geom of
-    the same body (deeper than :data:`rft_mujoco.occlusion.OCCLUSION_TOL`) are removed: no sand reaches
+    the same body (deeper than :data:`rft_mujoco.geometry.occlusion.OCCLUSION_TOL`) are removed: no sand reaches
     them. A geom entirely inside another contributes nothing; the outermost surface is always kept
     (points on a surface are not inside it). Where the occluding geom is a non-convex mesh, the test is
     the mesh itself (winding number); the run-time test against other bodies' geoms
-    (:func:`rft_mujoco.occlusion.occluded` without ``exact_mesh``) uses a mesh's convex hull, which is
+    (:func:`rft_mujoco.geometry.occlusion.occluded` without ``exact_mesh``) uses a mesh's convex hull, which is
     what MuJoCo collides with. A body with one geom is returned unchanged.
 
     Approximated: an element is kept or removed whole, by its centroid, so the exposed area converges

@@ -1,13 +1,13 @@
 """MuJoCo coupling: attach 3D-RFT sand to bodies of a model; plain ``mujoco.mj_step`` then includes it.
 
 Each physics evaluation (every integrator stage: once per step for Euler/implicit/implicitfast, four
-times for RK4) the dispatcher (:mod:`rft_mujoco._dispatch`) calls :meth:`SandHandle._evaluate`, which
+times for RK4) the dispatcher (:mod:`rft_mujoco.coupling.dispatch`) calls :meth:`SandHandle._evaluate`, which
 
 1. skips bodies whose bounding sphere is above the highest point of the sand (broadphase), and finds
    the bodies that touch the sand (an element with depth > 0); nothing else runs when none does;
 2. takes element positions and normals from ``xpos``/``xmat`` and body velocities from ``cvel`` (whose
    linear part refers to ``subtree_com`` of the root, converted to each body's COM);
-3. with ``stabilize=True`` (default), the rest treatment of :mod:`rft_mujoco.rest`: per touching
+3. with ``stabilize=True`` (default), the rest treatment of :mod:`rft_mujoco.physics.rest`: per touching
    *group* (the attached bodies of one MuJoCo weld group, i.e. one rigid body) the free twist at the end
    of the step without sand, from the smooth forces of this evaluation and the constraint forces of
    MuJoCo's previous solve (``qfrc_constraint``: contacts, equalities, joint/tendon limits,
@@ -17,9 +17,9 @@ times for RK4) the dispatcher (:mod:`rft_mujoco._dispatch`) calls :meth:`SandHan
    coupling);
 4. adds the wrenches to ``data.xfrc_applied`` on top of the user's own wrench (the dispatcher's book);
 5. every ``monitor.every`` evaluations, checks the loaded bodies against the validity range of 3D-RFT
-   (:mod:`rft_mujoco.monitor`; ``attach(monitor=False)`` switches it off).
+   (:mod:`rft_mujoco.coupling.monitor`; ``attach(monitor=False)`` switches it off).
 
-Steps 1-3 run compiled (:mod:`rft_mujoco.fastkernel`, :mod:`rft_mujoco.fastrest`; ``backend="numba"``,
+Steps 1-3 run compiled (:mod:`rft_mujoco.compiled.elements`, :mod:`rft_mujoco.compiled.rest`; ``backend="numba"``,
 the default where numba imports) or in the numpy reference below (``backend="numpy"``); the tests compare
 the two. Costs are measured by ``python -m rft_mujoco bench``.
 
@@ -40,12 +40,18 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from . import fastkernel, fastrest, kernel, law, rest, surface, tol
-from ._dispatch import DISPATCHER
-from .law import PUBLISHED, Guards, gravity_direction
-from .media import Media, get_media
-from .monitor import ValidityMonitor
-from .terrain import Terrain, as_terrain
+from rft_mujoco.compiled import elements as fastkernel
+from rft_mujoco.compiled import rest as fastrest
+from rft_mujoco.physics import elements as kernel
+from rft_mujoco.physics import law
+from rft_mujoco.physics import rest
+from rft_mujoco.geometry import surface
+from rft_mujoco import tol
+from rft_mujoco.coupling.dispatch import DISPATCHER
+from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
+from rft_mujoco.physics.media import Media, get_media
+from rft_mujoco.coupling.monitor import ValidityMonitor
+from rft_mujoco.physics.terrain import Terrain, as_terrain
 
 
 @dataclasses.dataclass
@@ -92,8 +98,8 @@ class Diagnostics:
 
 
 BACKENDS = ("auto", "numba", "numpy")
-"""Kernel backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.fastkernel`,
-:mod:`rft_mujoco.fastrest`) or numpy (:mod:`rft_mujoco.kernel`, :mod:`rft_mujoco.rest`, the readable
+"""Kernel backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.compiled.elements`,
+:mod:`rft_mujoco.compiled.rest`) or numpy (:mod:`rft_mujoco.physics.elements`, :mod:`rft_mujoco.physics.rest`, the readable
 reference); "auto" is numba when it imports and supports the terrain, numpy otherwise."""
 RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
@@ -118,7 +124,7 @@ class _Workspace:
         self.scratch = np.zeros((fastkernel.SCRATCH_ROWS, fastkernel.CLUSTER_SIZE)) if compiled else None
         self.last_time = -math.inf
         self.clean = True
-        self.fast = None            # the compiled rest evaluation's buffers (rft_mujoco.fastrest.Buffers)
+        self.fast = None            # the compiled rest evaluation's buffers (rft_mujoco.compiled.rest.Buffers)
 
     def follow_time(self, t: float, dt: float) -> bool:
         """Record an evaluation at time ``t``; True when time advanced by at most one step since the last
@@ -347,7 +353,7 @@ class SandHandle:
 
     @property
     def backend(self) -> str:
-        """The kernel in use: "numba" (:mod:`rft_mujoco.fastkernel`) or "numpy" (:mod:`rft_mujoco.kernel`)."""
+        """The kernel in use: "numba" (:mod:`rft_mujoco.compiled.elements`) or "numpy" (:mod:`rft_mujoco.physics.elements`)."""
         return "numpy" if self._fast is None else "numba"
 
     def _select_backend(self) -> None:
@@ -464,8 +470,8 @@ class SandHandle:
         return groups.sum(axis=1), count, max_depth
 
     def _evaluate_rest(self, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out) -> int:
-        """The rest treatment (:mod:`rft_mujoco.rest`) of the touching bodies, in numpy (the reference of
-        :mod:`rft_mujoco.fastrest`). Returns the status of :meth:`_commit`."""
+        """The rest treatment (:mod:`rft_mujoco.physics.rest`) of the touching bodies, in numpy (the reference of
+        :mod:`rft_mujoco.compiled.rest`). Returns the status of :meth:`_commit`."""
         m, grp = self.model, self.groups
         k = touch.size
         group_of = grp.of_body[touch]                      # (k,) group of each touching body
@@ -502,7 +508,7 @@ class SandHandle:
         return self._layout_ok
 
     def _evaluate_rest_fast(self, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out) -> int:
-        """:meth:`_evaluate_rest` compiled (:func:`rft_mujoco.fastrest.evaluate`)."""
+        """:meth:`_evaluate_rest` compiled (:func:`rft_mujoco.compiled.rest.evaluate`)."""
         m, grp, media, guards, diag = self.model, self.groups, self._media, self.guards, work.diag
         mujoco.mj_fwdActuation(m, data)
         if work.fast is None:
@@ -690,9 +696,9 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         bodies: body names (or ids) whose geoms touch the sand; None means every body but the world.
         surface_height: a flat free surface height in m, or a terrain (:class:`FlatSurface`,
             :class:`HeightfieldSurface`, :class:`SandRegion`).
-        resolution: element size: a preset name (``rft_mujoco.surface.RESOLUTIONS``) or metres.
+        resolution: element size: a preset name (``rft_mujoco.geometry.surface.RESOLUTIONS``) or metres.
         guards: clean-ups of the fit's artefacts (default none: the published law).
-        stabilize: the rest treatment (default True, :mod:`rft_mujoco.rest`): a body the sand can hold is
+        stabilize: the rest treatment (default True, :mod:`rft_mujoco.physics.rest`): a body the sand can hold is
             held at rest, whatever loads it (its own weight, a payload through a contact or weld, a joint
             or tendon limit), and the sand never adds kinetic energy in a step; a body in flow gets the
             published force (to ``(|dv| / v)^3`` above the speed change ``dv`` of one step). False applies
@@ -700,7 +706,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             instead of resting).
         passive: with ``stabilize=False``, zero a body's wrench whenever it would do positive work.
         monitor: warn (:class:`rft_mujoco.RFTValidityWarning`, once per reason) when a loaded body leaves
-            the quasi-static regime or the validated depth (:mod:`rft_mujoco.monitor`); a
+            the quasi-static regime or the validated depth (:mod:`rft_mujoco.coupling.monitor`); a
             :class:`ValidityMonitor` to set the check interval; False switches it off.
         backend: "numba" (compiled, cached after the first use on a machine), "numpy" (the readable
             reference), or "auto" (default: numba when it imports and supports the terrain, else numpy).

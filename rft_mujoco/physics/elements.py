@@ -1,16 +1,16 @@
 """Per-evaluation element kernel: body poses and velocities -> per-body sand wrenches (pure numpy).
 
 This is the readable reference of the coupling's element pass; the compiled one
-(:func:`rft_mujoco.fastkernel.wrenches`) must agree with it (tests/test_fastkernel.py).
+(:func:`rft_mujoco.compiled.elements.wrenches`) must agree with it (tests/test_fastkernel.py).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from . import law
-from .law import Guards
-from .media import Media
+from rft_mujoco.physics import law
+from rft_mujoco.physics.law import Guards
+from rft_mujoco.physics.media import Media
 
 GROUPS_PER_BODY = 8
 """Each body's elements are split into the 8 octants of its body frame (about its bounding-box centre) and

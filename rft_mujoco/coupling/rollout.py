@@ -12,7 +12,7 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from .coupling import SandHandle
+from rft_mujoco.coupling.handle import SandHandle
 
 Vec = np.ndarray | tuple[float, float, float] | Callable[[float], np.ndarray]
 

@@ -19,8 +19,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .gait import FOOT_BODIES, TrotGait
-from .scene import attach_scene
+from rft_mujoco.studies.gait import FOOT_BODIES, TrotGait
+from rft_mujoco.coupling.scene import attach_scene
 
 SCENE = "quadruped_sand.xml"
 DEMO_GAIT = {"frequency_hz": 2.5, "step_height_m": 0.09, "hip_height_m": 0.26}

@@ -24,7 +24,8 @@ import weakref
 import mujoco
 import numpy as np
 
-from . import fastkernel, tol
+from rft_mujoco.compiled import elements as fastkernel
+from rft_mujoco import tol
 
 _COMPILE_ENTRY_POINTS = (
     (mujoco.MjModel, "from_xml_string", True),

@@ -1,10 +1,10 @@
-"""Compiled (numba) rest evaluation: :meth:`rft_mujoco.coupling.SandHandle._evaluate_rest` in one call.
+"""Compiled (numba) rest evaluation: :meth:`rft_mujoco.coupling.handle.SandHandle._evaluate_rest` in one call.
 
 The same numbers as the numpy reference (to round-off, tests/test_fastrest.py), without temporaries:
 Jacobians of the groups' reference points from MuJoCo's ``cdof``, the free acceleration from the smooth
 forces (and the previous solve's constraint forces) through MuJoCo's own factor of the mass matrix
 (``qLD``, solved here: :func:`solve_m`), the groups' mobility, the blended twists, the element kernel
-(:func:`rft_mujoco.fastkernel.wrenches`), the rest solve of :mod:`rft_mujoco.rest` and the wrenches into
+(:func:`rft_mujoco.compiled.elements.wrenches`), the rest solve of :mod:`rft_mujoco.physics.rest` and the wrenches into
 the dispatcher's sum.
 
 Nothing here calls MuJoCo: the caller runs ``mj_fwdActuation`` first (MuJoCo computes actuator forces
@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 
-from . import rest as _rest
-from .fastkernel import GROUPS_PER_BODY, _JIT, njit, wrenches
+from rft_mujoco.physics import rest as _rest
+from rft_mujoco.compiled.elements import GROUPS_PER_BODY, _JIT, njit, wrenches
 
 # Status codes of :func:`evaluate` (besides 0: no wrench, 1: a non-zero wrench).
 NOT_FINITE = -1
@@ -108,12 +108,12 @@ def jacobian(b, px, py, pz, cdof, subtree_com, body_rootid, body_dofnum, body_do
 
 
 pivoted_solve = njit(**_JIT)(_rest.pivoted_solve)
-"""The rest solve's rank-revealing Cholesky, :func:`rft_mujoco.rest.pivoted_solve` compiled."""
+"""The rest solve's rank-revealing Cholesky, :func:`rft_mujoco.physics.rest.pivoted_solve` compiled."""
 
 
 @njit(**_JIT)
 def _flow_factor(h, q):
-    """:func:`rft_mujoco.rest._flow_factor`."""
+    """:func:`rft_mujoco.physics.rest._flow_factor`."""
     if h >= 0.0:
         return 0.0
     if q <= 0.0:
@@ -124,7 +124,7 @@ def _flow_factor(h, q):
 @njit(**_JIT)
 def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weight_floor, capacity_tol, tiny, a, v,
                   cap, w, rest, flow, idx, block, rhs, capacity, v_w):
-    """:func:`rft_mujoco.rest.rest_wrenches` for groups 0..ng-1 (rows of ``free``, ``rft``, ``displacement``:
+    """:func:`rft_mujoco.physics.rest.rest_wrenches` for groups 0..ng-1 (rows of ``free``, ``rft``, ``displacement``:
     (>= ng, 6), ``mob`` (>= 6 ng, >= 6 ng)); the wrenches go to ``w`` (>= ng, 6), the rest flags to ``rest``.
     The other arguments are work buffers: ``a`` (6 ng, 6 ng), ``v``/``rhs`` (6 ng,), ``cap`` (ng, 6),
     ``flow`` (ng,) bool, ``idx`` (6 ng,) int, ``block`` (6 ng, 6 ng)."""
@@ -276,13 +276,13 @@ def evaluate(touch, k, ids, group_of, group_ref, group_radius, bound_radius,
              force, torque, submerged, depth_max, scale, rft_force, resting, sand_out):
     """The rest evaluation of the touching bodies ``touch[:k]`` (indices into ``ids``; their poses in rows
     0..k-1 of ``body_pos``/``body_mat``/``body_com``, velocities in ``v_com``/``omega``, from
-    :func:`rft_mujoco.fastkernel.touching`), as ``SandHandle._evaluate_rest`` computes it.
+    :func:`rft_mujoco.compiled.elements.touching`), as ``SandHandle._evaluate_rest`` computes it.
 
     MjData arrays: ``xipos`` .. ``qld_diag_inv`` (``qfrc_actuator`` after ``mj_fwdActuation``); model
     arrays: ``body_rootid`` .. ``colind`` (``M_rownnz``, ``M_rowadr``, ``M_colind``); the handle's groups
     (``group_of`` (B,), ``group_ref`` (G,), ``group_radius`` (G,)); ``user_xfrc`` (nbody, 6) the user's
     wrenches; ``lagged``: add ``qfrc_constraint`` (MuJoCo's previous solve) to the free acceleration;
-    ``settings`` = (DEPENDENT_TOL, WEIGHT_FLOOR, CAPACITY_TOL, TINY) of :mod:`rft_mujoco.rest`. Diagnostics (B, ...) are overwritten in every row, the
+    ``settings`` = (DEPENDENT_TOL, WEIGHT_FLOOR, CAPACITY_TOL, TINY) of :mod:`rft_mujoco.physics.rest`. Diagnostics (B, ...) are overwritten in every row, the
     applied wrenches added to ``sand_out`` (nbody, 6) at rows ``ids[touch[j]]``.
 
     Returns 1 (a non-zero wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing written).

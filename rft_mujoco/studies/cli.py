@@ -7,11 +7,11 @@ import importlib
 import sys
 
 COMMANDS = {
-    "demo": ("rft_mujoco.demo", "quadruped trotting on sand, headless: summary table, plot and video"),
-    "view": ("rft_mujoco.demo", "the demo scene in the interactive mujoco.viewer with sand force arrows"),
-    "validate": ("rft_mujoco.validation", "the paper's validation intrusions: force tables and plots"),
-    "bench": ("rft_mujoco.bench", "speed and speed-accuracy benchmarks: tables and plots"),
-    "stability": ("rft_mujoco.stability", "drop / drag / rotate stability study: table and stability map"),
+    "demo": ("rft_mujoco.studies.demo", "quadruped trotting on sand, headless: summary table, plot and video"),
+    "view": ("rft_mujoco.studies.demo", "the demo scene in the interactive mujoco.viewer with sand force arrows"),
+    "validate": ("rft_mujoco.studies.validation", "the paper's validation intrusions: force tables and plots"),
+    "bench": ("rft_mujoco.studies.bench", "speed and speed-accuracy benchmarks: tables and plots"),
+    "stability": ("rft_mujoco.studies.stability", "drop / drag / rotate stability study: table and stability map"),
 }
 
 

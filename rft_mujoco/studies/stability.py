@@ -11,7 +11,7 @@ constant horizontal pull) and rotating (a constant torque about the vertical) af
 then releasing it; and the naive coupling (``stabilize=False``) on a subset for comparison.
 
 Per case: NaN; the largest energy the sand added in one step; time to rest; residual jitter; sinkage
-creep; final sinkage against the static depth; the largest validity numbers (:mod:`rft_mujoco.monitor`);
+creep; final sinkage against the static depth; the largest validity numbers (:mod:`rft_mujoco.coupling.monitor`);
 for drag and rotate, the sand force against the published RFT force at the same state.
 
 * Energy the sand adds in a step: with ``J`` the sand's generalized impulse of the step (``dt`` times the
@@ -84,11 +84,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from . import surface
-from .coupling import attach
-from .law import element_forces
-from .media import PRESETS, get_media
-from .monitor import RFTValidityWarning
+from rft_mujoco.geometry import surface
+from rft_mujoco.coupling.handle import attach
+from rft_mujoco.physics.law import element_forces
+from rft_mujoco.physics.media import PRESETS, get_media
+from rft_mujoco.coupling.monitor import RFTValidityWarning
 
 # --- the matrix: one place ---------------------------------------------------------------------------
 SHAPES = {
@@ -573,8 +573,8 @@ def plot_naive(results: list[Result], path: Path) -> None:
 
 
 def run_load_paths(*, quick: bool = False, out: Path, stream=sys.stdout) -> list:
-    """The load-path subset (:mod:`rft_mujoco.loadpaths`): progress, a table per scene, ``loadpaths.csv``."""
-    from . import loadpaths
+    """The load-path subset (:mod:`rft_mujoco.studies.loadpaths`): progress, a table per scene, ``loadpaths.csv``."""
+    from rft_mujoco.studies import loadpaths
 
     results = []
     t0 = time.perf_counter()
@@ -612,7 +612,7 @@ def run_load_paths(*, quick: bool = False, out: Path, stream=sys.stdout) -> list
 
 def run(*, quick: bool = False, out: str | Path = "out/stability", plots: bool = True, stream=sys.stdout):
     """Run the study; print progress and tables; write CSV and plot. Returns the results (the load-path
-    cases of :func:`run_load_paths` are appended as ``rft_mujoco.loadpaths.Result`` objects)."""
+    cases of :func:`run_load_paths` are appended as ``rft_mujoco.studies.loadpaths.Result`` objects)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cases = matrix(quick)

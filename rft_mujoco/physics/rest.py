@@ -9,7 +9,7 @@ one MuJoCo weld group: one rigid body), in one step of the integrator:
    angular velocity; world frame) at the end of the step without sand. The coupling computes it from
    MuJoCo's mass matrix, the smooth forces of this evaluation, and the constraint forces of MuJoCo's
    previous solve (contacts, welds, joint and tendon limits, frictionloss: loads that reach a sand body
-   through a constraint are in it; see :mod:`rft_mujoco.coupling`).
+   through a constraint are in it; see :mod:`rft_mujoco.coupling.handle`).
 2. The motion direction of every element is that of the *blended* twist (:func:`blend`): the group's
    twist ``V`` when it moves fast compared with the change ``Vf - V`` one step makes, the free twist when
    it is at rest. The published law gives the RFT wrench ``F`` of each group at that twist.
@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import tol
+from rft_mujoco import tol
 
 DEPENDENT_TOL = 1e-3
 """The rest solve keeps a rest constraint (one twist component of one group) only while the part of its
@@ -176,7 +176,7 @@ def pivoted_solve(a: np.ndarray, rhs: np.ndarray, weight: np.ndarray, dependent_
     it). Then ``x = D B^T (B D B^T)^-1 rhs[K]`` with ``B = a[K, :]``, ``D = diag(weight)``: among all
     wrenches that hold the kept rows, the smallest in that norm (with the groups' squared capacities as
     weights, two groups tied to one rigid body share its load in proportion to their capacities). Plain
-    loops: the compiled rest evaluation runs this very function (:mod:`rft_mujoco.fastrest`).
+    loops: the compiled rest evaluation runs this very function (:mod:`rft_mujoco.compiled.rest`).
     """
     m = rhs.shape[0]
     x = np.zeros(m)

@@ -28,7 +28,7 @@ from importlib import resources
 
 import numpy as np
 
-from .media import Media
+from rft_mujoco.physics.media import Media
 
 # --- tolerances: one place -------------------------------------------------------------------------
 LEADING_TOL = 1e-4
@@ -41,7 +41,7 @@ ZERO_SPEED = 1e-12
 
 
 def _load_coefficients() -> np.ndarray:
-    text = resources.files("rft_mujoco.data").joinpath("agarwal2023_table_s3.csv").read_text()
+    text = resources.files("rft_mujoco.physics.data").joinpath("agarwal2023_table_s3.csv").read_text()
     rows = [line.split(",") for line in text.splitlines() if line and not line.startswith(("#", "k,"))]
     table = np.array([[float(c) for c in row[2:5]] for row in rows])
     if table.shape != (20, 3):

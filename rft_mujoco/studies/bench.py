@@ -4,10 +4,10 @@ Prints tables and writes plots to ``out/bench/`` (``--out``). Every time is the 
 (each repeat long enough for the clock), single thread, on whatever else the machine is doing: compare
 numbers from one run, not across machines. Sections:
 
-1. **Element throughput** (ns per element at N = 1e3 ... 1e6): :func:`rft_mujoco.law.element_forces` (numpy,
-   the straightforward vectorized baseline) against :func:`rft_mujoco.fastkernel.element_forces` (numba), and
-   the coupling's kernel, :func:`rft_mujoco.kernel.body_wrenches` (numpy) against
-   :func:`rft_mujoco.fastkernel.wrenches` (numba, preallocated outputs). Elements: random unit normals,
+1. **Element throughput** (ns per element at N = 1e3 ... 1e6): :func:`rft_mujoco.physics.law.element_forces` (numpy,
+   the straightforward vectorized baseline) against :func:`rft_mujoco.compiled.elements.element_forces` (numba), and
+   the coupling's kernel, :func:`rft_mujoco.physics.elements.body_wrenches` (numpy) against
+   :func:`rft_mujoco.compiled.elements.wrenches` (numba, preallocated outputs). Elements: random unit normals,
    all submerged (depth 1..30 cm), random velocities, 8 bodies; about half are leading.
 2. **Coupling overhead** against a bare ``mj_step`` of the same model: the quadruped of
    ``models/quadruped.xml`` standing on sand (settled for 0.5 s from its ``home`` keyframe, the floor
@@ -43,10 +43,13 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from . import fastkernel, kernel, law, surface
-from .coupling import attach
-from .media import LI_LOOSE_GLASS_BEADS, MPM_VALIDATION
-from .terrain import FlatSurface
+from rft_mujoco.compiled import elements as fastkernel
+from rft_mujoco.physics import elements as kernel
+from rft_mujoco.physics import law
+from rft_mujoco.geometry import surface
+from rft_mujoco.coupling.handle import attach
+from rft_mujoco.physics.media import LI_LOOSE_GLASS_BEADS, MPM_VALIDATION
+from rft_mujoco.physics.terrain import FlatSurface
 
 DIRECTIONS_DEG = tuple(range(-90, 91, 15))
 """Motion directions (deg from the horizontal +x axis, positive up) of the speed-accuracy study."""
@@ -293,7 +296,7 @@ def ant_overhead(steps: int) -> dict | None:
         env.close()
         sand_env = None
         try:
-            from . import envs  # noqa: F401  (registers the sand ids)
+            from rft_mujoco import envs  # noqa: F401  (registers the sand ids)
             env = gym.make("rft_mujoco/SandAnt-v0")
             sand_env = run(env)
             env_elements = env.unwrapped.sand.handle.n_elements
@@ -315,7 +318,7 @@ def _ant_gait(mode: str, dt: float, seed: int, settle_s: float = 2.0, gait_s: fl
     (torso height after settling m, torso xy displacement during the gait (2,) m, wall s)."""
     import gymnasium as gym
 
-    from . import envs  # noqa: F401  (registers the sand ids)
+    from rft_mujoco import envs  # noqa: F401  (registers the sand ids)
     env = gym.make("rft_mujoco/SandAnt-v0", max_episode_steps=10 ** 6)
     u = env.unwrapped
     u.sand.handle.rk4_stages = mode
@@ -403,7 +406,7 @@ def _rot(axis: str, angle: float) -> np.ndarray:
 
 def accuracy_shapes() -> dict:
     """name -> (elements(size) function, rotation (3, 3), centre depth m, description)."""
-    from . import shapes as mesh_shapes
+    from rft_mujoco.studies import shapes as mesh_shapes
     cube = [0.0375] * 3
     out = {
         "sphere": (lambda h: surface.sphere(0.05, h), np.eye(3), 0.27, "sphere r 5 cm"),

@@ -1,6 +1,6 @@
 """Which points lie inside a body's geoms: the occlusion test behind surface culling.
 
-A body's surface elements (:mod:`rft_mujoco.surface`) are cut from each geom on its own, so where geoms
+A body's surface elements (:mod:`rft_mujoco.geometry.surface`) are cut from each geom on its own, so where geoms
 overlap (capsules meeting at a joint, a foot sphere inside its calf, stacked boxes) part of each geom's
 surface lies inside another geom, where no sand can reach it. This module answers, for points in a
 geom's or a body's frame, "is this point strictly inside that solid?":
@@ -9,7 +9,7 @@ geom's or a body's frame, "is this point strictly inside that solid?":
   mesh as the convex hull given by :func:`mesh_halfspaces`). Planes and heightfields never occlude: they
   are terrain, not part of an intruder.
 * :func:`surface_geoms`, :func:`geom_occluders`: the geoms of a body that carry its surface (the rule
-  :func:`rft_mujoco.surface.body_elements` uses) as :class:`Occluder` solids posed in the body frame.
+  :func:`rft_mujoco.geometry.surface.body_elements` uses) as :class:`Occluder` solids posed in the body frame.
 * :func:`occluded`: which points are inside any occluder other than the geom each point belongs to.
 
 "Strictly inside" means deeper than a margin (default :data:`OCCLUSION_TOL`) below the occluder's
@@ -30,7 +30,6 @@ import math
 
 import mujoco
 import numpy as np
-from scipy import spatial
 
 # --- tolerances: one place -------------------------------------------------------------------------
 OCCLUSION_TOL = 1e-6
@@ -178,6 +177,13 @@ def inside_geom(points, geom_type, size, *, mesh_halfspaces=None, margin=OCCLUSI
     return np.einsum("ij,ij->i", p / shrunk, p / shrunk) < 1.0
 
 
+def _spatial():
+    """scipy.spatial, imported on first use (only mesh geoms need it)."""
+    from scipy import spatial
+
+    return spatial
+
+
 def mesh_halfspaces(vertices) -> np.ndarray:
     """The convex hull of a mesh's vertices as halfspaces.
 
@@ -195,8 +201,8 @@ def mesh_halfspaces(vertices) -> np.ndarray:
     if v.shape[0] < 4:
         raise ValueError(f"vertices must hold at least 4 points spanning a volume, got {v.shape[0]}")
     try:
-        hull = spatial.ConvexHull(v)
-    except spatial.QhullError:
+        hull = _spatial().ConvexHull(v)
+    except _spatial().QhullError:
         raise ValueError(f"vertices ({v.shape[0]} points) span no volume (all on one plane or line): a "
                          "flat mesh encloses nothing and occludes nothing") from None
     eq = hull.equations                              # n . x + d <= 0 inside, n unit
@@ -317,7 +323,7 @@ def surface_geoms(model, body_id: int) -> np.ndarray:
     Planes and heightfields are left out (terrain). When a body has both collidable geoms (``contype``
     or ``conaffinity`` non-zero) and visual-only ones, only the collidable ones count (a visual mesh
     over collision primitives would otherwise count the same surface twice); a body with only visual
-    geoms uses all of them. sdf geoms are kept here; :func:`rft_mujoco.surface.body_elements` warns
+    geoms uses all of them. sdf geoms are kept here; :func:`rft_mujoco.geometry.surface.body_elements` warns
     about and skips them and :func:`geom_occluders` skips them.
     """
     b = int(body_id)
@@ -357,7 +363,7 @@ def geom_occluders(model, body_id: int) -> list[Occluder]:
                 continue
             tris = v[np.asarray(model.mesh_face[fa:fa + fn])]
             volume = float(np.einsum("fi,fi->", tris[:, 0], np.cross(tris[:, 1], tris[:, 2])) / 6.0)
-            if volume < (1.0 - CONVEX_TOL) * spatial.ConvexHull(v).volume:
+            if volume < (1.0 - CONVEX_TOL) * _spatial().ConvexHull(v).volume:
                 triangles = tris
         mat = np.zeros(9)
         mujoco.mju_quat2Mat(mat, np.asarray(model.geom_quat[g], dtype=float))

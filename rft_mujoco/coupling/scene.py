@@ -24,9 +24,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from .coupling import SandHandle, attach
-from .media import Media, get_media
-from .terrain import FlatSurface, HeightfieldSurface, SandRegion
+from rft_mujoco.coupling.handle import SandHandle, attach
+from rft_mujoco.physics.media import Media, get_media
+from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
 
 PREFIX = "rft/"
 KEYS = ("media", "bodies", "surface_height", "heightfield", "region", "resolution", "replaces")
@@ -69,7 +69,7 @@ def attach_scene(model, **kwargs) -> list[SandHandle]:
     groups = _custom_fields(model)
     if not groups:
         raise ValueError("the model declares no sand: add <custom><text name=\"rft/media\" "
-                         "data=\"li_loose_glass_beads\"/></custom> (see rft_mujoco.scene)")
+                         "data=\"li_loose_glass_beads\"/></custom> (see rft_mujoco.coupling.scene)")
     handles = []
     try:
         for name, f in groups.items():

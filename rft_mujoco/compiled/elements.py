@@ -1,11 +1,11 @@
-"""Compiled (numba) versions of the per-evaluation kernel: the same numbers as :mod:`rft_mujoco.kernel`.
+"""Compiled (numba) versions of the per-evaluation kernel: the same numbers as :mod:`rft_mujoco.physics.elements`.
 
-:mod:`rft_mujoco.kernel` and :mod:`rft_mujoco.law` are the readable numpy reference; this module computes
+:mod:`rft_mujoco.physics.elements` and :mod:`rft_mujoco.physics.law` are the readable numpy reference; this module computes
 what they compute (to round-off: tests/test_fastkernel.py) without numpy temporaries, into buffers the
 caller owns:
 
-* :func:`element_forces` -- :func:`rft_mujoco.law.element_forces` (per-element forces, flat surface);
-* :func:`body_wrenches` -- :func:`rft_mujoco.kernel.body_wrenches` (element kinematics, terrain depth,
+* :func:`element_forces` -- :func:`rft_mujoco.physics.law.element_forces` (per-element forces, flat surface);
+* :func:`body_wrenches` -- :func:`rft_mujoco.physics.elements.body_wrenches` (element kinematics, terrain depth,
   predicted motion direction, the law with its guards, octant-group wrench sums, counts, max depth);
 * the coupling's fast path (:func:`touching`, :func:`wrenches`, :func:`finish`): broadphase and depth
   pre-pass straight from MuJoCo's ``xpos``/``xmat``/``cvel`` arrays, the kernel over the bodies that touch
@@ -21,13 +21,13 @@ element masks become selects), which LLVM vectorizes (SIMD) without reassociatio
 scalar pass adds the loaded elements into the cluster's octant group. All three work on a fixed
 (SCRATCH_ROWS, CLUSTER_SIZE) scratch buffer, never on per-element temporaries.
 
-Terrains: :class:`~rft_mujoco.terrain.FlatSurface`, :class:`~rft_mujoco.terrain.HeightfieldSurface` and
-:class:`~rft_mujoco.terrain.SandRegion` are compiled (:func:`terrain_spec`); anything else makes the
-coupling fall back to numpy. The rest evaluation around these kernels lives in :mod:`rft_mujoco.fastrest`;
+Terrains: :class:`~rft_mujoco.physics.terrain.FlatSurface`, :class:`~rft_mujoco.physics.terrain.HeightfieldSurface` and
+:class:`~rft_mujoco.physics.terrain.SandRegion` are compiled (:func:`terrain_spec`); anything else makes the
+coupling fall back to numpy. The rest evaluation around these kernels lives in :mod:`rft_mujoco.compiled.rest`;
 :func:`ensure_compiled` compiles it with the rest.
 
 Compilation: every function is ``@njit(cache=True)``, with ``fastmath`` off but for multiply-add fusion in the
-two element loops (:data:`_JIT_LAW`) and reassociated sums in the limiter's solver (:mod:`rft_mujoco.kernel`).
+two element loops (:data:`_JIT_LAW`) and reassociated sums in the limiter's solver (:mod:`rft_mujoco.physics.elements`).
 The first use on a machine
 compiles (:data:`COMPILE_SECONDS`) and saves the machine code next to this file (or in ``NUMBA_CACHE_DIR``);
 later processes load it in a fraction of a second. :func:`ensure_compiled` prints one line to stderr when a
@@ -49,13 +49,13 @@ import time
 
 import numpy as np
 
-from . import law
-from .law import Guards
-from .media import Media
-from .terrain import FlatSurface, HeightfieldSurface, SandRegion
+from rft_mujoco.physics import law
+from rft_mujoco.physics.law import Guards
+from rft_mujoco.physics.media import Media
+from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
 
 GROUPS_PER_BODY = 8
-"""Octant groups per body; the same as :data:`rft_mujoco.kernel.GROUPS_PER_BODY`."""
+"""Octant groups per body; the same as :data:`rft_mujoco.physics.elements.GROUPS_PER_BODY`."""
 SCRATCH_ROWS = 11
 """Rows of the element kernel's scratch buffer: lever arms and depth (0-3), the law's outputs (4-10)."""
 CLUSTER_SIZE = 128
@@ -99,7 +99,7 @@ law (tests/test_fastkernel.py), deterministic run to run."""
 
 
 def tolerances() -> np.ndarray:
-    """(3,) [LEADING_TOL, VERTICAL_TOL, ZERO_SPEED] of :mod:`rft_mujoco.law`, for the kernels."""
+    """(3,) [LEADING_TOL, VERTICAL_TOL, ZERO_SPEED] of :mod:`rft_mujoco.physics.law`, for the kernels."""
     return np.array([law.LEADING_TOL, law.VERTICAL_TOL, law.ZERO_SPEED])
 
 
@@ -131,7 +131,7 @@ def _cubic(c, o, x1, x2, x3, x11, x22, x33):
 @njit(**_INLINE)
 def _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol,
             vert_tol):
-    """:func:`rft_mujoco.law.stress_per_depth` / xi_n of one element (unit n, unit v), without branches."""
+    """:func:`rft_mujoco.physics.law.stress_per_depth` / xi_n of one element (unit n, unit v), without branches."""
     gn = nx * g0 + ny * g1 + nz * g2
     vn = nx * vx + ny * vy + nz * vz
     s_g = 1.0 if gn > 0.0 else -1.0
@@ -282,10 +282,10 @@ def _as_c(x, dtype=np.float64) -> np.ndarray:
 
 def element_forces(centroids, normals, areas, velocities, media: Media, surface_height: float = 0.0,
                    gravity=(0.0, 0.0, -9.81), *, guards: Guards = law.PUBLISHED, out=None) -> np.ndarray:
-    """Compiled :func:`rft_mujoco.law.element_forces`: the same arguments, result and errors.
+    """Compiled :func:`rft_mujoco.physics.law.element_forces`: the same arguments, result and errors.
 
     Args:
-        (as :func:`rft_mujoco.law.element_forces`); out: optional (N, 3) float64 C-contiguous buffer.
+        (as :func:`rft_mujoco.physics.law.element_forces`); out: optional (N, 3) float64 C-contiguous buffer.
     Returns:
         (N, 3) float forces in N (``out`` when given).
     """
@@ -316,7 +316,7 @@ def element_forces(centroids, normals, areas, velocities, media: Media, surface_
 
 @functools.lru_cache(maxsize=16)
 def _gravity(gravity: tuple) -> tuple[np.ndarray, float]:
-    """:func:`rft_mujoco.law.gravity_direction` of a gravity tuple, cached (it costs microseconds)."""
+    """:func:`rft_mujoco.physics.law.gravity_direction` of a gravity tuple, cached (it costs microseconds)."""
     g_hat, g_mag = law.gravity_direction(gravity)
     return g_hat, g_mag
 
@@ -459,7 +459,7 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_oct
              cluster_radius, body_clusters, body_pos, body_mat, body_com, v_com, omega, acc, dt, g_hat,
              max_height, kind, tp, heights, xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol,
              scratch, groups, count, max_depth):
-    """The element loop of :func:`rft_mujoco.kernel.body_wrenches` over the bodies ``bodies[:n_on]``.
+    """The element loop of :func:`rft_mujoco.physics.elements.body_wrenches` over the bodies ``bodies[:n_on]``.
 
     Row j < n_on of every per-body array (``body_pos`` (>= n_on, 3), ``body_mat`` (>= n_on, 9),
     ``body_com``, ``v_com``, ``omega``, the outputs ``groups`` (>= n_on, 8, 6), ``count``, ``max_depth``,
@@ -666,7 +666,7 @@ def check_gravity(terrain, spec, g_hat: np.ndarray) -> None:
 def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, body_pos, body_mat, body_com,
                   v_com, omega, terrain, g_hat, gravity, media: Media, guards: Guards,
                   a_com=None, alpha=None, dt=0.0, elem_octant=None):
-    """Compiled :func:`rft_mujoco.kernel.body_wrenches`: the same arguments and results (packs the elements
+    """Compiled :func:`rft_mujoco.physics.elements.body_wrenches`: the same arguments and results (packs the elements
     on every call; the coupling packs them once).
 
     Returns:
@@ -678,7 +678,7 @@ def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, bo
     spec = terrain_spec(terrain)
     if spec is None:
         raise ValueError(f"the compiled kernel supports FlatSurface, HeightfieldSurface and SandRegion, got "
-                         f"{type(terrain).__name__}; use rft_mujoco.kernel.body_wrenches")
+                         f"{type(terrain).__name__}; use rft_mujoco.physics.elements.body_wrenches")
     g_hat = _as_c(g_hat)
     check_gravity(terrain, spec, g_hat)
     packed = pack(local_centroids, local_normals, areas, elem_body, n_bodies, elem_octant)
@@ -851,7 +851,7 @@ def finish(groups, count, depth_max, v_com, omega, limited, passive, touch, n_to
 def user_part(xfrc, written, added, rows, user):
     """The dispatcher's user wrench (nbody, 6) into ``user``: ``xfrc`` with the sand ``added`` last time
     taken out of the components of rows ``rows`` the user left alone (the rule of
-    :func:`rft_mujoco._dispatch.untouched_components`)."""
+    :func:`rft_mujoco.coupling.dispatch.untouched_components`)."""
     user[:] = xfrc
     for r in rows:
         whole = True
@@ -887,13 +887,13 @@ _compile_lock = threading.Lock()
 def _require() -> None:
     if not AVAILABLE:
         raise RuntimeError(f"numba is not available ({IMPORT_ERROR}); use the numpy kernel "
-                           "(rft_mujoco.kernel) or attach(..., backend='numpy')")
+                           "(rft_mujoco.physics.elements) or attach(..., backend='numpy')")
     ensure_compiled()
 
 
 def ensure_compiled(verbose: bool = True) -> float:
     """Compile (or load from numba's cache) every kernel of this module and the rest evaluation
-    (:mod:`rft_mujoco.fastrest`), for the argument types the package uses, once per process. Returns the seconds it took (0 when already done).
+    (:mod:`rft_mujoco.compiled.rest`), for the argument types the package uses, once per process. Returns the seconds it took (0 when already done).
 
     Prints one line to stderr (and logs it on the "rft_mujoco" logger) only when numba actually compiles
     something -- on the first use on a machine, or after the source changed; cache loads are silent.
@@ -931,7 +931,7 @@ def ensure_compiled(verbose: bool = True) -> float:
         return seconds
 
 
-_KERNEL_MODULES = ("fastkernel", "fastrest", "kernel", "law")
+_KERNEL_MODULES = ("compiled/elements", "compiled/rest", "physics/elements", "physics/law", "physics/rest")
 """The modules whose compiled functions call one another (the package's numba cache)."""
 
 
@@ -947,9 +947,10 @@ def _drop_stale_cache() -> None:
 
     here = os.path.dirname(os.path.abspath(__file__))
     folder = os.path.join(here, "__pycache__")
+    package = os.path.dirname(here)
     digest = hashlib.sha256()
     for name in _KERNEL_MODULES:
-        with open(os.path.join(here, name + ".py"), "rb") as f:
+        with open(os.path.join(package, name + ".py"), "rb") as f:
             digest.update(f.read())
     stamp = os.path.join(folder, "rft_mujoco_kernels.sha256")
     try:
@@ -960,7 +961,7 @@ def _drop_stale_cache() -> None:
         pass
     try:
         os.makedirs(folder, exist_ok=True)
-        for name in _KERNEL_MODULES:
+        for name in ("elements", "rest"):
             for path in glob.glob(os.path.join(folder, f"{name}.*.nb[ic]")):
                 os.remove(path)
         with open(stamp, "w") as f:
@@ -997,7 +998,7 @@ def _warm_up() -> None:
                  vcom, om)
         wrenches(touch, 0, *packed.arrays(), pos, mat, com, vcom, om, np.zeros((0, 6)), 0.0, g, 0.0, kind, tp,
                  heights, 1.0, coef, 0.4, False, False, False, tol, scratch, groups, count, mdep)
-        from . import fastrest      # the rest evaluation around these kernels
+        from rft_mujoco.compiled import rest as fastrest   # the rest evaluation around these kernels
         fastrest.warm_up(packed.arrays(), kind, tp, heights, coef, tol)
     finish(groups, count, mdep, vcom, om, np.zeros((0, 6)), False, touch, 0, ids, np.zeros((B, 3)),
            np.zeros((B, 3)), np.zeros(B, dtype=i8), np.zeros(B), np.ones(B), np.zeros((B, 3)), np.zeros((2, 6)))

@@ -42,7 +42,7 @@ import time
 import mujoco
 import numpy as np
 
-from .coupling import attach
+from rft_mujoco.coupling.handle import attach
 
 MEDIA = "li_loose_glass_beads"
 RESOLUTION = 0.01
@@ -136,7 +136,7 @@ class Result:
     dt: float
     integrator: str
     nan: bool = False
-    max_gain: float = -math.inf          # J, largest dE of a step (see rft_mujoco.stability)
+    max_gain: float = -math.inf          # J, largest dE of a step (see rft_mujoco.studies.stability)
     max_gain_rel: float = -math.inf
     t_rest: float = math.inf             # s, every body slower than REST_SPEED from then on
     final_speed: float = math.nan        # m/s or rad/s, the largest body speed at the end
@@ -164,7 +164,7 @@ def run_case(name: str, dt: float, integrator: str, *, stabilize: bool = True) -
     vel = np.zeros(6)
     import warnings
 
-    from .monitor import RFTValidityWarning
+    from rft_mujoco.coupling.monitor import RFTValidityWarning
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RFTValidityWarning)
         sand = attach(model, MEDIA, bodies=bodies, resolution=RESOLUTION, stabilize=stabilize)
