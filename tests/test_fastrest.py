@@ -6,7 +6,7 @@ import pytest
 
 import rft_mujoco
 from rft_mujoco.compiled import rest as fastrest
-from rft_mujoco.physics import law
+from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface
 
 MEDIA = rft_mujoco.LI_LOOSE_GLASS_BEADS
@@ -149,3 +149,25 @@ def test_weld_groups_and_their_shares():
     assert g.of_body[names.index("brick")] == g.of_body[names.index("brick_lid")]
     assert len(set(g.of_body.tolist())) == len(BODIES) - 1
     assert np.all(g.radius > 0.0)
+
+
+@pytest.mark.parametrize("m, rank, width", [(6, 6, 6), (24, 14, 30), (48, 18, 48), (13, 13, 20), (1, 1, 4)])
+def test_min_norm_solve_equals_the_reference_bit_for_bit(m, rank, width):
+    """The compiled rest solve (row updates, work buffers, a block inside a wider buffer) gives exactly the
+    reference's numbers, full-rank and rank-deficient (rank < m: dependent rows left out), with weights."""
+    rng = np.random.default_rng(m * 100 + rank)
+    for _ in range(5):
+        c = rng.normal(size=(m, rank)) * rng.uniform(0.1, 10.0, rank)
+        a_small = c @ c.T
+        a_small = 0.5 * (a_small + a_small.T)
+        a = np.full((width, width), np.nan)
+        a[:m, :m] = a_small
+        rhs = rng.normal(size=width)
+        weight = rng.uniform(0.01, 3.0, width)
+        ref = rest.pivoted_solve(a_small, rhs[:m].copy(), weight[:m].copy(), rest.DEPENDENT_TOL, 1e-300)
+        lin = np.full((3 * width + 5, width), np.nan)
+        perm = np.full(2 * width, -7, dtype=np.int64)
+        x = np.full(width, np.nan)
+        fastrest.min_norm_solve(a, rhs, weight, m, rest.DEPENDENT_TOL, 1e-300, lin, perm, x)
+        assert np.array_equal(x[:m], ref)
+        assert np.abs(ref).max() > 0.0

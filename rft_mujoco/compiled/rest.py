@@ -1,16 +1,12 @@
-"""Compiled (numba) rest evaluation: :meth:`rft_mujoco.coupling.handle.SandHandle._evaluate_rest` in one call.
+"""The rest treatment's math, compiled: MuJoCo's mass-matrix factor, body Jacobians, the rest solve.
 
-The same numbers as the numpy reference (to round-off, tests/test_fastrest.py), without temporaries:
-Jacobians of the groups' reference points from MuJoCo's ``cdof``, the free acceleration from the smooth
-forces (and the previous solve's constraint forces) through MuJoCo's own factor of the mass matrix
-(``qLD``, solved here: :func:`solve_m`), the groups' mobility, the blended twists, the element kernel
-(:func:`rft_mujoco.compiled.elements.wrenches`), the rest solve of :mod:`rft_mujoco.physics.rest` and the wrenches into
-the dispatcher's sum.
+* :func:`solve_m`: ``x <- M^-1 x`` with MuJoCo's own sparse factor ``qLD`` (read, never written);
+  :func:`check_layout` verifies once per model that the factor is laid out as it reads it (mujoco 4).
+* :func:`jacobian`: a body point's Jacobian from MuJoCo's ``cdof`` (what ``mj_jac`` computes).
+* :func:`rest_wrenches`: :func:`rft_mujoco.physics.rest.rest_wrenches` on work buffers, with the very
+  :func:`~rft_mujoco.physics.rest.pivoted_solve` of the reference compiled.
 
-Nothing here calls MuJoCo: the caller runs ``mj_fwdActuation`` first (MuJoCo computes actuator forces
-only after ``mjcb_control``). :func:`check_layout` verifies, once per model, that MuJoCo's factor is laid
-out as :func:`solve_m` reads it (the layout of mujoco 4); the coupling uses the numpy path with a
-warning where it is not.
+Nothing here calls MuJoCo. The evaluation that uses them is :mod:`rft_mujoco.compiled.evaluate`.
 """
 
 from __future__ import annotations
@@ -20,16 +16,9 @@ import math
 import numpy as np
 
 from rft_mujoco.physics import rest as _rest
-from rft_mujoco.compiled.elements import GROUPS_PER_BODY, _JIT, njit, wrenches
+from rft_mujoco.compiled.jit import JIT, njit
 
-# Status codes of :func:`evaluate` (besides 0: no wrench, 1: a non-zero wrench).
-NOT_FINITE = -1
-"""A wrench came out non-finite; nothing was written."""
-BAD_ACCELERATION = -2
-"""The acceleration without sand is not finite (NaN/inf inputs); nothing was written."""
-
-
-@njit(**_JIT)
+@njit(**JIT)
 def solve_m(rownnz, rowadr, colind, qld, qld_diag_inv, x):
     """``x <- M^-1 x`` in place with MuJoCo's sparse factor ``M = L^T D L`` (``qLD``, ``qLDiagInv``; CSR
     rows ``rowadr``/``rownnz``/``colind`` of ``M_*``, diagonal last in each row)."""
@@ -72,7 +61,7 @@ def check_layout(model, data) -> bool:
     return bool(np.all(np.isfinite(x)) and np.abs(x - ref).max() <= 1e-9 * max(1.0, np.abs(ref).max()))
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _chain_dof(b, body_dofnum, body_dofadr, body_parentid):
     """The last dof of body ``b``'s kinematic chain (its own, or its nearest ancestor's), -1 if none."""
     while b > 0:
@@ -82,7 +71,7 @@ def _chain_dof(b, body_dofnum, body_dofadr, body_parentid):
     return -1
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def jacobian(b, px, py, pz, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
              dof_parentid, out, row):
     """Rows ``row..row+5`` of ``out`` (.., nv) := the Jacobian [linear velocity of point p; angular velocity]
@@ -107,11 +96,106 @@ def jacobian(b, px, py, pz, cdof, subtree_com, body_rootid, body_dofnum, body_do
         j = dof_parentid[j]
 
 
-pivoted_solve = njit(**_JIT)(_rest.pivoted_solve)
-"""The rest solve's rank-revealing Cholesky, :func:`rft_mujoco.physics.rest.pivoted_solve` compiled."""
+pivoted_solve = njit(**JIT)(_rest.pivoted_solve)
+""":func:`rft_mujoco.physics.rest.pivoted_solve` compiled as it is (the oracle of :func:`min_norm_solve`)."""
 
 
-@njit(**_JIT)
+@njit(**JIT)
+def min_norm_solve(a, rhs, weight, m, dependent_tol, tiny, lin, perm, x):
+    """:func:`rft_mujoco.physics.rest.pivoted_solve` of ``a[:m, :m]`` (a symmetric buffer, rows of any
+    width >= m), ``rhs[:m]``, ``weight[:m]`` into ``x[:m]``, with the same arithmetic in the same order
+    (bit for bit), on work buffers: ``lin`` (>= 3 m + 5, >= m) float, ``perm`` (>= 2 m,) int.
+
+    The reference's inner loops are dot products (a serial chain of additions: latency-bound); here each
+    is an update of a whole contiguous row by one product per step (the same additions per entry, in
+    the same order, independent across entries: vectorized), e.g. the factor's new column is
+    ``a[p] - sum_j low_j * low_j[p]`` accumulated over j as row updates rather than entry by entry."""
+    low = lin[0:m]                    # low[k, i]: column k of the pivoted factor, rows i in input order
+    bt = lin[m:2 * m]                 # bt[j, r] = a[order[r], j]
+    g = lin[2 * m:3 * m]
+    diag0, rem, y, acc = lin[3 * m], lin[3 * m + 1], lin[3 * m + 2], lin[3 * m + 3]
+    order, kept = perm[0:m], perm[m:2 * m]
+    for i in range(m):
+        diag0[i] = a[i, i]
+        rem[i] = a[i, i]
+        kept[i] = 0
+        x[i] = 0.0
+    k = 0
+    while k < m:
+        p = -1
+        best = dependent_tol
+        for i in range(m):
+            if kept[i] == 0 and diag0[i] > tiny and rem[i] > best * diag0[i]:
+                best = rem[i] / diag0[i]
+                p = i
+        if p < 0:
+            break
+        kept[p] = 1
+        order[k] = p
+        piv = np.sqrt(rem[p])
+        col = low[k]
+        for i in range(m):
+            col[i] = a[i, p]
+        for j in range(k):
+            lj = low[j]
+            f = lj[p]
+            for i in range(m):
+                col[i] -= lj[i] * f
+        for i in range(m):
+            col[i] = col[i] / piv if (kept[i] == 0 or i == p) else 0.0
+        for i in range(m):
+            if kept[i] == 0:
+                rem[i] -= col[i] * col[i]
+        k += 1
+    if k == 0:
+        return
+    for j in range(m):
+        for r in range(k):
+            bt[j, r] = a[order[r], j]
+    for r in range(k):
+        for c in range(r + 1):
+            g[r, c] = 0.0
+    for j in range(m):
+        wj = weight[j]
+        row = bt[j]
+        for r in range(k):
+            s = row[r] * wj
+            gr = g[r]
+            for c in range(r + 1):
+                gr[c] += s * row[c]
+    for c in range(k):                              # Cholesky, in place (lower), as the reference
+        t = g[c, c]
+        for j in range(c):
+            t -= g[c, j] * g[c, j]
+        d = np.sqrt(t) if t > tiny else np.sqrt(tiny)
+        g[c, c] = d
+        for r in range(c + 1, k):
+            t = g[r, c]
+            for j in range(c):
+                t -= g[r, j] * g[c, j]
+            g[r, c] = t / d
+    for r in range(k):
+        t = rhs[order[r]]
+        for c in range(r):
+            t -= g[r, c] * y[c]
+        y[r] = t / g[r, r]
+    for r in range(k - 1, -1, -1):
+        t = y[r]
+        for c in range(r + 1, k):
+            t -= g[c, r] * y[c]
+        y[r] = t / g[r, r]
+    for j in range(m):
+        acc[j] = 0.0
+    for r in range(k):
+        yr = y[r]
+        ar = a[order[r]]
+        for j in range(m):
+            acc[j] += ar[j] * yr
+    for j in range(m):
+        x[j] = weight[j] * acc[j]
+
+
+@njit(**JIT)
 def _flow_factor(h, q):
     """:func:`rft_mujoco.physics.rest._flow_factor`."""
     if h >= 0.0:
@@ -121,13 +205,14 @@ def _flow_factor(h, q):
     return min(1.0, -h / q)
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weight_floor, capacity_tol, tiny, a, v,
-                  cap, w, rest, flow, idx, block, rhs, capacity, v_w):
+                  cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol):
     """:func:`rft_mujoco.physics.rest.rest_wrenches` for groups 0..ng-1 (rows of ``free``, ``rft``, ``displacement``:
     (>= ng, 6), ``mob`` (>= 6 ng, >= 6 ng)); the wrenches go to ``w`` (>= ng, 6), the rest flags to ``rest``.
     The other arguments are work buffers: ``a`` (6 ng, 6 ng), ``v``/``rhs`` (6 ng,), ``cap`` (ng, 6),
-    ``flow`` (ng,) bool, ``idx`` (6 ng,) int, ``block`` (6 ng, 6 ng)."""
+    ``flow`` (ng,) bool, ``idx`` (6 ng,) int, ``block`` (6 ng, 6 ng), and those of :func:`min_norm_solve`
+    (``lin``, ``perm``, ``sol`` (6 ng,))."""
     n6 = 6 * ng
     for i in range(n6):
         gi = i // 6
@@ -188,9 +273,9 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
                 top = max(top, t)
             for i in range(m):
                 v_w[i] = max(v_w[i], weight_floor * top)
-            x = pivoted_solve(block[:m, :m], rhs[:m], v_w[:m], dependent_tol, tiny)
+            min_norm_solve(block, rhs, v_w, m, dependent_tol, tiny, lin, perm, sol)
             for i in range(m):
-                w[idx[i] // 6, idx[i] % 6] = -x[i]
+                w[idx[i] // 6, idx[i] % 6] = -sol[i]
             over = False
             for g in range(ng):
                 if rest[g]:
@@ -221,292 +306,3 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
     for g in range(ng):
         for c in range(6):
             w[g, c] *= scale * (radius[g] if c >= 3 else 1.0)
-
-
-class Buffers:
-    """The work arrays of :func:`evaluate` for one (handle, MjData): B attached bodies, G groups, nv dofs."""
-
-    def __init__(self, n_bodies: int, n_groups: int, nv: int) -> None:
-        b, g, n6 = n_bodies, n_groups, 6 * n_groups
-        self.active = np.zeros(g, dtype=np.int64)
-        self.slot = np.zeros(b, dtype=np.int64)
-        self.idx = np.zeros(n6, dtype=np.int64)
-        self.rest = np.zeros(g, dtype=np.bool_)
-        self.flow = np.zeros(g, dtype=np.bool_)
-        self.jac = np.zeros((n6, nv))
-        self.minv_jt = np.zeros((n6, nv))
-        self.mob = np.zeros((n6, n6))
-        self.a = np.zeros((n6, n6))
-        self.block = np.zeros((n6, n6))
-        self.qacc = np.zeros(nv)
-        self.v = np.zeros(n6)
-        self.rhs = np.zeros(n6)
-        self.weight = np.zeros(n6)
-        self.twist, self.free, self.u, self.rft_g, self.w, self.cap = (np.zeros((g, 6)) for _ in range(6))
-        self.u_lin, self.u_ang, self.arm = (np.zeros((b, 3)) for _ in range(3))
-        self.wrench, self.applied = np.zeros((b, 6)), np.zeros((b, 6))
-        self.size = np.zeros(b)
-        self.total = np.zeros(g)
-
-    def arrays(self) -> tuple:
-        """In the order of :func:`evaluate`'s buffer arguments."""
-        return (self.active, self.slot, self.idx, self.rest, self.flow, self.jac, self.minv_jt, self.mob, self.a,
-                self.block, self.qacc, self.v, self.rhs, self.weight, self.twist, self.free, self.u, self.rft_g, self.w,
-                self.cap, self.u_lin, self.u_ang, self.arm, self.wrench, self.applied, self.size, self.total)
-
-
-@njit(**_JIT)
-def _norm6(x, r):
-    """|(x[:3], x[3:] / r)|."""
-    return math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
-                     + (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]) / (r * r))
-
-
-@njit(**_JIT)
-def evaluate(touch, k, ids, group_of, group_ref, group_radius, bound_radius,
-             xipos, cdof, subtree_com, qvel, qfrc_passive, qfrc_bias, qfrc_actuator, qfrc_applied,
-             qfrc_constraint, qld, qld_diag_inv, body_rootid, body_dofnum, body_dofadr, body_parentid,
-             dof_parentid, rownnz, rowadr, colind, user_xfrc, lagged, dt,
-             centroids, normals, areas, cluster_start, cluster_octant, cluster_center, cluster_radius,
-             body_clusters, body_pos, body_mat, body_com, v_com, omega, g_hat, max_height, kind, tp, heights, xi_n,
-             coef, mu_surf, no_tension, no_forward, no_power, tol, settings, scratch, groups, count, max_depth,
-             active, slot, idx, rest, flow, jac, minv_jt, mob, a, block, qacc, v, rhs, weight, twist, free, u, rft_g,
-             w, cap,
-             u_lin, u_ang, arm, wrench, applied, size, total,
-             force, torque, submerged, depth_max, scale, rft_force, resting, sand_out):
-    """The rest evaluation of the touching bodies ``touch[:k]`` (indices into ``ids``; their poses in rows
-    0..k-1 of ``body_pos``/``body_mat``/``body_com``, velocities in ``v_com``/``omega``, from
-    :func:`rft_mujoco.compiled.elements.touching`), as ``SandHandle._evaluate_rest`` computes it.
-
-    MjData arrays: ``xipos`` .. ``qld_diag_inv`` (``qfrc_actuator`` after ``mj_fwdActuation``); model
-    arrays: ``body_rootid`` .. ``colind`` (``M_rownnz``, ``M_rowadr``, ``M_colind``); the handle's groups
-    (``group_of`` (B,), ``group_ref`` (G,), ``group_radius`` (G,)); ``user_xfrc`` (nbody, 6) the user's
-    wrenches; ``lagged``: add ``qfrc_constraint`` (MuJoCo's previous solve) to the free acceleration;
-    ``settings`` = (DEPENDENT_TOL, WEIGHT_FLOOR, CAPACITY_TOL, TINY) of :mod:`rft_mujoco.physics.rest`. Diagnostics (B, ...) are overwritten in every row, the
-    applied wrenches added to ``sand_out`` (nbody, 6) at rows ``ids[touch[j]]``.
-
-    Returns 1 (a non-zero wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing written).
-    """
-    nv = qvel.shape[0]
-    nb = ids.shape[0]
-    # 1. the touching groups, in increasing group order, and each touching body's row among them
-    ng_all = group_ref.shape[0]
-    for g in range(ng_all):
-        rest[g] = False
-    for j in range(k):
-        rest[group_of[touch[j]]] = True
-    ng = 0
-    for g in range(ng_all):
-        if rest[g]:
-            active[ng] = g
-            ng += 1
-    for j in range(k):
-        gj = group_of[touch[j]]
-        for r in range(ng):
-            if active[r] == gj:
-                slot[j] = r
-    # 2. free acceleration: smooth forces (+ the previous constraint forces) + the user's wrenches, M^-1
-    for i in range(nv):
-        f = qfrc_passive[i] - qfrc_bias[i] + qfrc_actuator[i] + qfrc_applied[i]
-        qacc[i] = f + qfrc_constraint[i] if lagged else f
-    for b in range(1, user_xfrc.shape[0]):
-        nonzero = False
-        for c in range(6):
-            if user_xfrc[b, c] != 0.0:
-                nonzero = True
-        if not nonzero:
-            continue
-        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
-                 body_dofadr, body_parentid, dof_parentid, minv_jt, 0)
-        for i in range(nv):
-            s = 0.0
-            for c in range(6):
-                s += minv_jt[c, i] * user_xfrc[b, c]
-            qacc[i] += s
-    solve_m(rownnz, rowadr, colind, qld, qld_diag_inv, qacc)
-    for i in range(nv):
-        if not math.isfinite(qacc[i]):
-            return BAD_ACCELERATION
-    # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T
-    for r in range(ng):
-        b = ids[group_ref[active[r]]]
-        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
-                 body_dofadr, body_parentid, dof_parentid, jac, 6 * r)
-    n6 = 6 * ng
-    for i in range(n6):
-        t = 0.0
-        s = 0.0
-        for j in range(nv):
-            t += jac[i, j] * qvel[j]
-            s += jac[i, j] * qacc[j]
-            minv_jt[i, j] = jac[i, j]
-        twist[i // 6, i % 6] = t
-        free[i // 6, i % 6] = t + dt * s
-        solve_m(rownnz, rowadr, colind, qld, qld_diag_inv, minv_jt[i])
-    for i in range(n6):
-        for j in range(i + 1):
-            s = 0.0
-            for c in range(nv):
-                s += jac[i, c] * minv_jt[j, c]
-            mob[i, j] = s
-            mob[j, i] = s
-    # 4. blended twists (rest.blend), moved to each touching body's COM
-    for r in range(ng):
-        g = active[r]
-        rad = group_radius[g]
-        sl = 0.0
-        sa = 0.0
-        vl = 0.0
-        va = 0.0
-        for c in range(3):
-            d0 = free[r, c] - twist[r, c]
-            d1 = free[r, 3 + c] - twist[r, 3 + c]
-            sl += d0 * d0
-            sa += d1 * d1
-            vl += twist[r, c] * twist[r, c]
-            va += twist[r, 3 + c] * twist[r, 3 + c]
-        s = math.sqrt(sl) + rad * math.sqrt(sa)
-        vv = math.sqrt(vl) + rad * math.sqrt(va)
-        wgt = s * s / (vv * vv + s * s) if s > 0.0 else 0.0
-        for c in range(6):
-            u[r, c] = twist[r, c] + wgt * (free[r, c] - twist[r, c])
-    for j in range(k):
-        r = slot[j]
-        b_ref = ids[group_ref[active[r]]]
-        ax = body_com[j, 0] - xipos[b_ref, 0]
-        ay = body_com[j, 1] - xipos[b_ref, 1]
-        az = body_com[j, 2] - xipos[b_ref, 2]
-        arm[j, 0] = ax
-        arm[j, 1] = ay
-        arm[j, 2] = az
-        wx, wy, wz = u[r, 3], u[r, 4], u[r, 5]
-        u_ang[j, 0] = wx
-        u_ang[j, 1] = wy
-        u_ang[j, 2] = wz
-        u_lin[j, 0] = u[r, 0] + (wy * az - wz * ay)
-        u_lin[j, 1] = u[r, 1] + (wz * ax - wx * az)
-        u_lin[j, 2] = u[r, 2] + (wx * ay - wy * ax)
-    # 5. RFT wrenches at the blended twists; the groups' wrenches about their reference points
-    wrenches(touch, k, centroids, normals, areas, cluster_start, cluster_octant, cluster_center, cluster_radius,
-             body_clusters, body_pos, body_mat, body_com, u_lin, u_ang, wrench[:0], 0.0, g_hat, max_height, kind,
-             tp, heights, xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol, scratch, groups, count,
-             max_depth)
-    for r in range(ng):
-        for c in range(6):
-            rft_g[r, c] = 0.0
-    for j in range(k):
-        for c in range(6):
-            s = 0.0
-            for o in range(GROUPS_PER_BODY):
-                s += groups[j, o, c]
-            wrench[j, c] = s
-        r = slot[j]
-        fx, fy, fz = wrench[j, 0], wrench[j, 1], wrench[j, 2]
-        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-        rft_g[r, 0] += fx
-        rft_g[r, 1] += fy
-        rft_g[r, 2] += fz
-        rft_g[r, 3] += wrench[j, 3] + (ay * fz - az * fy)
-        rft_g[r, 4] += wrench[j, 4] + (az * fx - ax * fz)
-        rft_g[r, 5] += wrench[j, 5] + (ax * fy - ay * fx)
-    # 6. the rest solve (rest.rest_wrenches), in the groups' radii
-    rad_g = total                                   # (G,) reuses ``total`` as the active groups' radii
-    for r in range(ng):
-        rad_g[r] = group_radius[active[r]]
-    rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v, cap,
-                  w, rest, flow, idx, block, rhs, size, weight)
-    # 7. each body's part (coupling._share)
-    for j in range(k):
-        size[j] = _norm6(wrench[j], rad_g[slot[j]])
-    for r in range(ng):
-        cap[r, 0] = 0.0                             # reuses ``cap`` column 0 as the groups' total size
-    for j in range(k):
-        cap[slot[j], 0] += size[j]
-    for j in range(k):
-        r = slot[j]
-        for c in range(6):
-            applied[j, c] = 0.0
-        if cap[r, 0] <= 0.0:
-            continue
-        if not rest[r]:
-            gn = _norm6(rft_g[r], rad_g[r])
-            f = _norm6(w[r], rad_g[r]) / gn if gn > 0.0 else 0.0
-            for c in range(6):
-                applied[j, c] = wrench[j, c] * f
-        else:
-            share = size[j] / cap[r, 0]
-            for c in range(3):
-                applied[j, c] = share * w[r, c]
-    for r in range(ng):
-        if not rest[r] or cap[r, 0] <= 0.0:
-            continue
-        mx, my, mz = w[r, 3], w[r, 4], w[r, 5]
-        for j in range(k):
-            if slot[j] == r:
-                ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-                fx, fy, fz = applied[j, 0], applied[j, 1], applied[j, 2]
-                mx -= ay * fz - az * fy
-                my -= az * fx - ax * fz
-                mz -= ax * fy - ay * fx
-        for j in range(k):
-            if slot[j] == r:
-                share = size[j] / cap[r, 0]
-                applied[j, 3] = share * mx
-                applied[j, 4] = share * my
-                applied[j, 5] = share * mz
-    # 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
-    for i in range(nb):
-        for c in range(3):
-            force[i, c] = 0.0
-            torque[i, c] = 0.0
-            rft_force[i, c] = 0.0
-        submerged[i] = 0
-        depth_max[i] = 0.0
-        scale[i] = 1.0
-        resting[i] = False
-    status = 0
-    for j in range(k):
-        i = touch[j]
-        rb = bound_radius[i]
-        rn = _norm6(wrench[j], rb)
-        for c in range(3):
-            force[i, c] = applied[j, c]
-            torque[i, c] = applied[j, 3 + c]
-            rft_force[i, c] = wrench[j, c]
-        submerged[i] = count[j]
-        depth_max[i] = max_depth[j]
-        if rn > 0.0:
-            scale[i] = _norm6(applied[j], rb) / rn
-            resting[i] = rest[slot[j]]
-        for c in range(6):
-            x = applied[j, c]
-            if not math.isfinite(x):
-                status = NOT_FINITE
-            elif x != 0.0 and status == 0:
-                status = 1
-    if status == NOT_FINITE:
-        return NOT_FINITE
-    for j in range(k):
-        row = ids[touch[j]]
-        for c in range(6):
-            sand_out[row, c] += applied[j, c]
-    return status
-
-
-def warm_up(wrench_arrays, kind, tp, heights, coef, tol) -> None:
-    """Compile :func:`evaluate` for the argument types the coupling passes (one tiny call)."""
-    i8 = np.int64
-    nv, nb, nc = 6, 2, 1
-    one = np.zeros(1, dtype=i8)
-    buf = Buffers(1, 1, nv)
-    tree = tuple(np.zeros(nb, dtype=i8) for _ in range(4)) + (np.full(nv, -1, dtype=i8),) + tuple(
-        np.zeros(nv, dtype=i8) for _ in range(3))
-    diag = (np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1, dtype=i8), np.zeros(1), np.ones(1), np.zeros((1, 3)),
-            np.zeros(1, dtype=np.bool_))
-    evaluate(one[:0], 0, np.ones(1, dtype=i8), one, one, np.ones(1), np.ones(1), np.zeros((nb, 3)),
-             np.zeros((nv, 6)), np.zeros((nb, 3)), np.zeros(nv), np.zeros(nv), np.zeros(nv), np.zeros(nv),
-             np.zeros(nv), np.zeros(nv), np.zeros(nc), np.ones(nv), *tree, np.zeros((nb, 6)), False, 0.001,
-             *wrench_arrays, np.zeros((1, 3)), np.zeros((1, 9)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)),
-             np.zeros(3), 0.0, kind, tp, heights, 1.0, coef, 0.4, False, False, False, tol, np.zeros(4),
-             np.zeros((11, 128)), np.zeros((1, GROUPS_PER_BODY, 6)), np.zeros(1, dtype=i8), np.zeros(1),
-             *buf.arrays(), *diag, np.zeros((nb, 6)))

@@ -24,7 +24,8 @@ import weakref
 import mujoco
 import numpy as np
 
-from rft_mujoco.compiled import elements as fastkernel
+from rft_mujoco import compiled
+from rft_mujoco.compiled import route as _ROUTE
 from rft_mujoco import tol
 
 _COMPILE_ENTRY_POINTS = (
@@ -59,8 +60,8 @@ def untouched_components(xfrc: np.ndarray, written: np.ndarray) -> np.ndarray:
 class _DataBook:
     """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
 
-    __slots__ = ("added", "written", "rows", "model", "sand", "user", "nonzero", "sand_dirty", "stage",
-                 "stage_time", "__weakref__")
+    __slots__ = ("added", "written", "rows", "model", "sand", "user", "state", "stage", "stage_time",
+                 "native", "__weakref__")
 
     def __init__(self, model, data) -> None:
         nbody = model.nbody
@@ -70,12 +71,30 @@ class _DataBook:
         self.rows = np.zeros(0, dtype=np.int64)
         self.sand = np.zeros((nbody, 6))     # the handles' sum of this evaluation (reused buffer)
         self.user = np.zeros((nbody, 6))      # the user's part of xfrc_applied (reused buffer)
-        self.nonzero = False                  # ``added`` has a non-zero entry
-        self.sand_dirty = False               # ``sand`` needs zeroing
+        # (nonzero: ``added`` has a non-zero entry, sand_dirty: ``sand`` needs zeroing, -, -): read and
+        # written by the native route too (rft_mujoco.compiled.route.BOOK_FIELDS)
+        self.state = np.zeros(4)
         # For handles with rk4_stages="first": how many stages of the step have been seen (0: none
         # pending) and the time of its first stage (s).
         self.stage = 0
         self.stage_time = 0.0
+        self.native = None                    # (generation, Route) of this MjData's native route
+
+    @property
+    def nonzero(self) -> bool:
+        return bool(self.state[0])
+
+    @nonzero.setter
+    def nonzero(self, value: bool) -> None:
+        self.state[0] = float(value)
+
+    @property
+    def sand_dirty(self) -> bool:
+        return bool(self.state[1])
+
+    @sand_dirty.setter
+    def sand_dirty(self, value: bool) -> None:
+        self.state[1] = float(value)
 
 
 class Dispatcher:
@@ -86,6 +105,7 @@ class Dispatcher:
         self._books: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
         self._routes: dict = {}              # id(model) -> (model, handles, rows), rebuilt on (un)register
         self._lock = threading.RLock()
+        self._generation = 0                 # bumped whenever a handle's setting changes (native routes)
 
     # --- registration ---------------------------------------------------------------------------
     def register(self, handle) -> None:
@@ -94,6 +114,11 @@ class Dispatcher:
                 self._install()
             self._handles.append(handle)
             self._routes.clear()
+            self._generation += 1
+
+    def invalidate(self) -> None:
+        """A handle's setting, terrain or workspace changed: rebuild the native routes before the next use."""
+        self._generation += 1
 
     def unregister(self, handle) -> None:
         with self._lock:
@@ -179,14 +204,57 @@ class Dispatcher:
                 return                       # xfrc_applied still holds the first stage's user + sand wrench
         else:
             book.stage = 0
+        native = book.native
+        if native is not None and native[0] == self._generation:
+            if self._native_call(model, data, native[1]):
+                return
+        elif native is None or native[0] != self._generation:
+            book.native = None
+        self._evaluate(model, data, book, handles, rows)
+        if book.native is None and all(h._fast is not None for h in handles) and compiled.ready():
+            book.native = (self._generation, self._build_route(data, book, handles, rows))
+
+    def _native_call(self, model, data, route) -> bool:
+        """One evaluation through the native route; False when the Python path must run instead (nothing
+        was committed)."""
+        code = route.phase1(route.address, data.time, model.opt.timestep)
+        if code == _ROUTE.ACTUATE:
+            mujoco.mj_fwdActuation(model, data)
+            code = route.phase2(route.address, data.time, model.opt.timestep)
+        elif code == _ROUTE.CONTINUE:
+            code = route.phase2(route.address, data.time, model.opt.timestep)
+        if code == _ROUTE.DONE:
+            return True
+        if code == _ROUTE.MONITOR:
+            for h in route.handles:
+                work = h._work.get(data)
+                k = int(work.state[2])
+                if h.monitor is not None and k > 0 and int(work.state[4]) % h.monitor.every == 0:
+                    h._check_validity(data, work, work.arrays["touch"][:k], int(work.state[4]))
+            return True
+        return False
+
+    def _build_route(self, data, book, handles, rows):
+        """The native route of (model, data) (:class:`rft_mujoco.compiled.route.Route`)."""
+        for h in handles:
+            h._refresh()
+        route = _ROUTE.Route(dict(xfrc=data.xfrc_applied, written=book.written, added=book.added, rows=rows,
+                                  user=book.user, sand=book.sand, state=book.state),
+                             handles[0]._workspace(data).md,
+                             [(h._hc, h._workspace(data).tuple) for h in handles])
+        route.handles = handles
+        return route
+
+    def _evaluate(self, model, data, book, handles, rows) -> None:
+        """One evaluation on the Python path (the native route's reference and fallback)."""
         # With nothing added last time, the user's part is the whole row (read-only for the handles).
-        fast = fastkernel.ready()
+        fast = compiled.ready()
         xfrc = data.xfrc_applied
         if not book.nonzero:
             user = xfrc
         elif fast:
             user = book.user
-            fastkernel.user_part(xfrc, book.written, book.added, book.rows, user)
+            _ROUTE.user_part(xfrc, book.written, book.added, book.rows, user)
         else:
             user = self.user_xfrc(model, data)
         sand = book.sand
@@ -206,7 +274,7 @@ class Dispatcher:
                 if stale.size:                               # rows of handles detached since the last call
                     xfrc[stale] = user[stale]
             if fast:
-                fastkernel.commit(xfrc, user, sand, rows, book.added, book.written)
+                _ROUTE.commit(xfrc, user, sand, rows, book.added, book.written)
             else:
                 xfrc[rows] = user[rows] + sand[rows]
                 book.added[:] = 0.0

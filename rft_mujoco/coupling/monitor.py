@@ -99,6 +99,8 @@ class ValidityMonitor:
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
             raise ValueError(f"every must be a positive int (evaluations between checks), got {value!r}")
         self._every = int(value)
+        from rft_mujoco.coupling.dispatch import DISPATCHER      # native routes read the period: rebuild
+        DISPATCHER.invalidate()
 
     def reset(self) -> None:
         """Forget the worst values and the warnings already given (warn again on the next violation)."""

@@ -150,7 +150,7 @@ class Result:
         return f"{self.scene:14s} dt={self.dt * 1e3:<4g}ms {self.integrator:12s}"
 
 
-def run_case(name: str, dt: float, integrator: str, *, stabilize: bool = True) -> Result:
+def run_case(name: str, dt: float, integrator: str, *, stabilize: bool = True, backend: str = "auto") -> Result:
     """One scene at one (dt, integrator)."""
     xml, bodies = SCENES[name]
     res = Result(name, dt, integrator)
@@ -167,7 +167,7 @@ def run_case(name: str, dt: float, integrator: str, *, stabilize: bool = True) -
     from rft_mujoco.coupling.monitor import RFTValidityWarning
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RFTValidityWarning)
-        sand = attach(model, MEDIA, bodies=bodies, resolution=RESOLUTION, stabilize=stabilize)
+        sand = attach(model, MEDIA, bodies=bodies, resolution=RESOLUTION, stabilize=stabilize, backend=backend)
         try:
             ball = model.body("ball").id if name == "rock" else -1
             start = data.qpos.copy()

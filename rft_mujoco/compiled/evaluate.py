@@ -1,0 +1,434 @@
+"""The compiled evaluation of one sand handle on one MjData, on three argument tuples.
+
+What ``SandHandle`` computes in numpy (:mod:`rft_mujoco.coupling.handle`, the reference the tests compare
+with), compiled, in two phases around MuJoCo's actuation (MuJoCo computes actuator forces only after
+``mjcb_control``, so the caller runs ``mj_fwdActuation`` between them, and only when a body touches):
+
+1. :func:`broadphase`: time continuity (whether MuJoCo's previous constraint solve belongs to this
+   motion), gravity, the bodies that touch the sand and their poses and velocities;
+2. :func:`evaluate`: the rest treatment (:mod:`rft_mujoco.physics.rest`) or the naive published force,
+   the diagnostics, and the wrenches added into the caller's sum.
+
+Arguments come as tuples whose order is fixed by the schemas below, so that the Python path (one numba
+call per phase) and the native route (:mod:`rft_mujoco.compiled.route`, one call for every handle of a
+model) run this very code:
+
+* ``md`` (:data:`MJDATA_FIELDS`): MjData arrays (views, never copied);
+* ``hc`` (:data:`HANDLE_FIELDS`): the handle's constants, ``gravity`` a live view of ``model.opt.gravity``
+  and ``params`` (:data:`PARAMS`) the settings that may change between steps;
+* ``ws`` (:data:`WORK_FIELDS`): the per-(handle, MjData) buffers, the diagnostics among them, and
+  ``state`` (:data:`STATE`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rft_mujoco.compiled.elements import SCRATCH_ROWS, finish_naive, touching, wrenches
+from rft_mujoco.compiled.jit import JIT, njit
+from rft_mujoco.compiled.rest import jacobian, rest_wrenches, solve_m
+
+MJDATA_FIELDS = (
+    ("xpos", "f2"), ("xmat", "f2"), ("xipos", "f2"), ("cvel", "f2"), ("subtree_com", "f2"), ("qpos", "f1"),
+    ("qvel", "f1"), ("cdof", "f2"), ("qfrc_passive", "f1"), ("qfrc_bias", "f1"), ("qfrc_actuator", "f1"),
+    ("qfrc_applied", "f1"), ("qfrc_constraint", "f1"), ("qLD", "f1"), ("qLDiagInv", "f1"), ("geom_xpos", "f2"),
+    ("geom_xmat", "f2"))
+"""(name, kind) of the MjData arrays of ``md``, in order (float64: MuJoCo's mjtNum, checked at attach)."""
+
+HANDLE_FIELDS = (
+    ("ids", "i1"), ("root", "i1"), ("group_of", "i1"), ("group_ref", "i1"), ("cluster_start", "i1"),
+    ("body_clusters", "i1"), ("body_rootid", "i1"), ("body_dofnum", "i1"), ("body_dofadr", "i1"),
+    ("body_parentid", "i1"), ("dof_parentid", "i1"), ("M_rownnz", "i1"), ("M_rowadr", "i1"), ("M_colind", "i1"),
+    ("occ_start", "i1"), ("occ_geom", "i1"), ("occ_kind", "i1"), ("occ_hs_start", "i1"),
+    ("bound_center", "f2"), ("bound_radius", "f1"), ("group_radius", "f1"), ("centroids", "f2"),
+    ("normals", "f2"), ("areas", "f1"), ("cluster_center", "f2"), ("cluster_radius", "f1"), ("tp", "f1"),
+    ("heights", "f2"), ("coef", "f2"), ("tol", "f1"), ("settings", "f1"), ("occ_size", "f2"),
+    ("occ_rbound", "f1"), ("occ_hs", "f2"), ("gravity", "f1"), ("params", "f1"))
+"""(name, kind) of the arrays of ``hc``, in order; kind: dtype (i int64, f float64, b bool) and ndim."""
+
+WORK_FIELDS = (
+    ("touch", "i1"), ("body_pos", "f2"), ("body_mat", "f2"), ("body_com", "f2"), ("v_com", "f2"),
+    ("omega", "f2"), ("scratch", "f2"), ("wrench", "f2"), ("count", "i1"), ("depth", "f1"), ("occluded", "f1"),
+    ("active", "i1"), ("slot", "i1"), ("idx", "i1"), ("rest", "b1"), ("flow", "b1"), ("jac", "f2"),
+    ("minv_jt", "f2"), ("mob", "f2"), ("a", "f2"), ("block", "f2"), ("qacc", "f1"), ("v", "f1"), ("rhs", "f1"),
+    ("weight", "f1"), ("twist", "f2"), ("free", "f2"), ("u", "f2"), ("rft_g", "f2"), ("w", "f2"), ("cap", "f2"),
+    ("u_lin", "f2"), ("u_ang", "f2"), ("arm", "f2"), ("applied", "f2"), ("size", "f1"), ("total", "f1"),
+    ("force", "f2"), ("torque", "f2"), ("submerged", "i1"), ("max_depth", "f1"), ("scale", "f1"),
+    ("rft_force", "f2"), ("resting", "b1"), ("occluded_area", "f1"), ("state", "f1"), ("lin", "f2"),
+    ("perm", "i1"), ("x", "f1"))
+"""(name, kind) of the arrays of ``ws``, in order."""
+
+PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
+          "passive", "margin", "monitor_every")
+"""Entries of ``hc.params``: highest sand (m), ``xi_n / |g|`` (N/m^3 per m/s^2), surface friction, the
+three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
+validity checks (0: no monitor)."""
+STATE = ("last_time", "clean", "touching", "lagged", "evaluations")
+"""Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
+the number of touching bodies found by the last broadphase, whether MuJoCo's previous constraint solve
+belongs to this motion, and evaluations so far."""
+
+# Status codes (besides 0: no wrench, 1: a non-zero wrench).
+NOT_FINITE = -1
+"""A wrench came out non-finite; nothing was written."""
+BAD_ACCELERATION = -2
+"""The acceleration without sand is not finite (NaN/inf inputs); nothing was written."""
+NOT_FINITE_STATE = -3
+"""qpos/qvel are not finite while a body is a candidate (the simulation diverged)."""
+
+
+def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
+    """Zeroed arrays of :data:`WORK_FIELDS` for B bodies, G groups, nv dofs; ``n_rows``: scratch columns."""
+    b, g, n6 = n_bodies, n_groups, 6 * n_groups
+    shapes = dict(
+        touch=(b,), body_pos=(b, 3), body_mat=(b, 9), body_com=(b, 3), v_com=(b, 3), omega=(b, 3),
+        scratch=(SCRATCH_ROWS, n_rows), wrench=(b, 6), count=(b,), depth=(b,), occluded=(b,), active=(g,),
+        slot=(b,), idx=(n6,), rest=(g,), flow=(g,), jac=(n6, nv), minv_jt=(max(n6, 6), nv), mob=(n6, n6),
+        a=(n6, n6), block=(n6, n6), qacc=(nv,), v=(n6,), rhs=(n6,), weight=(n6,), twist=(g, 6), free=(g, 6),
+        u=(g, 6), rft_g=(g, 6), w=(g, 6), cap=(g, 6), u_lin=(b, 3), u_ang=(b, 3), arm=(b, 3), applied=(b, 6),
+        size=(b,), total=(g,), force=(b, 3), torque=(b, 3), submerged=(b,), max_depth=(b,), scale=(b,),
+        rft_force=(b, 3), resting=(b,), occluded_area=(b,), state=(len(STATE),), lin=(3 * n6 + 5, max(n6, 1)),
+        perm=(2 * n6,), x=(n6,))
+    dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
+    out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
+    out["scale"][:] = 1.0
+    out["state"][0] = -math.inf
+    out["state"][1] = 1.0
+    return out
+
+
+@njit(**JIT)
+def _norm6(x, r):
+    """|(x[:3], x[3:] / r)|."""
+    return math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
+                     + (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]) / (r * r))
+
+
+@njit(**JIT)
+def _clear(force, torque, submerged, max_depth, scale, rft_force, resting, occluded_area):
+    """Diagnostics of an evaluation without sand: zero wrenches, counts and depths, scale 1, none resting."""
+    force[:] = 0.0
+    torque[:] = 0.0
+    submerged[:] = 0
+    max_depth[:] = 0.0
+    scale[:] = 1.0
+    rft_force[:] = 0.0
+    resting[:] = False
+    occluded_area[:] = 0.0
+
+
+@njit(**JIT)
+def _gravity(gravity):
+    """(g_hat (3,) tuple, |g|) of a gravity vector; |g| = 0 is the caller's error (checked at attach)."""
+    mag = math.sqrt(gravity[0] * gravity[0] + gravity[1] * gravity[1] + gravity[2] * gravity[2])
+    return gravity[0] / mag, gravity[1] / mag, gravity[2] / mag, mag
+
+
+@njit(**JIT)
+def broadphase(md, hc, ws, time, dt):
+    """Phase 1: record the time, find the touching bodies (their count in ``state[2]``); without any, clear
+    the diagnostics once. Returns the count, or NOT_FINITE_STATE."""
+    xpos, xmat, xipos, cvel, subtree_com, qpos, qvel = md[0], md[1], md[2], md[3], md[4], md[5], md[6]
+    ids, root, cluster_start, body_clusters = hc[0], hc[1], hc[4], hc[5]
+    bound_center, bound_radius, centroids = hc[18], hc[19], hc[21]
+    cluster_center, cluster_radius, tp, heights, gravity, params = hc[24], hc[25], hc[26], hc[27], hc[34], hc[35]
+    touch, body_pos, body_mat, body_com, v_com, omega = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]
+    state = ws[45]
+    state[4] += 1.0
+    step = time - state[0]
+    state[3] = 1.0 if 0.0 <= step <= dt * (1.0 + 1e-9) else 0.0        # coupling._Workspace.follow_time
+    state[0] = time
+    g0, g1, g2, _ = _gravity(gravity)
+    g_hat = np.empty(3)
+    g_hat[0] = g0
+    g_hat[1] = g1
+    g_hat[2] = g2
+    k = touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_center, bound_radius,
+                 centroids, cluster_start, cluster_center, cluster_radius, body_clusters, g_hat, params[0],
+                 int(params[6]), tp, heights, touch, body_pos, body_mat, body_com, v_com, omega)
+    if k < 0:
+        return NOT_FINITE_STATE
+    state[2] = k
+    if k == 0 and state[1] == 0.0:
+        _clear(ws[37], ws[38], ws[39], ws[40], ws[41], ws[42], ws[43], ws[44])
+        state[1] = 1.0
+    return k
+
+
+@njit(**JIT)
+def evaluate(md, hc, ws, user_xfrc, dt, sand_out):
+    """Phase 2 (after ``mj_fwdActuation``), for the ``state[2] > 0`` touching bodies of :func:`broadphase`:
+    the sand wrenches, the diagnostics, and the wrenches added to ``sand_out`` (nbody, 6) at their bodies'
+    rows. ``user_xfrc`` (nbody, 6): the user's own xfrc_applied (enters the free motion). Returns 1 (a
+    non-zero wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing written)."""
+    state = ws[45]
+    k = int(state[2])
+    state[1] = 0.0
+    g0, g1, g2, g_mag = _gravity(hc[34])
+    g_hat = np.empty(3)
+    g_hat[0] = g0
+    g_hat[1] = g1
+    g_hat[2] = g2
+    params = hc[35]
+    xi_n = params[1] * g_mag
+    if params[7] != 0.0:
+        return _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, state[3] != 0.0)
+    # stabilize=False: the published force at the element velocities
+    occ_hs = hc[33]
+    wrenches(ws[0], k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], ws[3], ws[4], ws[5],
+             g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
+             params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], occ_hs,
+             params[9], md[15], md[16], ws[6], ws[7], ws[8], ws[9], ws[10])
+    return finish_naive(ws[7], ws[8], ws[9], ws[4], ws[5], params[8] != 0.0, ws[0], k, hc[0], ws[37], ws[38],
+                        ws[39], ws[40], ws[41], ws[42], ws[43], ws[44], ws[10], sand_out)
+
+
+@njit(**JIT)
+def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
+    """The rest treatment of the ``k`` touching bodies: ``SandHandle._evaluate_rest``."""
+    xipos, cdof, subtree_com, qvel = md[2], md[7], md[4], md[6]
+    qfrc_passive, qfrc_bias, qfrc_actuator, qfrc_applied, qfrc_constraint = md[8], md[9], md[10], md[11], md[12]
+    qld, qld_diag_inv = md[13], md[14]
+    ids, group_of, group_ref = hc[0], hc[2], hc[3]
+    body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid = hc[6], hc[7], hc[8], hc[9], hc[10]
+    rownnz, rowadr, colind = hc[11], hc[12], hc[13]
+    bound_radius, group_radius, settings, params = hc[19], hc[20], hc[30], hc[35]
+    touch, body_com = ws[0], ws[3]
+    count, depth_max, occluded = ws[8], ws[9], ws[10]
+    active, slot, idx, rest, flow = ws[11], ws[12], ws[13], ws[14], ws[15]
+    jac, minv_jt, mob, a, block = ws[16], ws[17], ws[18], ws[19], ws[20]
+    qacc, v, rhs, weight = ws[21], ws[22], ws[23], ws[24]
+    twist, free, u, rft_g, w, cap = ws[25], ws[26], ws[27], ws[28], ws[29], ws[30]
+    u_lin, u_ang, arm, applied, size, total = ws[31], ws[32], ws[33], ws[34], ws[35], ws[36]
+    wrench = ws[7]
+    nv = qvel.shape[0]
+    # 1. the touching groups, in increasing group order, and each touching body's row among them
+    ng_all = group_ref.shape[0]
+    for g in range(ng_all):
+        rest[g] = False
+    for j in range(k):
+        rest[group_of[touch[j]]] = True
+    ng = 0
+    for g in range(ng_all):
+        if rest[g]:
+            active[ng] = g
+            ng += 1
+    for j in range(k):
+        gj = group_of[touch[j]]
+        for r in range(ng):
+            if active[r] == gj:
+                slot[j] = r
+    # 2. free acceleration: smooth forces (+ the previous constraint forces) + the user's wrenches, M^-1
+    for i in range(nv):
+        f = qfrc_passive[i] - qfrc_bias[i] + qfrc_actuator[i] + qfrc_applied[i]
+        qacc[i] = f + qfrc_constraint[i] if lagged else f
+    for b in range(1, user_xfrc.shape[0]):
+        nonzero = False
+        for c in range(6):
+            if user_xfrc[b, c] != 0.0:
+                nonzero = True
+        if not nonzero:
+            continue
+        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
+                 body_dofadr, body_parentid, dof_parentid, minv_jt, 0)
+        for i in range(nv):
+            s = 0.0
+            for c in range(6):
+                s += minv_jt[c, i] * user_xfrc[b, c]
+            qacc[i] += s
+    solve_m(rownnz, rowadr, colind, qld, qld_diag_inv, qacc)
+    for i in range(nv):
+        if not math.isfinite(qacc[i]):
+            return BAD_ACCELERATION
+    # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T
+    for r in range(ng):
+        b = ids[group_ref[active[r]]]
+        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
+                 body_dofadr, body_parentid, dof_parentid, jac, 6 * r)
+    n6 = 6 * ng
+    for i in range(n6):
+        t = 0.0
+        s = 0.0
+        for j in range(nv):
+            t += jac[i, j] * qvel[j]
+            s += jac[i, j] * qacc[j]
+            minv_jt[i, j] = jac[i, j]
+        twist[i // 6, i % 6] = t
+        free[i // 6, i % 6] = t + dt * s
+        solve_m(rownnz, rowadr, colind, qld, qld_diag_inv, minv_jt[i])
+    for i in range(n6):
+        for j in range(i + 1):
+            s = 0.0
+            for c in range(nv):
+                s += jac[i, c] * minv_jt[j, c]
+            mob[i, j] = s
+            mob[j, i] = s
+    # 4. blended twists (rest.blend), moved to each touching body's COM
+    for r in range(ng):
+        rad = group_radius[active[r]]
+        sl = sa = vl = va = 0.0
+        for c in range(3):
+            d0 = free[r, c] - twist[r, c]
+            d1 = free[r, 3 + c] - twist[r, 3 + c]
+            sl += d0 * d0
+            sa += d1 * d1
+            vl += twist[r, c] * twist[r, c]
+            va += twist[r, 3 + c] * twist[r, 3 + c]
+        s = math.sqrt(sl) + rad * math.sqrt(sa)
+        vv = math.sqrt(vl) + rad * math.sqrt(va)
+        wgt = s * s / (vv * vv + s * s) if s > 0.0 else 0.0
+        for c in range(6):
+            u[r, c] = twist[r, c] + wgt * (free[r, c] - twist[r, c])
+    for j in range(k):
+        r = slot[j]
+        b_ref = ids[group_ref[active[r]]]
+        ax = body_com[j, 0] - xipos[b_ref, 0]
+        ay = body_com[j, 1] - xipos[b_ref, 1]
+        az = body_com[j, 2] - xipos[b_ref, 2]
+        arm[j, 0] = ax
+        arm[j, 1] = ay
+        arm[j, 2] = az
+        wx, wy, wz = u[r, 3], u[r, 4], u[r, 5]
+        u_ang[j, 0] = wx
+        u_ang[j, 1] = wy
+        u_ang[j, 2] = wz
+        u_lin[j, 0] = u[r, 0] + (wy * az - wz * ay)
+        u_lin[j, 1] = u[r, 1] + (wz * ax - wx * az)
+        u_lin[j, 2] = u[r, 2] + (wx * ay - wy * ax)
+    # 5. RFT wrenches at the blended twists; the groups' wrenches about their reference points
+    wrenches(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com, u_lin, u_ang,
+             g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
+             params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
+             params[9], md[15], md[16], ws[6], wrench, count, depth_max, occluded)
+    for r in range(ng):
+        for c in range(6):
+            rft_g[r, c] = 0.0
+    for j in range(k):
+        r = slot[j]
+        fx, fy, fz = wrench[j, 0], wrench[j, 1], wrench[j, 2]
+        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
+        rft_g[r, 0] += fx
+        rft_g[r, 1] += fy
+        rft_g[r, 2] += fz
+        rft_g[r, 3] += wrench[j, 3] + (ay * fz - az * fy)
+        rft_g[r, 4] += wrench[j, 4] + (az * fx - ax * fz)
+        rft_g[r, 5] += wrench[j, 5] + (ax * fy - ay * fx)
+    # 6. the rest solve (rest.rest_wrenches), in the groups' radii
+    rad_g = total                                   # (G,) reuses ``total`` as the active groups' radii
+    for r in range(ng):
+        rad_g[r] = group_radius[active[r]]
+    rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v, cap,
+                  w, rest, flow, idx, block, rhs, size, weight, ws[46], ws[47], ws[48])
+    # 7. each body's part (coupling._share)
+    for j in range(k):
+        size[j] = _norm6(wrench[j], rad_g[slot[j]])
+    for r in range(ng):
+        cap[r, 0] = 0.0                             # reuses ``cap`` column 0 as the groups' total size
+    for j in range(k):
+        cap[slot[j], 0] += size[j]
+    for j in range(k):
+        r = slot[j]
+        for c in range(6):
+            applied[j, c] = 0.0
+        if cap[r, 0] <= 0.0:
+            continue
+        if not rest[r]:
+            gn = _norm6(rft_g[r], rad_g[r])
+            f = _norm6(w[r], rad_g[r]) / gn if gn > 0.0 else 0.0
+            for c in range(6):
+                applied[j, c] = wrench[j, c] * f
+        else:
+            share = size[j] / cap[r, 0]
+            for c in range(3):
+                applied[j, c] = share * w[r, c]
+    for r in range(ng):
+        if not rest[r] or cap[r, 0] <= 0.0:
+            continue
+        mx, my, mz = w[r, 3], w[r, 4], w[r, 5]
+        for j in range(k):
+            if slot[j] == r:
+                ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
+                fx, fy, fz = applied[j, 0], applied[j, 1], applied[j, 2]
+                mx -= ay * fz - az * fy
+                my -= az * fx - ax * fz
+                mz -= ax * fy - ay * fx
+        for j in range(k):
+            if slot[j] == r:
+                share = size[j] / cap[r, 0]
+                applied[j, 3] = share * mx
+                applied[j, 4] = share * my
+                applied[j, 5] = share * mz
+    # 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
+    force, torque, submerged, max_depth = ws[37], ws[38], ws[39], ws[40]
+    scale, rft_force, resting, occluded_area = ws[41], ws[42], ws[43], ws[44]
+    _clear(force, torque, submerged, max_depth, scale, rft_force, resting, occluded_area)
+    status = 0
+    for j in range(k):
+        i = touch[j]
+        rb = bound_radius[i]
+        rn = _norm6(wrench[j], rb)
+        for c in range(3):
+            force[i, c] = applied[j, c]
+            torque[i, c] = applied[j, 3 + c]
+            rft_force[i, c] = wrench[j, c]
+        submerged[i] = count[j]
+        max_depth[i] = depth_max[j]
+        occluded_area[i] = occluded[j]
+        if rn > 0.0:
+            scale[i] = _norm6(applied[j], rb) / rn
+            resting[i] = rest[slot[j]]
+        for c in range(6):
+            x = applied[j, c]
+            if not math.isfinite(x):
+                status = NOT_FINITE
+            elif x != 0.0 and status == 0:
+                status = 1
+    if status == NOT_FINITE:
+        return NOT_FINITE
+    for j in range(k):
+        row = ids[touch[j]]
+        for c in range(6):
+            sand_out[row, c] += applied[j, c]
+    return status
+
+
+def params_array(max_height: float, xi_per_g: float, mu_surf: float, guards, kind: int, stabilize: bool,
+                 passive: bool, margin: float, monitor_every: int = 0, out=None) -> np.ndarray:
+    """``hc.params`` (:data:`PARAMS`), written into ``out`` when given (a live handle's array)."""
+    values = (max_height, xi_per_g, mu_surf, float(guards.no_tension), float(guards.no_forward_tangential),
+              float(guards.no_positive_power), float(kind), float(stabilize), float(passive), margin,
+              float(monitor_every))
+    if out is None:
+        return np.array(values, dtype=np.float64)
+    out[:] = values
+    return out
+
+
+def handle_constants(model, body_ids, root, groups, bound_center, bound_radius, packed, occluders, spec, coef,
+                     tol, settings, params) -> tuple:
+    """The ``hc`` tuple (:data:`HANDLE_FIELDS`) of a handle: its arrays and the model's (``model.opt.gravity``
+    as a live view, so gravity changes are seen)."""
+    i8 = lambda a: np.ascontiguousarray(a, dtype=np.int64)        # noqa: E731
+    f8 = lambda a: np.ascontiguousarray(a, dtype=np.float64)      # noqa: E731
+    kind, tp, heights = spec
+    arrays = dict(
+        ids=i8(body_ids), root=i8(root), group_of=i8(groups.of_body), group_ref=i8(groups.ref),
+        cluster_start=packed.cluster_start, body_clusters=packed.body_clusters,
+        body_rootid=i8(model.body_rootid), body_dofnum=i8(model.body_dofnum), body_dofadr=i8(model.body_dofadr),
+        body_parentid=i8(model.body_parentid), dof_parentid=i8(model.dof_parentid), M_rownnz=i8(model.M_rownnz),
+        M_rowadr=i8(model.M_rowadr), M_colind=i8(model.M_colind), occ_start=occluders.start,
+        occ_geom=occluders.geom, occ_kind=occluders.kind, occ_hs_start=occluders.hs_start,
+        bound_center=f8(bound_center), bound_radius=f8(bound_radius), group_radius=f8(groups.radius),
+        centroids=packed.centroids, normals=packed.normals, areas=packed.areas,
+        cluster_center=packed.cluster_center, cluster_radius=packed.cluster_radius, tp=f8(tp),
+        heights=np.array(heights, dtype=np.float64), coef=np.array(coef, dtype=np.float64),
+        tol=np.array(tol, dtype=np.float64), settings=np.array(settings, dtype=np.float64), occ_size=f8(occluders.size),
+        occ_rbound=f8(occluders.rbound), occ_hs=f8(occluders.halfspaces), gravity=model.opt.gravity, params=params)
+    return tuple(arrays[name] for name, _ in HANDLE_FIELDS)
+
+
+def mjdata_arrays(data) -> tuple:
+    """The ``md`` tuple (:data:`MJDATA_FIELDS`): views of ``data``'s arrays."""
+    return tuple(getattr(data, name) for name, _ in MJDATA_FIELDS)

@@ -1,0 +1,308 @@
+"""Every sand handle of one (model, MjData) as one native call per phase: the dispatcher's fast route.
+
+The dispatcher (:mod:`rft_mujoco.coupling.dispatch`) keeps its Python callback, so that errors still raise
+from ``mj_step``; inside it, an evaluation of a model whose handles all run compiled is two calls of C
+functions (numba ``cfunc`` s) through ctypes, each with one pointer to a table of the arrays' addresses and
+shapes (built once per MjData: MjData's arrays and the buffers never move):
+
+1. :func:`phase1`: the user's part of ``xfrc_applied`` (:func:`user_part`), every handle's broadphase;
+   with nothing touching, the user's rows are restored and the evaluation is done;
+2. (the dispatcher runs ``mj_fwdActuation`` when a stabilized handle touches; MuJoCo computes actuator
+   forces only after ``mjcb_control``) :func:`phase2`: every handle's evaluation into the sand sum, and
+   :func:`commit` writes ``xfrc_applied = user + sand``.
+
+Nothing here calls MuJoCo, and the compiled functions are those of the Python path
+(:mod:`rft_mujoco.compiled.evaluate`), so both give the same numbers bit for bit (tests/test_route.py).
+A phase hands back to Python, having committed nothing, on an error (the Python path then raises,
+naming the bodies) and after committing when a handle's validity monitor is due.
+
+What it relies on is checked where the table is built (:class:`Route`): every array C-contiguous of the
+dtype its schema says (MuJoCo's ``mjtNum`` must be float64), no other Python callback between.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from rft_mujoco.compiled import evaluate as ev
+from rft_mujoco.compiled.jit import AVAILABLE, INLINE, JIT, carray, cfunc, njit, types
+
+SLOT = 4
+"""Table entries per array: address, then up to 3 dimensions."""
+DONE, ACTUATE, CONTINUE, PYTHON, MONITOR = 0, 1, 2, 3, 4
+"""Phase results: committed and finished; touching, run mj_fwdActuation then phase 2; touching, phase 2
+without actuation (no stabilized handle touches); nothing committed, run the Python path; committed, run
+the due monitor checks in Python."""
+BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"), ("user", "f2"),
+               ("sand", "f2"), ("state", "f1"))
+"""The dispatcher's per-MjData book (:class:`rft_mujoco.coupling.dispatch._DataBook`); ``state`` =
+(nonzero, sand_dirty, rk4 stage, rk4 stage time)."""
+_HEADER = 3
+"""Table header: number of handles, base of the book, base of md; then one base per handle."""
+
+
+@njit(**JIT)
+def user_part(xfrc, written, added, rows, user):
+    """The dispatcher's user wrench (nbody, 6) into ``user``: ``xfrc`` with the sand ``added`` last time
+    taken out of the components of rows ``rows`` the user left alone (the rule of
+    :func:`rft_mujoco.coupling.dispatch.untouched_components`)."""
+    user[:] = xfrc
+    for r in rows:
+        whole = True
+        for k in range(6):
+            whole = whole and xfrc[r, k] == written[r, k]
+        for k in range(6):
+            if xfrc[r, k] == written[r, k] and (whole or written[r, k] != 0.0):
+                user[r, k] -= added[r, k]
+
+
+@njit(**JIT)
+def commit(xfrc, user, sand, rows, added, written):
+    """The dispatcher's write: ``xfrc[rows] = user + sand``, remembering what was added and written."""
+    added[:] = 0.0
+    for r in rows:
+        for k in range(6):
+            v = user[r, k] + sand[r, k]
+            xfrc[r, k] = v
+            added[r, k] = sand[r, k]
+            written[r, k] = v
+
+
+if AVAILABLE:
+    from numba.extending import intrinsic
+
+    def _cast(target):
+        @intrinsic
+        def cast(typingctx, addr):
+            def codegen(context, builder, signature, args):
+                return builder.inttoptr(args[0], context.get_value_type(target))
+            return target(types.int64), codegen
+        return cast
+
+    _as_f8 = _cast(types.CPointer(types.float64))
+    _as_i8 = _cast(types.CPointer(types.int64))
+    _as_b1 = _cast(types.CPointer(types.boolean))
+else:  # pragma: no cover - without numba the route is never built
+    _as_f8 = _as_i8 = _as_b1 = None
+
+
+@njit(**INLINE)
+def _f1(t, s):
+    return carray(_as_f8(t[s]), (t[s + 1],))
+
+
+@njit(**INLINE)
+def _f2(t, s):
+    return carray(_as_f8(t[s]), (t[s + 1], t[s + 2]))
+
+
+@njit(**INLINE)
+def _i1(t, s):
+    return carray(_as_i8(t[s]), (t[s + 1],))
+
+
+@njit(**INLINE)
+def _b1(t, s):
+    return carray(_as_b1(t[s]), (t[s + 1],))
+
+
+@njit(**INLINE)
+def _md(t, base):
+    """The ``md`` tuple from the table entries at ``base`` (schema order)."""
+    return (
+        _f2(t, base + 0), _f2(t, base + 4), _f2(t, base + 8), _f2(t, base + 12), _f2(t, base + 16),
+        _f1(t, base + 20), _f1(t, base + 24), _f2(t, base + 28), _f1(t, base + 32), _f1(t, base + 36),
+        _f1(t, base + 40), _f1(t, base + 44), _f1(t, base + 48), _f1(t, base + 52), _f1(t, base + 56),
+        _f2(t, base + 60), _f2(t, base + 64),
+    )
+
+
+@njit(**INLINE)
+def _hc(t, base):
+    """The ``hc`` tuple from the table entries at ``base`` (schema order)."""
+    return (
+        _i1(t, base + 0), _i1(t, base + 4), _i1(t, base + 8), _i1(t, base + 12), _i1(t, base + 16),
+        _i1(t, base + 20), _i1(t, base + 24), _i1(t, base + 28), _i1(t, base + 32), _i1(t, base + 36),
+        _i1(t, base + 40), _i1(t, base + 44), _i1(t, base + 48), _i1(t, base + 52), _i1(t, base + 56),
+        _i1(t, base + 60), _i1(t, base + 64), _i1(t, base + 68), _f2(t, base + 72), _f1(t, base + 76),
+        _f1(t, base + 80), _f2(t, base + 84), _f2(t, base + 88), _f1(t, base + 92), _f2(t, base + 96),
+        _f1(t, base + 100), _f1(t, base + 104), _f2(t, base + 108), _f2(t, base + 112), _f1(t, base + 116),
+        _f1(t, base + 120), _f2(t, base + 124), _f1(t, base + 128), _f2(t, base + 132), _f1(t, base + 136),
+        _f1(t, base + 140),
+    )
+
+
+@njit(**INLINE)
+def _ws(t, base):
+    """The ``ws`` tuple from the table entries at ``base`` (schema order)."""
+    return (
+        _i1(t, base + 0), _f2(t, base + 4), _f2(t, base + 8), _f2(t, base + 12), _f2(t, base + 16),
+        _f2(t, base + 20), _f2(t, base + 24), _f2(t, base + 28), _i1(t, base + 32), _f1(t, base + 36),
+        _f1(t, base + 40), _i1(t, base + 44), _i1(t, base + 48), _i1(t, base + 52), _b1(t, base + 56),
+        _b1(t, base + 60), _f2(t, base + 64), _f2(t, base + 68), _f2(t, base + 72), _f2(t, base + 76),
+        _f2(t, base + 80), _f1(t, base + 84), _f1(t, base + 88), _f1(t, base + 92), _f1(t, base + 96),
+        _f2(t, base + 100), _f2(t, base + 104), _f2(t, base + 108), _f2(t, base + 112), _f2(t, base + 116),
+        _f2(t, base + 120), _f2(t, base + 124), _f2(t, base + 128), _f2(t, base + 132), _f2(t, base + 136),
+        _f1(t, base + 140), _f1(t, base + 144), _f2(t, base + 148), _f2(t, base + 152), _i1(t, base + 156),
+        _f1(t, base + 160), _f1(t, base + 164), _f2(t, base + 168), _b1(t, base + 172), _f1(t, base + 176),
+        _f1(t, base + 180), _f2(t, base + 184), _i1(t, base + 188), _f1(t, base + 192),
+    )
+
+
+@njit(**INLINE)
+def _book(t, base):
+    """The book's arrays (:data:`BOOK_FIELDS`)."""
+    return (_f2(t, base), _f2(t, base + SLOT), _f2(t, base + 2 * SLOT), _i1(t, base + 3 * SLOT),
+            _f2(t, base + 4 * SLOT), _f2(t, base + 5 * SLOT), _f1(t, base + 6 * SLOT))
+
+
+_HC_SLOTS = len(ev.HANDLE_FIELDS) * SLOT
+
+
+@njit(**JIT)
+def phase1(t, time, dt):
+    """User part and every handle's broadphase (see the module docstring); returns DONE, ACTUATE, CONTINUE
+    or PYTHON."""
+    n = t[0]
+    xfrc, written, added, rows, user, sand, state = _book(t, t[1])
+    md = _md(t, t[2])
+    user_part(xfrc, written, added, rows, user)
+    total = 0
+    actuate = False
+    for h in range(n):
+        base = t[_HEADER + h]
+        hc = _hc(t, base)
+        ws = _ws(t, base + _HC_SLOTS)
+        k = ev.broadphase(md, hc, ws, time, dt)
+        if k < 0:
+            return PYTHON
+        if k > 0:
+            total += k
+            actuate = actuate or hc[35][7] != 0.0
+    if total == 0:
+        if state[0] != 0.0:                          # the sand of the last evaluation leaves the rows
+            for r in rows:
+                for c in range(6):
+                    xfrc[r, c] = user[r, c]
+                    added[r, c] = 0.0
+                    written[r, c] = user[r, c]
+            state[0] = 0.0
+        return DONE
+    return ACTUATE if actuate else CONTINUE
+
+
+@njit(**JIT)
+def phase2(t, time, dt):
+    """Every touching handle's evaluation and the commit; returns DONE, MONITOR or PYTHON."""
+    n = t[0]
+    xfrc, written, added, rows, user, sand, state = _book(t, t[1])
+    md = _md(t, t[2])
+    sand[:] = 0.0
+    nonzero = False
+    for h in range(n):
+        base = t[_HEADER + h]
+        ws = _ws(t, base + _HC_SLOTS)
+        if ws[45][2] <= 0.0:
+            continue
+        status = ev.evaluate(md, _hc(t, base), ws, user, dt, sand)
+        if status < 0:
+            return PYTHON
+        nonzero = nonzero or status == 1
+    commit(xfrc, user, sand, rows, added, written)
+    state[0] = 1.0 if nonzero else 0.0
+    for h in range(n):
+        base = t[_HEADER + h]
+        every = _hc(t, base)[35][10]
+        st = _ws(t, base + _HC_SLOTS)[45]
+        if every > 0.0 and st[2] > 0.0 and st[4] % every == 0.0:
+            return MONITOR
+    return DONE
+
+
+if AVAILABLE:
+    _SIG = types.int64(types.CPointer(types.int64), types.float64, types.float64)
+
+    @cfunc(_SIG, cache=True)
+    def _phase1_c(ptr, time, dt):
+        n = carray(ptr, (_HEADER,))[0]
+        t = carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT
+                         + n * (len(ev.HANDLE_FIELDS) + len(ev.WORK_FIELDS)) * SLOT,))
+        return phase1(t, time, dt)
+
+    @cfunc(_SIG, cache=True)
+    def _phase2_c(ptr, time, dt):
+        n = carray(ptr, (_HEADER,))[0]
+        t = carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT
+                         + n * (len(ev.HANDLE_FIELDS) + len(ev.WORK_FIELDS)) * SLOT,))
+        return phase2(t, time, dt)
+
+_CTYPE = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_double, ctypes.c_double)
+_entries = None
+
+
+def entries():
+    """(phase1, phase2) as ctypes functions (address, time s, dt s) -> int."""
+    global _entries
+    if _entries is None:
+        _entries = (_CTYPE(_phase1_c.address), _CTYPE(_phase2_c.address))
+    return _entries
+
+
+_DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_}
+
+
+class Route:
+    """The table of one (model, MjData) and its handles, and the two calls.
+
+    Args:
+        book: (name -> array) of :data:`BOOK_FIELDS`.
+        md: the ``md`` tuple; handles: [(hc tuple, ws tuple)] in the dispatcher's order.
+    Raises:
+        TypeError: an array is not C-contiguous or not of its schema's dtype and rank (say which).
+    """
+
+    def __init__(self, book: dict, md: tuple, handles: list) -> None:
+        entries_ = []
+        self._keep = []
+
+        def add(array, name, kind):
+            a = array
+            want = _DTYPES[kind[0]]
+            if not (isinstance(a, np.ndarray) and a.dtype == want and a.ndim == int(kind[1])
+                    and a.flags.c_contiguous and a.flags.writeable):
+                raise TypeError(f"the native route needs {name} as a writable C-contiguous {np.dtype(want)} array "
+                                f"of rank {kind[1]}, got {type(a).__name__} {getattr(a, 'dtype', '')} "
+                                f"{getattr(a, 'shape', '')}")
+            self._keep.append(a)
+            shape = list(a.shape) + [0] * (3 - a.ndim)
+            entries_.extend([a.ctypes.data, *shape])
+
+        n = len(handles)
+        book_base = _HEADER + n
+        for name, kind in BOOK_FIELDS:
+            add(book[name], name, kind)
+        md_base = book_base + len(BOOK_FIELDS) * SLOT
+        for (name, kind), a in zip(ev.MJDATA_FIELDS, md):
+            add(a, name, kind)
+        bases = []
+        for hc, ws in handles:
+            bases.append(book_base + len(entries_))
+            for (name, kind), a in zip(ev.HANDLE_FIELDS, hc):
+                add(a, name, kind)
+            for (name, kind), a in zip(ev.WORK_FIELDS, ws):
+                add(a, name, kind)
+        self.table = np.array([n, book_base, md_base, *bases, *entries_], dtype=np.int64)
+        self.address = self.table.ctypes.data
+        self.phase1, self.phase2 = entries()
+
+
+def warm_up(model, data) -> None:
+    """Compile both phases (a route over no handle)."""
+    nbody = model.nbody
+    book = dict(xfrc=np.zeros((nbody, 6)), written=np.zeros((nbody, 6)), added=np.zeros((nbody, 6)),
+                rows=np.zeros(0, np.int64), user=np.zeros((nbody, 6)), sand=np.zeros((nbody, 6)), state=np.zeros(4))
+    route = Route(book, ev.mjdata_arrays(data), [])
+    route.phase1(route.address, 0.0, 0.001)
+    route.phase2(route.address, 0.0, 0.001)

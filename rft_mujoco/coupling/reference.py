@@ -1,0 +1,220 @@
+"""The numpy reference of one evaluation (``backend="numpy"``): what the compiled path must compute.
+
+Plain, readable numpy on the handle's arrays and MuJoCo's functions (``mj_jacBodyCom``, ``mj_solveM``,
+``mj_applyFT``); tests/test_fastrest.py compares the compiled evaluation with it. The steps are those
+of :mod:`rft_mujoco.compiled.evaluate`: broadphase, run-time culling, the rest treatment
+(:mod:`rft_mujoco.physics.rest`) or the naive published force, diagnostics and the wrenches into the sum.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from rft_mujoco.geometry import occlusion
+from rft_mujoco.physics import elements, rest
+
+
+def touching(handle, data, g_hat, work) -> np.ndarray:
+    """Broadphase and depth pre-pass: indices (k,) into ``body_ids`` of the bodies with a submerged element;
+    fills rows 0..k-1 of the workspace's pose and velocity buffers."""
+    ids = handle.body_ids
+    xmat = data.xmat[ids].reshape(-1, 3, 3)
+    centers = data.xpos[ids] + np.einsum("bij,bj->bi", xmat, handle._bound_center)
+    low = -(centers @ g_hat) - handle._bound_radius
+    cand = np.flatnonzero(low < handle.terrain.max_height)
+    if cand.size == 0:
+        return cand
+    if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
+        bad = [handle.body_names[i] for i in cand]
+        raise FloatingPointError(
+            f"non-finite qpos/qvel while computing sand forces on bodies {bad}: the simulation already "
+            "diverged (check timestep, actuator gains and masses; keep stabilize=True)")
+    sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in cand])
+    remap = np.empty(len(ids), dtype=np.int64)
+    remap[cand] = np.arange(cand.size)
+    b = remap[handle.elem_body[sel]]
+    pos = data.xpos[ids[cand]][b] + np.einsum("eij,ej->ei", xmat[cand][b], handle.local_centroids[sel])
+    hit = np.bincount(b, weights=handle.terrain.depth(pos, g_hat) > 0.0, minlength=cand.size) > 0
+    touch = cand[hit]
+    k, bids = touch.size, ids[touch]
+    a = work.arrays
+    a["body_pos"][:k] = data.xpos[bids]
+    a["body_mat"][:k] = data.xmat[bids]
+    a["body_com"][:k] = data.xipos[bids]
+    omega = a["omega"][:k]
+    omega[:] = data.cvel[bids, :3]
+    a["v_com"][:k] = data.cvel[bids, 3:] + np.cross(omega, data.xipos[bids] - data.subtree_com[handle._root[touch]])
+    return touch
+
+
+def occluded_mask(handle, data, touch, sel, b_of_sel) -> np.ndarray:
+    """(len(sel),) bool: elements ``sel`` (of the touching bodies ``touch[b_of_sel]``) inside a run-time
+    occluder (a geom of another weld group, :func:`rft_mujoco.compiled.elements.occluders`)."""
+    occ = handle._occluders
+    out = np.zeros(sel.size, dtype=bool)
+    for j, i in enumerate(touch):
+        rows = np.flatnonzero(b_of_sel == j)
+        if occ.start[i] == occ.start[i + 1] or rows.size == 0:
+            continue
+        b = handle.body_ids[i]
+        world = data.xpos[b] + handle.local_centroids[sel[rows]] @ data.xmat[b].reshape(3, 3).T
+        for o in range(occ.start[i], occ.start[i + 1]):
+            g = occ.geom[o]
+            local = (world - data.geom_xpos[g]) @ data.geom_xmat[g].reshape(3, 3)
+            hs = occ.halfspaces[occ.hs_start[o]:occ.hs_start[o + 1]] if occ.kind[o] == mujoco.mjtGeom.mjGEOM_MESH \
+                else None
+            out[rows] |= occlusion.inside_geom(local, int(occ.kind[o]), occ.size[o], mesh_halfspaces=hs,
+                                               margin=occ.margin)
+    return out
+
+
+def rft(handle, data, work, touch, v_com, omega, g_hat):
+    """RFT wrenches (k, 6) about each touching body's COM for body twists (v_com, omega) (k, 3), the loaded
+    element counts (k,), deepest loaded depths (k,) m and the submerged area inside occluders (k,) m^2."""
+    k = touch.size
+    a = work.arrays
+    sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in touch])
+    remap = np.empty(len(handle.body_ids), dtype=np.int64)
+    remap[touch] = np.arange(k)
+    b = remap[handle.elem_body[sel]]
+    hidden = occluded_mask(handle, data, touch, sel, b)
+    pos = a["body_pos"][:k][b] + np.einsum("eij,ej->ei", a["body_mat"][:k].reshape(k, 3, 3)[b],
+                                           handle.local_centroids[sel])
+    submerged = handle.terrain.depth(pos, g_hat) > 0.0
+    occluded = np.bincount(b, weights=handle.areas[sel] * (hidden & submerged), minlength=k)
+    wrench, count, max_depth = elements.body_wrenches(
+        handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
+        a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, handle.terrain, g_hat,
+        handle._gravity_vec, handle._media, handle.guards, active=~hidden)
+    return wrench, count, max_depth, occluded
+
+
+def evaluate_naive(handle, data, work, touch, g_hat, sand_out) -> int:
+    """``stabilize=False``: the published force at each element's velocity (``passive``: a body's wrench is
+    dropped when it would do positive work). Returns the status of :func:`commit`."""
+    k = touch.size
+    v_com, omega = work.arrays["v_com"][:k], work.arrays["omega"][:k]
+    wrench, count, max_depth, occluded = rft(handle, data, work, touch, v_com, omega, g_hat)
+    applied = wrench.copy()
+    if handle.passive:
+        power = np.einsum("ij,ij->i", wrench[:, :3], v_com) + np.einsum("ij,ij->i", wrench[:, 3:], omega)
+        applied[power > 0.0] = 0.0
+    return commit(handle, work.diag, touch, applied, wrench, count, max_depth, occluded, np.zeros(k, dtype=bool),
+                  sand_out)
+
+
+def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out) -> int:
+    """The rest treatment (:mod:`rft_mujoco.physics.rest`) of the touching bodies. Returns the status of
+    :func:`commit`."""
+    m, grp = handle.model, handle.groups
+    a = work.arrays
+    group_of = grp.of_body[touch]                      # (k,) group of each touching body
+    active = np.unique(group_of)                       # (G,) touching groups
+    slot = np.searchsorted(active, group_of)           # (k,) row of each body's group in ``active``
+    ref = handle.body_ids[grp.ref[active]]             # (G,) MuJoCo ids of the reference bodies
+    radius = grp.radius[active]
+    jac, free, twist = free_twists(handle, data, user_xfrc, ref, dt, lagged)
+    # Element motions of the blended twists, at each touching body's COM.
+    u = rest.blend(twist, free, radius)
+    arm = a["body_com"][:touch.size] - data.xipos[ref[slot]]    # (k, 3) reference point -> body COM
+    omega = u[slot, 3:]
+    v_com = u[slot, :3] + np.cross(omega, arm)
+    wrench, count, max_depth, occluded = rft(handle, data, work, touch, v_com, omega, g_hat)
+    # The groups' RFT wrenches at their reference points, their mobility, the rest wrenches.
+    rft_g = np.zeros((active.size, 6))
+    np.add.at(rft_g, slot, np.hstack([wrench[:, :3], wrench[:, 3:] + np.cross(arm, wrench[:, :3])]))
+    flat = jac.reshape(-1, m.nv)
+    minv_jt = np.empty_like(flat)
+    mujoco.mj_solveM(m, data, minv_jt, flat)
+    applied_g, resting_g = rest.rest_wrenches(free, flat @ minv_jt.T, rft_g, u, radius, dt)
+    applied = share(applied_g, rft_g, resting_g, wrench, slot, arm, radius)
+    return commit(handle, work.diag, touch, applied, wrench, count, max_depth, occluded, resting_g[slot],
+                  sand_out)
+
+
+def free_twists(handle, data, user_xfrc, ref, dt, lagged):
+    """Jacobians (G, 6, nv) of the reference bodies' COMs, their free twists (G, 6) at the end of the step
+    without sand, and their twists now (G, 6).
+
+    The free acceleration uses the smooth forces of this evaluation (passive, bias, actuators, applied,
+    the user's xfrc_applied) plus, when ``lagged``, the constraint forces of MuJoCo's previous solve.
+    """
+    m = handle.model
+    jac = np.empty((ref.size, 6, m.nv))
+    jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+    for i, b in enumerate(ref):
+        mujoco.mj_jacBodyCom(m, data, jacp, jacr, int(b))
+        jac[i, :3] = jacp
+        jac[i, 3:] = jacr
+    mujoco.mj_fwdActuation(m, data)
+    qfrc = data.qfrc_passive - data.qfrc_bias + data.qfrc_actuator + data.qfrc_applied
+    if lagged:
+        qfrc = qfrc + data.qfrc_constraint
+    for b in np.flatnonzero(np.any(user_xfrc[1:] != 0.0, axis=1)) + 1:
+        mujoco.mj_applyFT(m, data, user_xfrc[b, :3].copy(), user_xfrc[b, 3:].copy(), data.xipos[b].copy(),
+                          int(b), qfrc)
+    qacc = np.empty(m.nv)
+    mujoco.mj_solveM(m, data, qacc.reshape(1, -1), qfrc.reshape(1, -1))
+    if not np.all(np.isfinite(qacc)):
+        names = [m.body(int(b)).name for b in ref]
+        raise FloatingPointError(
+            f"non-finite acceleration without sand while computing sand forces on bodies {names}: "
+            "data.ctrl, data.qfrc_applied or data.xfrc_applied holds NaN/inf (or the model's "
+            "actuators produce it); fix the input before stepping")
+    twist = jac @ data.qvel
+    return jac, twist + dt * (jac @ qacc), twist
+
+
+def share(applied_g, rft_g, resting_g, rft_b, slot, arm, radius) -> np.ndarray:
+    """Each touching body's part (k, 6) of its group's wrench (about the body's COM).
+
+    A group in flow gives each body its own RFT wrench times the group's factor; a resting group's rest
+    wrench is shared in proportion to the bodies' RFT wrenches (torques over the group radius), with the
+    torque chosen so that the parts add up to the group's wrench about its reference point. The bodies of
+    a group are welded together, so the split changes the diagnostics only, never the motion.
+    """
+    k = slot.size
+    out = np.zeros((k, 6))
+    r = radius[slot][:, None]
+    size = np.linalg.norm(np.hstack([rft_b[:, :3], rft_b[:, 3:] / r]), axis=1)
+    total = np.bincount(slot, weights=size, minlength=rft_g.shape[0])
+    g_norm = np.linalg.norm(np.hstack([rft_g[:, :3], rft_g[:, 3:] / radius[:, None]]), axis=1)
+    a_norm = np.linalg.norm(np.hstack([applied_g[:, :3], applied_g[:, 3:] / radius[:, None]]), axis=1)
+    for j in range(k):
+        g = slot[j]
+        if total[g] <= 0.0:
+            continue
+        if not resting_g[g]:
+            out[j] = rft_b[j] * (a_norm[g] / g_norm[g] if g_norm[g] > 0.0 else 0.0)
+            continue
+        out[j, :3] = size[j] / total[g] * applied_g[g, :3]
+    for g in np.flatnonzero(resting_g):
+        mine = np.flatnonzero(slot == g)
+        if total[g] <= 0.0:
+            continue
+        moment = applied_g[g, 3:] - np.cross(arm[mine], out[mine, :3]).sum(axis=0)
+        out[mine, 3:] = (size[mine] / total[g])[:, None] * moment[None, :]
+    return out
+
+
+def commit(handle, diag, touch, applied, rft_b, count, max_depth, occluded, resting, sand_out) -> int:
+    """Diagnostics of the touching bodies and ``applied`` (k, 6) into ``sand_out``. Returns 1 when a wrench
+    is non-zero, 0 when none is, -1 (``sand_out`` untouched) when one is not finite."""
+    diag.clear()
+    radius = handle._bound_radius[touch][:, None]
+    rft_norm = np.linalg.norm(np.hstack([rft_b[:, :3], rft_b[:, 3:] / radius]), axis=1)
+    app_norm = np.linalg.norm(np.hstack([applied[:, :3], applied[:, 3:] / radius]), axis=1)
+    loaded = rft_norm > 0.0
+    diag.force[touch] = applied[:, :3]
+    diag.torque[touch] = applied[:, 3:]
+    diag.rft_force[touch] = rft_b[:, :3]
+    diag.submerged[touch] = count
+    diag.max_depth[touch] = max_depth
+    diag.occluded_area[touch] = occluded
+    diag.scale[touch[loaded]] = app_norm[loaded] / rft_norm[loaded]
+    diag.resting[touch] = resting & loaded
+    if not np.all(np.isfinite(applied)):
+        return -1
+    np.add.at(sand_out, handle.body_ids[touch], applied)
+    return int(np.any(applied != 0.0))

@@ -1,0 +1,149 @@
+"""What ``attach`` computes once: the attached bodies' surface elements, their weld groups, their culling.
+
+* Elements (:func:`rft_mujoco.geometry.surface.body_elements`) in each body's frame, with elements inside
+  another geom of the same body removed.
+* Groups (:class:`Groups`): attached bodies welded together move as one rigid body; the rest treatment
+  solves per group.
+* Culling across bodies: elements inside a geom of another body of the same weld group (a foot sphere
+  inside its calf: their relative pose never changes) are removed here; geoms of other weld groups are
+  the run-time occluders (:func:`rft_mujoco.compiled.elements.occluders`), tested at each evaluation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import mujoco
+import numpy as np
+
+from rft_mujoco.geometry import occlusion, surface
+
+MAX_ELEMENTS_PER_BODY = 1_000_000
+"""Most surface elements one body may be cut into (memory and time guard against absurd resolutions)."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Groups:
+    """The attached bodies of one handle grouped by MuJoCo weld group (bodies welded together move as one).
+
+    Attributes:
+        of_body: (B,) int, the group of each attached body.
+        ref: (G,) int, the attached body (index into ``body_ids``) whose COM is the group's reference point.
+        radius: (G,) m, radius about the reference point of a sphere holding the group's elements.
+    """
+
+    of_body: np.ndarray
+    ref: np.ndarray
+    radius: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Surfaces:
+    """The attached bodies' elements (body frames, concatenated) and what culling removed.
+
+    Attributes:
+        centroids, normals: (E, 3) float, m and unit, each element in its body's frame.
+        areas: (E,) float, m^2.
+        elem_body: (E,) int, the attached body (index into ``body_ids``) of each element.
+        culled_area: (B,) float, m^2 of each body's surface removed at attach (inside its own other geoms or
+            inside a geom welded to it).
+    """
+
+    centroids: np.ndarray
+    normals: np.ndarray
+    areas: np.ndarray
+    elem_body: np.ndarray
+    culled_area: np.ndarray
+
+
+def _check_element_count(model, body_id: int, name: str, size: float) -> None:
+    """Raise before tessellating if ``size`` would cut the body into more than MAX_ELEMENTS_PER_BODY."""
+    geoms = np.flatnonzero(model.geom_bodyid == body_id)
+    area = sum(4.0 * np.pi * float(model.geom_rbound[g]) ** 2 for g in geoms
+               if model.geom_type[g] not in (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD))
+    estimate = area / size**2
+    if estimate > MAX_ELEMENTS_PER_BODY:
+        coarsest = math.sqrt(area / MAX_ELEMENTS_PER_BODY)
+        raise ValueError(f"resolution {size:g} m would cut body {name!r} (surface ~{area:.3g} m^2) into about "
+                         f"{estimate:.3g} surface elements (limit {MAX_ELEMENTS_PER_BODY}); use an element "
+                         f"size of at least {coarsest:.3g} m, or a preset name "
+                         f"{dict(surface.RESOLUTIONS)}")
+
+
+def surfaces(model, body_ids, names, size: float, cull: bool = True) -> Surfaces:
+    """Elements of every attached body, culled (``cull``) inside its own geoms and inside geoms welded to it."""
+    data = mujoco.MjData(model)                 # relative poses inside a weld group never change
+    mujoco.mj_kinematics(model, data)
+    parts, culled = [], np.zeros(len(body_ids))
+    for i, (b, name) in enumerate(zip(body_ids, names)):
+        _check_element_count(model, int(b), name, size)
+        try:
+            if cull:
+                kept, cut = surface.body_elements_with_culled(model, int(b), size)
+            else:
+                kept = surface.body_elements(model, int(b), size, cull=False)
+                cut = surface.Elements(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+        except ValueError as exc:
+            raise ValueError(f"cannot cut body {name!r} into surface elements: {exc}. Check the sizes of its "
+                             "geoms (each needs a surface with a non-zero area) or leave the body out of "
+                             "bodies=") from None
+        culled[i] = cut.area()
+        # the other bodies of the same weld group, posed in this body's frame
+        welded = [w for w in range(1, model.nbody) if w != b and model.body_weldid[w] == model.body_weldid[b]]
+        if cull and welded and len(kept):
+            rot = data.xmat[b].reshape(3, 3)
+            occluders = []
+            for w in welded:
+                rel_rot = rot.T @ data.xmat[w].reshape(3, 3)
+                rel_pos = rot.T @ (data.xpos[w] - data.xpos[b])
+                occluders += [o.transformed(rel_pos, rel_rot) for o in occlusion.geom_occluders(model, w)]
+            inside = occlusion.occluded(kept.centroids, occluders) if occluders else np.zeros(len(kept), bool)
+            if inside.any():
+                culled[i] += float(kept.areas[inside].sum())
+                keep = ~inside
+                kept = surface.Elements(kept.centroids[keep], kept.normals[keep], kept.areas[keep])
+        mass = model.body_subtreemass[model.body_weldid[b]]
+        if len(kept) and mass <= 0:
+            raise ValueError(f"body {name!r} has zero mass (mass of its weld group {mass}); sand forces on a "
+                             "massless body have nothing to act on: give it a mass or leave it out of bodies=")
+        parts.append(kept)
+    counts = [len(p) for p in parts]
+    if sum(counts) == 0:
+        raise ValueError(f"bodies {list(names)} have no surface geoms (planes and heightfields are terrain, not "
+                         "intruders); choose bodies with sphere/capsule/box/... geoms")
+    el = surface.Elements.concatenate(parts)
+    return Surfaces(np.ascontiguousarray(el.centroids), np.ascontiguousarray(el.normals),
+                    np.ascontiguousarray(el.areas), np.repeat(np.arange(len(body_ids)), counts), culled)
+
+
+def bounding_spheres(centroids, elem_body, n_bodies: int, size: float):
+    """(B, 3) centres and (B,) radii (m, body frames) of spheres holding each body's elements, grown by the
+    element size; radius -inf for a body without elements (never a broadphase candidate)."""
+    center = np.zeros((n_bodies, 3))
+    radius = np.full(n_bodies, -np.inf)
+    for i in range(n_bodies):
+        pts = centroids[elem_body == i]
+        if pts.size:
+            center[i] = 0.5 * (pts.min(0) + pts.max(0))
+            radius[i] = np.linalg.norm(pts - center[i], axis=1).max() + size
+    return center, radius
+
+
+def groups(model, body_ids: np.ndarray, centroids: np.ndarray, elem_body: np.ndarray, size: float) -> Groups:
+    """The weld groups of the attached bodies, their reference bodies and radii."""
+    weld = model.body_weldid[body_ids]
+    keys, of_body = np.unique(weld, return_inverse=True)
+    ref = np.array([int(np.flatnonzero(of_body == g)[0]) for g in range(keys.size)], dtype=np.int64)
+    data = mujoco.MjData(model)                 # the relative poses inside a weld group never change
+    mujoco.mj_kinematics(model, data)
+    radius = np.full(keys.size, size)
+    for i, b in enumerate(body_ids):
+        pts = centroids[elem_body == i]
+        if not pts.size:
+            continue
+        world = data.xpos[b] + pts @ data.xmat[b].reshape(3, 3).T
+        g = of_body[i]
+        far = float(np.linalg.norm(world - data.xipos[body_ids[ref[g]]], axis=1).max())
+        radius[g] = max(radius[g], far + size)
+    return Groups(of_body.astype(np.int64), ref, radius)

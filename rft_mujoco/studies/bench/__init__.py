@@ -1,0 +1,180 @@
+"""Speed and speed-accuracy benchmarks: ``python -m rft_mujoco bench [--quick] [--out DIR] [--warp ...]``.
+
+Prints tables and writes plots to ``out/bench/`` (``--out``). Every time is the median of several repeats
+(each repeat long enough for the clock), single thread, on whatever else the machine is doing: compare
+numbers from one run, not across machines. Sections:
+
+1. **Element throughput** (ns per element, N = 1e3 ... 1e6): the law, numpy against compiled; the element
+   pass (poses and twists -> body wrenches), numpy against compiled (:mod:`.kernels`).
+2. **Coupling cost** against a bare ``mj_step`` of the same model (:mod:`.coupling`): (a) the bundled
+   quadruped, every body attached, the floor replaced by the sand, standing still and trotting, at three
+   resolutions, with the rest treatment (default), without it (``stabilize=False``), without the
+   exposed-surface culling (``cull=False``) and (full run) with the numpy reference; (b) env steps per
+   second with zero and with random actions (Ant-v5 and the sand tasks); (c) ``rk4_stages`` on SandAnt-v0.
+3. **Bodies above the sand**: the per-body cost of the broadphase.
+4. **Speed-accuracy**: the force error of each element size against a converged reference, on the
+   paper's validation shapes and a quadruped foot, and the cost of one evaluation (:mod:`.kernels`).
+
+``--warp``: the batched MuJoCo Warp benchmark instead (:mod:`rft_mujoco.studies.bench_warp`).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from rft_mujoco.studies.bench import plots
+from rft_mujoco.studies.bench.coupling import above_sand, env_rates, quadruped_overhead, rk4_stages_accuracy
+from rft_mujoco.studies.bench.kernels import DIRECTIONS_DEG, TARGET_ERROR, speed_accuracy, throughput
+from rft_mujoco.studies.bench.timing import machine, table
+
+__all__ = ["run", "main", "throughput", "quadruped_overhead", "env_rates", "above_sand", "speed_accuracy"]
+
+SETTINGS = {"rest": dict(), "naive": dict(stabilize=False), "no culling": dict(cull=False),
+            "numpy": dict(backend="numpy")}
+"""Named ``attach`` settings of the quadruped section: the default (rest treatment, culling, compiled),
+``stabilize=False``, ``cull=False``, the numpy reference."""
+
+
+def _print_quadruped(quad) -> None:
+    print(table(["resolution", "setting", "motion", "elements", "touching el.", "bare us", "sand us", "ratio"],
+                [[f"{r['resolution']} ({r['element_size'] * 1000:g} mm)", r["setting"], r["motion"],
+                  r["elements"], r["touch_elements"], f"{r['bare_us']:.1f}", f"{r['sand_us']:.1f}",
+                  f"{r['ratio']:.2f}x"] for r in quad]))
+    by = {(r["resolution"], r["setting"], r["motion"]): r for r in quad}
+    for (res, setting, motion), r in by.items():
+        base = by.get((res, "rest", motion))
+        if setting == "no culling" and base:
+            print(f"culling costs {100 * (base['sand_us'] / r['sand_us'] - 1):+.1f}% ({res}, {motion})")
+
+
+def _print_rates(rates) -> None:
+    print(table(["env", "elements", "zero action", "random actions", "zero / random", "random / Ant-v5"],
+                [[r["env"], r["elements"], f"{r['zero_sps']:.0f}", f"{r['random_sps']:.0f}",
+                  f"{r['zero_over_random']:.2f}", "" if r["over_ant"] is None else f"{r['over_ant']:.2f}"]
+                 for r in rates]))
+
+
+def _print_accuracy(acc, quick: bool) -> None:
+    print(table(["shape", "size mm", "preset", "elements", "max err %", "worst dir", "mean err %",
+                 "numba us", "numpy us"],
+                [[r["shape"], f"{r['size'] * 1000:g}", r["preset"], r["elements"], f"{r['max_error'] * 100:.3f}",
+                  r["worst_dir"], f"{r['mean_error'] * 100:.3f}", f"{r['numba_us']:.2f}", f"{r['numpy_us']:.0f}"]
+                 for r in acc]))
+    refs = {r["shape"]: (r["ref_size"], r["ref_error"]) for r in acc}
+    print("reference: " + "; ".join(f"{s} {h * 1000:g} mm (vs {1.5 * h * 1000:g} mm: {e * 100:.3f}%)"
+                                    for s, (h, e) in refs.items()))
+    from rft_mujoco.geometry import surface
+
+    print("\nPresets (surface.RESOLUTIONS): max error % over directions / us per evaluation (numba), per shape")
+    shape_names = list(dict.fromkeys(r["shape"] for r in acc))
+    preset_rows = []
+    for name, h in surface.RESOLUTIONS.items():
+        rows = {r["shape"]: r for r in acc if r["size"] == h}
+        if rows:
+            worst = max(rows.values(), key=lambda r: r["max_error"])
+            preset_rows.append([f"{name} ({h * 1000:g} mm)"]
+                               + [f"{rows[s]['max_error'] * 100:.2f} / {rows[s]['numba_us']:.1f}" if s in rows
+                                  else "-" for s in shape_names]
+                               + [f"{worst['max_error'] * 100:.2f} ({worst['shape']})"])
+    print(table(["preset"] + shape_names + ["worst"], preset_rows))
+    default = [r for r in acc if r["size"] == surface.RESOLUTIONS["default"]]
+    worst = max(r["max_error"] for r in default) if default else float("nan")
+    print(f"default preset: worst error {worst * 100:.2f}% (target {TARGET_ERROR * 100:g}%): "
+          f"{'met' if worst <= TARGET_ERROR else 'NOT met'}")
+
+
+def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = True) -> dict:
+    """Every section; returns the tables (and ``files``: the plots written)."""
+    from rft_mujoco import compiled
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    print(machine())
+    compile_s = compiled.ensure_compiled()
+    print(f"numba kernels ready in {compile_s:.2f} s (cache load or compile)\n")
+
+    print("1. Element throughput, ns per element (single thread; median of repeats)", flush=True)
+    thr = throughput([1e3, 1e4, 1e5] if quick else [1e3, 1e4, 1e5, 1e6])
+    print(table(["N", "law numpy", "law numba", "speedup", "pass numpy", "pass numba", "speedup"],
+                [[f"{r['n']:.0e}", f"{r['law_numpy']:.1f}", f"{r['law_numba']:.1f}",
+                  f"{r['law_numpy'] / r['law_numba']:.1f}x", f"{r['kernel_numpy']:.1f}",
+                  f"{r['kernel_numba']:.1f}", f"{r['kernel_numpy'] / r['kernel_numba']:.1f}x"] for r in thr]))
+
+    print("\n2a. Quadruped (models/quadruped.xml) on sand, every body attached: us per mj_step, standing "
+          "and trotting", flush=True)
+    resolutions = ["default"] if quick else ["coarse", "default", "fine"]
+    named = lambda names: [dict(name=n, **SETTINGS[n]) for n in names]  # noqa: E731
+    quad = quadruped_overhead(resolutions, named(["rest", "naive"]))
+    quad += quadruped_overhead(["default"], named(["no culling"] if quick else ["no culling", "numpy"]))
+    _print_quadruped(quad)
+
+    print("\n2b. Env steps per second, zero action (standing still) and random actions", flush=True)
+    rates = env_rates(300 if quick else 1000)
+    if rates is None:
+        print("gymnasium not installed: skipped")
+    else:
+        _print_rates(rates)
+
+    print("\n2c. RK4 stages on SandAnt-v0: sand at every stage ('all', default) or at the first only, held "
+          "('first');\n    errors against 'all' at 1 ms (mean over seeds): torso height after 2 s of "
+          "settling, torso displacement over 4 s of a fixed gait", flush=True)
+    stages = None if quick else rk4_stages_accuracy(quick)
+    if stages is None:
+        print("skipped (--quick, or gymnasium not installed)")
+    else:
+        print(table(["rk4_stages", "dt ms", "evaluations per env step", "settle err mm", "gait err m",
+                     "gait (ref) m", "wall ms per sim s"],
+                    [[r["mode"], f"{r['dt'] * 1e3:g}", r["evaluations"], f"{r['settle_err_mm']:+.2f}",
+                      f"{r['disp_err_m']:.3f}", f"{r['ref_disp_m']:.3f}", f"{r['ms_per_s']:.0f}"]
+                     for r in stages]))
+
+    print("\n3. Bodies above the sand (free spheres r 5 cm, 1 m up; Euler: 1 evaluation per step)", flush=True)
+    above = above_sand()
+    n0, n1 = above["counts"]
+    print(table(["bodies", "elements", "callback us (1 evaluation)", "bare mj_step us", "mj_step with sand us"],
+                [[n, above["elements"][i], f"{above['callback_us'][i]:.2f}", f"{above['bare_us'][i]:.2f}",
+                  f"{above['sand_us'][i]:.2f}"] for i, n in enumerate((n0, n1))]))
+    print(f"per body above the sand: {above['per_body_ns']:.1f} ns per evaluation (slope of the callback time "
+          f"from {n0} to {n1} bodies); whole callback with {n0} body above the sand: {above['fixed_us']:.2f} us")
+
+    n_dir = len(DIRECTIONS_DEG[::2] if quick else DIRECTIONS_DEG)
+    print(f"\n4. Speed-accuracy: max relative force error over {n_dir} directions in the xz-plane against the "
+          "reference; us per evaluation of the body", flush=True)
+    acc = speed_accuracy(quick)
+    _print_accuracy(acc, quick)
+
+    files = plots.all_plots(out, thr, quad, rates, acc) if plots_on else []
+    if files:
+        print("\nwrote " + ", ".join(str(f) for f in files))
+    return dict(throughput=thr, quadruped=quad, rates=rates, stages=stages, above=above, accuracy=acc,
+                files=files)
+
+
+def main(argv: list[str] | None = None, command: str = "bench") -> int:
+    """CLI entry: ``python -m rft_mujoco bench [--quick] [--out DIR] [--no-plots]``; ``bench --warp ...``
+    runs :mod:`rft_mujoco.studies.bench_warp` with the remaining arguments."""
+    argv = list(argv) if argv is not None else None
+    if argv is None:
+        import sys
+        argv = sys.argv[1:]
+    if "--warp" in argv:
+        from rft_mujoco.studies import bench_warp
+        rest = [a for a in argv if a != "--warp"]
+        return bench_warp.main(rest, command=f"{command} --warp")
+    parser = argparse.ArgumentParser(prog=f"python -m rft_mujoco {command}",
+                                     description="Speed and speed-accuracy benchmarks: tables and plots. "
+                                                 "--warp: the batched MuJoCo Warp benchmark (its own options: "
+                                                 "bench --warp --help).")
+    parser.add_argument("--quick", action="store_true",
+                        help="N up to 1e5, default resolution only, fewer directions, 2 mm reference (~2 min)")
+    parser.add_argument("--out", default="out/bench", help="output folder for plots (default: out/bench)")
+    parser.add_argument("--no-plots", action="store_true", help="tables only")
+    args = parser.parse_args(argv)
+    from rft_mujoco import compiled
+
+    if not compiled.AVAILABLE:
+        print(f"numba is not available ({compiled.IMPORT_ERROR}): the benchmarks compare it with numpy")
+        return 1
+    run(quick=args.quick, out=args.out, plots_on=not args.no_plots)
+    return 0

@@ -1,0 +1,207 @@
+"""Benchmark sections on the coupling: the quadruped's step with sand against its bare step (standing and
+trotting), env steps per second with zero and random actions, RK4 stages, bodies above the sand."""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import mujoco
+import numpy as np
+
+from rft_mujoco.coupling.handle import attach
+from rft_mujoco.geometry import surface
+from rft_mujoco.physics.media import LI_LOOSE_GLASS_BEADS, MPM_VALIDATION
+from rft_mujoco.studies.bench.timing import STEPS_PER_RUN, median_time, quadruped, settled_state, state_of, step_time
+
+MOTIONS = ("standing", "trotting")
+"""What the quadruped does while it is timed: stands still (servos holding ``home``), or trots (the scripted
+gait of :class:`rft_mujoco.studies.gait.TrotGait`, timed after 1 s of trotting)."""
+
+
+def _trot(model, data, state) -> tuple[np.ndarray, np.ndarray]:
+    """(state after 1 s of trotting from ``state``, the controls of the next STEPS_PER_RUN steps)."""
+    from rft_mujoco.studies.gait import TrotGait
+
+    gait = TrotGait.from_model(model)
+    mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    dt = model.opt.timestep
+    steps = int(round(1.0 / dt))
+    for i in range(steps):
+        data.ctrl[:] = gait.targets(i * dt)
+        mujoco.mj_step(model, data)
+    ctrl = np.array([gait.targets((steps + i) * dt) for i in range(STEPS_PER_RUN)])
+    return state_of(model, data), ctrl
+
+
+def _touching_elements(handle, data) -> int:
+    """Elements of the bodies that touch the sand at ``data``'s state."""
+    counts = np.diff(handle._elem_slices)
+    d = handle.diagnostics(data)
+    return int(counts[(d.submerged > 0) | (d.max_depth > 0)].sum())
+
+
+def quadruped_overhead(resolutions, settings) -> list[dict]:
+    """us per mj_step of the quadruped on sand (every body attached, the floor replaced by the sand)
+    against the same model's bare step (no floor, no sand), for each resolution, setting and motion.
+
+    ``settings``: dicts of ``attach`` keywords (``stabilize``, ``backend``, ``cull``), each with a ``name``."""
+    rows = []
+    for res in resolutions:
+        for setting in settings:
+            kwargs = {k: v for k, v in setting.items() if k != "name"}
+            model = quadruped()
+            data = mujoco.MjData(model)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                handle = attach(model, LI_LOOSE_GLASS_BEADS, None, 0.0, res, monitor=False, **kwargs)
+                handle.replace_rigid(["floor"])
+                stand = settled_state(model, data)
+                scenes = {"standing": (stand, None), "trotting": _trot(model, data, stand)}
+                reps = 3 if kwargs.get("backend") == "numpy" else 7
+                timed = {}
+                for motion, (state, ctrl) in scenes.items():
+                    mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+                    mujoco.mj_forward(model, data)
+                    touching = _touching_elements(handle, data)
+                    timed[motion] = (step_time(model, data, state, reps, ctrl=ctrl), touching)
+            handle.detach()
+            model.geom_contype[0] = model.geom_conaffinity[0] = 0   # bare: the same model, no floor
+            for motion, (state, ctrl) in scenes.items():
+                t_bare = step_time(model, data, state, reps, ctrl=ctrl)
+                t_sand, touching = timed[motion]
+                rows.append(dict(resolution=res, element_size=surface.element_size(res), setting=setting["name"],
+                                 motion=motion, elements=handle.n_elements, touch_elements=touching,
+                                 bare_us=t_bare * 1e6, sand_us=t_sand * 1e6, ratio=t_sand / t_bare))
+    return rows
+
+
+ENV_IDS = ("Ant-v5", "rft_mujoco/SandAnt-v0", "rft_mujoco/SandQuadruped-v0", "rft_mujoco/SandQuadruped-v1")
+"""Envs whose steps per second :func:`env_rates` measures (those registered in this installation)."""
+
+
+def _env_rate(env, actions) -> float:
+    """Median env steps/s over 3 runs of ``actions`` (resets on termination, not timed apart)."""
+    samples = []
+    for rep in range(3):
+        env.reset(seed=rep)
+        t0 = time.perf_counter()
+        for a in actions:
+            _, _, term, trunc, _ = env.step(a)
+            if term or trunc:
+                env.reset()
+        samples.append(len(actions) / (time.perf_counter() - t0))
+    return float(np.median(samples))
+
+
+def env_rates(steps: int) -> list[dict] | None:
+    """Env steps per second of :data:`ENV_IDS` with zero actions (a robot standing still) and uniform
+    random actions; None without gymnasium."""
+    try:
+        import gymnasium as gym
+
+        from rft_mujoco import envs  # noqa: F401  (registers the sand ids)
+    except ImportError:
+        return None
+    rows = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for env_id in ENV_IDS:
+            if env_id not in gym.registry:
+                continue
+            env = gym.make(env_id)
+            n = env.action_space.shape[0]
+            rng = np.random.default_rng(0)
+            zero = _env_rate(env, np.zeros((steps, n)))
+            rand = _env_rate(env, rng.uniform(env.action_space.low, env.action_space.high, (steps, n)))
+            sand = getattr(env.unwrapped, "sand", None)
+            handle = getattr(sand, "handle", sand)
+            rows.append(dict(env=env_id, zero_sps=zero, random_sps=rand, zero_over_random=zero / rand,
+                             elements=getattr(handle, "n_elements", 0)))
+            env.close()
+    bare = next((r for r in rows if r["env"] == "Ant-v5"), None)
+    for r in rows:
+        r["over_ant"] = (r["random_sps"] / bare["random_sps"]) if bare and "Ant" in r["env"] else None
+    return rows
+
+
+def _ant_gait(mode: str, dt: float, seed: int, settle_s: float = 2.0, gait_s: float = 4.0):
+    """SandAnt-v0 with step ``dt`` (env dt kept at 0.05 s) and ``rk4_stages=mode``: settle 2 s with zero
+    action, then 4 s of a fixed sinusoidal gait (amplitude 0.3, 1 Hz, diagonal legs in phase). Returns
+    (torso height after settling m, torso xy displacement during the gait (2,) m, wall s)."""
+    import gymnasium as gym
+
+    from rft_mujoco import envs  # noqa: F401  (registers the sand ids)
+    env = gym.make("rft_mujoco/SandAnt-v0", max_episode_steps=10 ** 6)
+    u = env.unwrapped
+    u.sand.handle.rk4_stages = mode
+    u.model.opt.timestep = dt
+    u.frame_skip = int(round(0.05 / dt))
+    env.reset(seed=seed)
+    t0 = time.perf_counter()
+    for _ in range(int(round(settle_s / 0.05))):
+        env.step(np.zeros(8))
+    z = float(u.data.qpos[2])
+    start = u.data.qpos[:2].copy()
+    for i in range(int(round(gait_s / 0.05))):
+        ph = 2.0 * np.pi * i * 0.05
+        env.step(0.3 * np.array([np.sin(ph), np.cos(ph), -np.sin(ph), -np.cos(ph)] * 2))
+    wall = time.perf_counter() - t0
+    disp = u.data.qpos[:2] - start
+    env.close()
+    return z, disp, wall
+
+
+def rk4_stages_accuracy(quick: bool) -> list[dict] | None:
+    """``attach(rk4_stages=...)`` on SandAnt-v0 (RK4): "all" against "first" at 10, 5 and 2.5 ms steps,
+    errors against "all" at 1 ms, averaged over seeds (the reset noise): the torso height after settling
+    and the displacement of the gait (:func:`_ant_gait`); cost as wall ms per simulated second."""
+    try:
+        import gymnasium  # noqa: F401
+    except ImportError:
+        return None
+    seeds = range(2 if quick else 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = [_ant_gait("all", 0.001, s) for s in seeds]
+        rows = []
+        for dt in (0.01, 0.005, 0.0025):
+            for mode in ("all", "first"):
+                runs = [_ant_gait(mode, dt, s) for s in seeds]
+                rows.append(dict(
+                    mode=mode, dt=dt, evaluations=(4 if mode == "all" else 1) * int(round(0.05 / dt)),
+                    settle_err_mm=1e3 * float(np.mean([r[0] - q[0] for r, q in zip(runs, ref)])),
+                    disp_err_m=float(np.mean([np.linalg.norm(r[1] - q[1]) for r, q in zip(runs, ref)])),
+                    ref_disp_m=float(np.mean([np.linalg.norm(q[1]) for q in ref])),
+                    ms_per_s=1e3 * float(np.mean([r[2] for r in runs])) / 6.0))
+    return rows
+
+
+def above_sand(counts=(1, 1000)) -> dict:
+    """Cost of bodies above the sand, per evaluation: N free spheres (r 5 cm, 1 m above the surface), all
+    attached. Times the control callback itself (``mujoco.get_mjcb_control()(model, data)``, what MuJoCo
+    calls once per evaluation) at N = counts[0] and counts[1]; per body = the slope. Also the mj_step time
+    with and without sand at both N (Euler: one evaluation a step)."""
+    res = {}
+    for n in counts:
+        bodies = "".join(f'<body pos="{0.3 * (i % 40)} {0.3 * (i // 40)} 1.0"><freejoint/>'
+                         f'<geom type="sphere" size="0.05" mass="1"/></body>' for i in range(n))
+        xml = f'<mujoco><option integrator="Euler"/><worldbody>{bodies}</worldbody></mujoco>'
+        model = mujoco.MjModel.from_xml_string(xml)
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        state = state_of(model, data)
+        t_bare = step_time(model, data, state, 9)
+        handle = attach(model, MPM_VALIDATION, None, 0.0, "default", monitor=False)
+        callback = mujoco.get_mjcb_control()
+        t_cb = median_time(lambda: callback(model, data), 9)
+        t_sand = step_time(model, data, state, 9)
+        if not (handle.evaluations > 0 and not handle.diagnostics(data).submerged.any()):
+            raise RuntimeError("bodies 1 m above the sand were loaded or never evaluated")
+        elements = handle.n_elements
+        handle.detach()
+        res[n] = (t_bare, t_sand, t_cb, elements)
+    (n0, (b0, s0, c0, e0)), (n1, (b1, s1, c1, e1)) = sorted(res.items())
+    return dict(counts=(n0, n1), bare_us=(b0 * 1e6, b1 * 1e6), sand_us=(s0 * 1e6, s1 * 1e6),
+                callback_us=(c0 * 1e6, c1 * 1e6), elements=(e0, e1),
+                per_body_ns=(c1 - c0) / (n1 - n0) * 1e9, fixed_us=c0 * 1e6)
