@@ -6,6 +6,7 @@ import pytest
 
 import rft_mujoco
 from rft_mujoco.geometry import surface
+from rft_mujoco.physics import law
 
 MEDIA = rft_mujoco.MPM_VALIDATION
 
@@ -48,7 +49,8 @@ def random_state(model, data, rng, depth=0.05):
 
 
 def expected_wrench(model, data, handle, body_name, size):
-    """Sum of element_forces over the body's elements, torque about the COM (independent path)."""
+    """Sum of the numpy reference's element forces over the body's elements, torque about the COM
+    (independent path)."""
     b = model.body(body_name).id
     el = surface.body_elements(model, b, size)
     rot = data.xmat[b].reshape(3, 3)
@@ -58,7 +60,7 @@ def expected_wrench(model, data, handle, body_name, size):
     mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, b, vel6, 0)
     omega, v_com = vel6[:3], vel6[3:]
     vel = v_com + np.cross(omega, pos - data.xipos[b])
-    f = rft_mujoco.element_forces(pos, nrm, el.areas, vel, MEDIA, 0.0, model.opt.gravity)
+    f = law.element_forces(pos, nrm, el.areas, vel, MEDIA, 0.0, model.opt.gravity)
     return f.sum(0), np.cross(pos - data.xipos[b], f).sum(0)
 
 
