@@ -214,6 +214,30 @@ def test_mujoco_skips_mjcb_control_when_actuation_is_disabled():
         mujoco.set_mjcb_control(previous)
 
 
+def test_mjcb_passive_still_runs_with_actuation_disabled():
+    """Where a dispatcher can notice mjDSBL_ACTUATION while mjcb_control is skipped: mjcb_passive still runs
+    (unless springs and dampers are both disabled too, when MuJoCo skips it as well)."""
+    model, data = make()
+    calls = {"control": 0, "passive": 0}
+    previous = mujoco.get_mjcb_control(), mujoco.get_mjcb_passive()
+
+    def count(key):
+        return lambda m, d: calls.__setitem__(key, calls[key] + 1)
+
+    mujoco.set_mjcb_control(count("control"))
+    mujoco.set_mjcb_passive(count("passive"))
+    try:
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+        mujoco.mj_step(model, data)
+        assert calls == {"control": 0, "passive": 1}
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SPRING) | int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
+        mujoco.mj_step(model, data)
+        assert calls == {"control": 0, "passive": 1}
+    finally:
+        mujoco.set_mjcb_control(previous[0])
+        mujoco.set_mjcb_passive(previous[1])
+
+
 PLATE = """
 <mujoco><option timestep="0.002"/><worldbody>
   <body name="plate"><freejoint/><geom type="box" size="0.05 0.05 0.005" mass="0.2"/></body>
