@@ -67,3 +67,25 @@ def test_demo_stands_and_trots(tmp_path):
     assert abs(summary["standing_total_force_N"] - summary["weight_N"]) < 0.01 * summary["weight_N"]
     assert summary["standing_leg_force_N"].sum() > 0.9 * summary["weight_N"]
     assert summary["trot_speed_mps"] > 0.1
+
+
+def test_view_has_its_own_options(monkeypatch, capsys):
+    from rft_mujoco.studies import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["view", "--help"])
+    text = capsys.readouterr().out
+    assert exit_.value.code == 0 and text.startswith("usage: python -m rft_mujoco view")
+    assert "--seconds" in text and "--stand" in text and "viewer" in text
+    assert "--out" not in text and "--no-video" not in text
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["view", "--no-video"])
+    assert exit_.value.code == 2 and "unrecognized arguments: --no-video" in capsys.readouterr().err
+    calls = []
+    monkeypatch.setattr(demo, "view", lambda *args: calls.append(args))
+    assert cli.main(["view", "--seconds", "3", "--stand", "0.5"]) == 0
+    assert calls == [(3.0, 0.5)]
+    with pytest.raises(SystemExit):
+        cli.main(["demo", "--help"])
+    text = capsys.readouterr().out
+    assert "--out" in text and "--no-video" in text

@@ -3,6 +3,7 @@ published force, bad input is explained, and the validity monitor warns once."""
 
 import dataclasses
 import math
+import sys
 import warnings
 
 import mujoco
@@ -224,6 +225,68 @@ def test_monitor_warns_once_with_the_numbers():
             mujoco.mj_step(model, data)
     assert sum(issubclass(w.category, rft_mujoco.RFTValidityWarning) for w in record) == 1
     assert sand.monitor.worst["i_mac"][0] > 0.15 and sand.monitor.worst["i_mac"][1] == "b"
+
+
+def validity_warnings(record):
+    return [w for w in record if issubclass(w.category, rft_mujoco.RFTValidityWarning)]
+
+
+@pytest.mark.parametrize("call", ["mj_step", "mj_forward"])
+def test_validity_warning_names_the_line_that_stepped(call):
+    """The warning is raised inside mjcb_control, which MuJoCo calls from mj_step: it must point here."""
+    model, data = make_free(mass=1.0)
+    rft_mujoco.attach(model, rft_mujoco.DEM_GLASS_BEADS, monitor=rft_mujoco.ValidityMonitor(every=1))
+    data.qpos[2] = -0.02
+    data.qvel[2] = -3.0
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always", rft_mujoco.RFTValidityWarning)
+        line = sys._getframe().f_lineno + 1
+        getattr(mujoco, call)(model, data)
+    found = validity_warnings(record)
+    assert len(found) == 1 and "I_mac" in str(found[0].message)
+    assert (found[0].filename, found[0].lineno) == (__file__, line)
+
+
+def test_validity_warning_skips_the_library_frames_between_the_user_and_mj_forward():
+    """kinematic_rollout calls mj_forward inside the library: the warning names the rollout's caller."""
+    from rft_mujoco.coupling.rollout import kinematic_rollout
+
+    model, data = make_free(mass=1.0)
+    sand = rft_mujoco.attach(model, rft_mujoco.DEM_GLASS_BEADS, stabilize=False,
+                             monitor=rft_mujoco.ValidityMonitor(every=1))
+    data.qpos[2] = -0.02
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always", rft_mujoco.RFTValidityWarning)
+        line = sys._getframe().f_lineno + 1
+        kinematic_rollout(sand, data, "b", (3.0, 0.0, 0.0), duration=0.002)
+    found = validity_warnings(record)
+    assert len(found) == 1 and (found[0].filename, found[0].lineno) == (__file__, line)
+
+
+DEEP = "<mujoco><option timestep='0.002'/><worldbody><body name='b' pos='0 0 -0.5'><freejoint/>" \
+       "<geom type='sphere' size='0.01' mass='0.05'/></body></worldbody></mujoco>"
+"""A 2 cm ball 0.5 m deep: about 17 body sizes (beyond the validated 10)."""
+
+
+@pytest.mark.parametrize("stabilize, vz, sinking", [(False, -0.05, True), (True, 0.0, False),
+                                                      (False, 0.05, False)],
+                         ids=["moving-down-in-flow", "held-at-rest", "moving-up"])
+def test_depth_warning_says_sinking_only_when_the_body_sinks(stabilize, vz, sinking):
+    model = mujoco.MjModel.from_xml_string(DEEP)
+    data = mujoco.MjData(model)
+    sand = rft_mujoco.attach(model, MEDIA, resolution=0.005, stabilize=stabilize,
+                             monitor=rft_mujoco.ValidityMonitor(every=1))
+    data.qvel[2] = vz
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always", rft_mujoco.RFTValidityWarning)
+        mujoco.mj_forward(model, data)
+    found = [w for w in validity_warnings(record) if "body sizes" in str(w.message)]
+    assert len(found) == 1
+    text = str(found[0].message)
+    assert sand.diagnostics(data).resting[0] == (stabilize and vz == 0.0)
+    assert ("is sinking through the bed" in text) == sinking
+    assert ("deeper than validated" in text) == (not sinking)
+    assert "probably" not in text or sinking
 
 
 def test_monitor_depth_warning_and_switch_off():

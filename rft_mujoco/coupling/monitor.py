@@ -20,7 +20,11 @@ diameter of the body's element bounding sphere (m), ``rho_g = Media.grain_densit
 The check is cheap (a few array operations on the loaded bodies) and runs every
 :data:`CHECK_EVERY` evaluations. It warns with :class:`RFTValidityWarning`, at most once per sand handle
 for each of the two reasons (quasi-static regime, depth), with the numbers; ``monitor.worst`` keeps the
-largest values seen. Switch it off with ``attach(..., monitor=False)``; silence it with
+largest values seen. The warning names the user's line (the first frame outside the library,
+:func:`rft_mujoco.coupling.callers.user_stacklevel`: usually the ``mj_step`` call). The depth warning says
+the body is sinking through the bed only when it is: its COM moves down along gravity faster than
+:data:`SINKING_SPEED` and the sand does not hold it at rest (``Diagnostics.resting``); otherwise it says the
+body is deeper than validated. Switch it off with ``attach(..., monitor=False)``; silence it with
 ``warnings.simplefilter("ignore", rft_mujoco.RFTValidityWarning)``.
 """
 
@@ -31,6 +35,8 @@ import warnings
 
 import numpy as np
 
+from rft_mujoco.coupling.callers import user_stacklevel
+from rft_mujoco.physics.law import gravity_direction
 from rft_mujoco.physics.media import Media
 
 I_MAC_MAX = 0.15
@@ -41,6 +47,9 @@ DEPTH_RATIO_MAX = 10.0
 """Largest depth, in body sizes, of the validated range."""
 CHECK_EVERY = 10
 """Evaluations between two checks (RK4 evaluates four times per step)."""
+SINKING_SPEED = 1e-3
+"""m/s: a deep body whose COM moves down along gravity faster than this, and that the sand does not hold at
+rest, is sinking (the rest speed of the stability and load-path studies)."""
 
 
 class RFTValidityWarning(UserWarning):
@@ -108,11 +117,17 @@ class ValidityMonitor:
         self.warned: set[str] = set()
 
     def observe(self, names, speed, length, depth, media: Media, gravity: float, time: float, *,
-                stacklevel: int = 2) -> None:
+                sinking=None, stacklevel: int | None = None) -> None:
         """Check bodies (lists/arrays over the loaded bodies) and warn if one is outside the valid range.
-        ``stacklevel`` is passed to :func:`warnings.warn`."""
+
+        ``sinking``: (n,) bool, which bodies are sinking (moving down, not held at rest), or None
+        (unknown): the depth warning says "sinking" only for a body marked True. ``stacklevel`` is passed
+        to :func:`warnings.warn`; None (default) names the first frame outside the library.
+        """
         if len(names) == 0:
             return
+        if stacklevel is None:
+            stacklevel = user_stacklevel()
         i_mac, i_micro, ratio = validity_numbers(speed, length, depth, media, gravity)
         for key, values in (("i_mac", i_mac), ("i_micro", i_micro), ("depth_ratio", ratio)):
             if np.all(np.isnan(values)):
@@ -139,29 +154,36 @@ class ValidityMonitor:
         if deep.any() and "depth" not in self.warned:
             j = int(np.flatnonzero(deep)[np.argmax(ratio[deep])])
             self.warned.add("depth")
+            if sinking is not None and bool(np.asarray(sinking)[j]):
+                why = ("The body is sinking through the bed (moving down, not held at rest by the sand): "
+                       "probably too heavy for this medium.")
+            else:
+                why = "The body is deeper than validated; the forces there are extrapolated."
             warnings.warn(
                 f"3D-RFT is outside its validated depth range on body {names[j]!r} at t = {time:.4g} s: "
                 f"depth {depth[j]:.3g} m is {ratio[j]:.3g} body sizes (limit {DEPTH_RATIO_MAX}; "
-                f"L = {length[j]:.3g} m). The linear depth scaling of RFT is not validated that deep; "
-                "the body is probably sinking through the bed (too heavy for this medium). Warned once "
-                "per sand handle; handle.monitor.worst keeps the largest values.",
+                f"L = {length[j]:.3g} m). The linear depth scaling of RFT is not validated that deep. "
+                f"{why} Warned once per sand handle; handle.monitor.worst keeps the largest values.",
                 RFTValidityWarning, stacklevel=stacklevel)
 
     def check(self, handle, data, rows, v_com, omega, max_depth) -> None:
         """Observe the candidate bodies ``rows`` (indices into ``handle.body_ids``) of one evaluation.
 
         Args:
-            handle: the :class:`rft_mujoco.SandHandle`.
+            handle: the :class:`rft_mujoco.SandHandle` (its diagnostics of ``data`` tell which bodies rest).
             data: its MjData (for the time).
-            rows: (k,) int, candidate rows; v_com, omega: (k, 3) m/s, rad/s; max_depth: (k,) m.
+            rows: (k,) int, candidate rows; v_com, omega: (k, 3) m/s, rad/s, the bodies' velocities at the
+                start of the evaluation; max_depth: (k,) m.
         """
         loaded = np.flatnonzero(np.asarray(max_depth) > 0.0)
         if loaded.size == 0:
             return
         r = np.asarray(rows)[loaded]
         radius = handle._bound_radius[r]
-        speed = np.linalg.norm(v_com[loaded], axis=1) + radius * np.linalg.norm(omega[loaded], axis=1)
+        v = np.asarray(v_com)[loaded]
+        speed = np.linalg.norm(v, axis=1) + radius * np.linalg.norm(np.asarray(omega)[loaded], axis=1)
         names = [handle.body_names[i] for i in r]
-        # stacklevel 5: observe < check < SandHandle._evaluate < the dispatcher < the caller of mj_step
-        self.observe(names, speed, 2.0 * radius, np.asarray(max_depth)[loaded], handle.media,
-                     float(np.linalg.norm(handle.model.opt.gravity)), float(data.time), stacklevel=5)
+        g_hat, g_mag = gravity_direction(handle.model.opt.gravity)
+        sinking = (v @ g_hat > SINKING_SPEED) & ~np.asarray(handle.diagnostics(data).resting, dtype=bool)[r]
+        self.observe(names, speed, 2.0 * radius, np.asarray(max_depth)[loaded], handle.media, g_mag,
+                     float(data.time), sinking=sinking)

@@ -170,7 +170,11 @@ def stress_per_depth(normals: np.ndarray, directions: np.ndarray, media: Media, 
 
 def element_forces(centroids, normals, areas, velocities, media: Media, surface_height: float = 0.0,
                    gravity=(0.0, 0.0, -9.81), *, guards: Guards = PUBLISHED) -> np.ndarray:
-    """3D-RFT force on each surface element, in newtons (world frame).
+    """3D-RFT force on each surface element, in newtons (world frame): the numpy reference.
+
+    ``rft_mujoco.element_forces`` (:func:`rft_mujoco.forces.element_forces`) takes the same arguments and
+    runs the compiled kernel by default; this function is what it is tested against (and its
+    ``backend="numpy"``).
 
     Args:
         centroids: (N, 3) float, element centroids in m, world frame.

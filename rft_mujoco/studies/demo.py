@@ -203,7 +203,7 @@ def run(seconds: float = 5.0, stand_s: float = 1.0, out: Path = Path("out"), vid
     return summary
 
 
-def view(seconds: float = 60.0) -> None:
+def view(seconds: float = 60.0, stand_s: float = 1.0) -> None:
     """The demo in the interactive viewer with force arrows (needs a display)."""
     import mujoco.viewer
 
@@ -211,7 +211,7 @@ def view(seconds: float = 60.0) -> None:
         raise SystemExit("the interactive viewer needs a display (DISPLAY is not set); try "
                          "xvfb-run -s '-screen 0 1280x720x24 +extension GLX' python -m rft_mujoco view, "
                          "or the headless 'python -m rft_mujoco demo'")
-    demo = Demo()
+    demo = Demo(stand_s=stand_s)
     with mujoco.viewer.launch_passive(demo.model, demo.data) as viewer:
         start = time.perf_counter()
         while viewer.is_running() and demo.data.time < seconds:
@@ -226,17 +226,32 @@ def view(seconds: float = 60.0) -> None:
     demo.close()
 
 
+VIEW_HELP = f"""The demo scene of 'python -m rft_mujoco demo' (a quadruped standing, then trotting on sand) in the
+interactive mujoco.viewer, in real time, with the sand forces drawn as arrows (1 m per {ARROW_N_PER_M:g} N).
+Needs a display (or xvfb-run); saves nothing.
+"""
+
+
+def parser(command: str = "demo") -> argparse.ArgumentParser:
+    """The options of ``python -m rft_mujoco demo`` or, with ``command="view"``, of ``... view``."""
+    if command not in ("demo", "view"):
+        raise ValueError(f"command must be 'demo' or 'view', got {command!r}")
+    p = argparse.ArgumentParser(prog=f"python -m rft_mujoco {command}",
+                                description=__doc__ if command == "demo" else VIEW_HELP,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--seconds", type=float, default=5.0 if command == "demo" else 60.0,
+                   help="simulated time in s")
+    p.add_argument("--stand", type=float, default=1.0, help="standing time before trotting, s")
+    if command == "demo":
+        p.add_argument("--out", type=Path, default=Path("out"), help="folder for the plot and video")
+        p.add_argument("--no-video", action="store_true", help="skip the video")
+    return p
+
+
 def main(argv: list[str] | None = None, command: str = "demo") -> int:
-    parser = argparse.ArgumentParser(prog=f"python -m rft_mujoco {command}", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seconds", type=float, default=5.0 if command == "demo" else 60.0,
-                        help="simulated time in s")
-    parser.add_argument("--stand", type=float, default=1.0, help="standing time before trotting, s")
-    parser.add_argument("--out", type=Path, default=Path("out"), help="folder for the plot and video")
-    parser.add_argument("--no-video", action="store_true", help="skip the video")
-    args = parser.parse_args(argv)
+    args = parser(command).parse_args(argv)
     if command == "view":
-        view(args.seconds)
+        view(args.seconds, args.stand)
     else:
         run(args.seconds, args.stand, args.out, video=not args.no_video)
     return 0

@@ -1,0 +1,232 @@
+"""Set-up checks of :func:`rft_mujoco.attach`: mistakes that give wrong sand without any error.
+
+Each check reads the model (and the handles or the terrain) as it is now and either raises
+:class:`ValueError` (a set-up that cannot be right) or warns once per call with :class:`SandSetupWarning`
+(one warning naming everything it found), saying what was given, what is allowed and what to do:
+
+* :func:`check_not_attached` -- a body attached twice to one model gets the sand twice (raises);
+* :func:`check_rigid_floor` -- a rigid floor the bodies collide with, at or above the sand's lowest
+  point, carries them and the sand does nothing (warns); it reads ``geom_contype``/``geom_conaffinity``
+  now, so run it after ``handle.replace_rigid`` had its chance (at the handle's first evaluation);
+* :func:`check_timestep` -- timesteps beyond what the stability study measured (warns);
+* :func:`check_actuation_flag` -- ``mjDSBL_ACTUATION`` makes MuJoCo skip ``mjcb_control``, and with it the
+  sand: no sand forces, or the last ones frozen in ``xfrc_applied`` (returns True; the caller raises
+  :data:`ACTUATION_DISABLED_MESSAGE`).
+
+MuJoCo's collision filter (:func:`can_collide`, ``../shared/reference/mujoco-notes.md``): two geoms of
+different weld bodies collide when ``contype1 & conaffinity2 or contype2 & conaffinity1`` and no
+``<exclude>`` names their bodies, or when an explicit ``<pair>`` names them; ``mjDSBL_CONTACT`` or
+``mjDSBL_CONSTRAINT`` switch every contact off. (The parent filter never applies to the world's geoms.)
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+
+from rft_mujoco.coupling.callers import user_stacklevel
+from rft_mujoco.physics.law import gravity_direction
+from rft_mujoco.physics.terrain import HeightfieldSurface, SandRegion, Terrain
+
+ACCURATE_TIMESTEP_MAX = 0.005
+"""s: the rest treatment was measured accurate up to this timestep (the load-path study: 0.5-5 ms,
+``rft_mujoco.studies.loadpaths.TIMESTEPS``); the timestep :func:`check_timestep` recommends."""
+STUDIED_TIMESTEP_MAX = 0.01
+"""s: the largest timestep of the stability study (0.25-10 ms, ``rft_mujoco.studies.stability.TIMESTEPS``);
+:func:`check_timestep` warns above it."""
+FLOOR_HEIGHT_TOL = 1e-9
+"""m: a rigid plane this far below the sand's lowest point still counts as "at" it (round-off of poses)."""
+HORIZONTAL_TOL = 1e-9
+"""A plane whose unit normal has ``n . up >= 1 - HORIZONTAL_TOL`` is horizontal (``up = -g_hat``)."""
+ACTUATION_DISABLED_MESSAGE = (
+    "model.opt.disableflags has mjtDisableBit.mjDSBL_ACTUATION set: MuJoCo then skips mjcb_control, "
+    "through which rft_mujoco computes the sand, so the sand stops responding: set before the first step "
+    "there is no sand at all (measured: a 0.2 kg plate on sand falls 4.9 m in 1 s), set later the last "
+    "sand wrench stays frozen in data.xfrc_applied. Clear the flag (model.opt.disableflags &= "
+    "~int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)) and zero data.ctrl or the actuator gains instead if you "
+    "want the actuators off, or detach the sand (handle.detach()).")
+"""What the dispatcher raises when :func:`check_actuation_flag` is True."""
+
+_PLANE = int(mujoco.mjtGeom.mjGEOM_PLANE)
+_HFIELD = int(mujoco.mjtGeom.mjGEOM_HFIELD)
+
+
+class SandSetupWarning(UserWarning):
+    """The scene runs, but its set-up keeps the sand from acting as intended (see :mod:`rft_mujoco.coupling.checks`)."""
+
+
+# --- one body, one sand -------------------------------------------------------------------------------
+def check_not_attached(model, body_ids: Sequence[int], handles, *, terrain: Terrain | None = None) -> None:
+    """Raise ValueError when a body of ``body_ids`` is already attached to ``model`` by a live handle.
+
+    Both handles would add their sand to the body, twice the force. Allowed: the same bodies on several
+    models, other bodies of the same model, and (with ``terrain`` given) the same bodies on sands whose
+    :class:`~rft_mujoco.SandRegion` rectangles do not overlap (each patch loads only the elements above
+    it; a body that straddles two patches at rest is held by both).
+
+    Args:
+        model: the MjModel being attached to.
+        body_ids: (B,) int, the bodies of the new attachment.
+        handles: the live handles (each with ``.model``, ``.body_ids``, ``.body_names``, ``.attached`` and,
+            for the region exception, ``.terrain``).
+        terrain: the new attachment's terrain (None: no exception for disjoint regions).
+    """
+    wanted = {int(b) for b in body_ids}
+    for h in handles:
+        if h.model is not model or not h.attached:
+            continue
+        shared = [int(b) for b in h.body_ids if int(b) in wanted]
+        if not shared or (terrain is not None and _disjoint(terrain, getattr(h, "terrain", None))):
+            continue
+        names = [h.body_names[list(map(int, h.body_ids)).index(b)] or f"body {b}" for b in shared]
+        raise ValueError(
+            f"bodies {names} are already attached to this model by {h!r}: attaching them again would add "
+            "the sand to them twice. Detach that handle first (handle.detach()), or leave these bodies out "
+            "of bodies= (one handle per body; a different medium on a separate patch needs SandRegion "
+            "terrains that do not overlap)")
+
+
+def _disjoint(a, b) -> bool:
+    """Whether terrains ``a`` and ``b`` are SandRegions whose rectangles share no area."""
+    if not (isinstance(a, SandRegion) and isinstance(b, SandRegion)):
+        return False
+    return (a.x_range[1] <= b.x_range[0] or b.x_range[1] <= a.x_range[0]
+            or a.y_range[1] <= b.y_range[0] or b.y_range[1] <= a.y_range[0])
+
+
+# --- rigid floors --------------------------------------------------------------------------------------
+def can_collide(model, geom1: int, geom2: int) -> bool:
+    """Whether MuJoCo generates contacts between two geoms (its filters; see the module docstring)."""
+    disabled = int(model.opt.disableflags)
+    if disabled & (int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)):
+        return False
+    g1, g2 = int(geom1), int(geom2)
+    for p in range(model.npair):
+        if {int(model.pair_geom1[p]), int(model.pair_geom2[p])} == {g1, g2}:
+            return True
+    b1, b2 = int(model.geom_bodyid[g1]), int(model.geom_bodyid[g2])
+    if model.body_weldid[b1] == model.body_weldid[b2]:
+        return False
+    signature = (min(b1, b2) << 16) + max(b1, b2)
+    if model.nexclude and np.any(model.exclude_signature == signature):
+        return False
+    return bool(int(model.geom_contype[g1]) & int(model.geom_conaffinity[g2])
+                or int(model.geom_contype[g2]) & int(model.geom_conaffinity[g1]))
+
+
+def sand_low_point(terrain: Terrain) -> float:
+    """Height (m, against gravity) of the lowest point of the sand surface."""
+    surface = terrain.surface if isinstance(terrain, SandRegion) else terrain
+    if isinstance(surface, HeightfieldSurface):
+        return float(surface.heights.min())
+    return float(terrain.max_height)
+
+
+def _same_heightfield(model, geom: int, surface) -> bool:
+    """Whether hfield geom ``geom`` has the shape of the HeightfieldSurface ``surface``."""
+    if not isinstance(surface, HeightfieldSurface):
+        return False
+    try:
+        own = HeightfieldSurface.from_model(model, int(geom))
+    except ValueError:                    # rotated or not a world geom: not the sand's shape
+        return False
+    return (own.heights.shape == surface.heights.shape and np.allclose(own.heights, surface.heights)
+            and np.allclose(own.x_range, surface.x_range) and np.allclose(own.y_range, surface.y_range))
+
+
+def rigid_floors(model, body_ids: Sequence[int], terrain: Terrain) -> list[tuple[int, str]]:
+    """Static planes and heightfields that would carry the bodies in place of the sand.
+
+    A plane counts when it can collide with a geom of ``body_ids`` and reaches the sand's lowest point
+    (:func:`sand_low_point`): horizontal at or above it (within :data:`FLOOR_HEIGHT_TOL`), or tilted
+    upward (an infinite tilted plane crosses every height). Planes below the sand (a rigid bottom), walls
+    (vertical) and ceilings (facing down) do not count. A heightfield counts when it has the sand's own
+    shape (a :class:`~rft_mujoco.HeightfieldSurface` terrain, possibly in a region) and can collide.
+
+    Returns:
+        (geom id, description) per floor found, in geom order.
+    """
+    g_hat, _ = gravity_direction(model.opt.gravity)
+    up = -g_hat
+    low = sand_low_point(terrain)
+    surface = terrain.surface if isinstance(terrain, SandRegion) else terrain
+    bodies = {int(b) for b in body_ids}
+    mine = [g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in bodies
+            and int(model.geom_type[g]) not in (_PLANE, _HFIELD)]
+    static = [g for g in range(model.ngeom) if model.body_weldid[model.geom_bodyid[g]] == 0
+              and int(model.geom_type[g]) in (_PLANE, _HFIELD)]
+    if not mine or not static:
+        return []
+    data = mujoco.MjData(model)           # static geoms' poses (world or static bodies)
+    mujoco.mj_kinematics(model, data)
+    found = []
+    for g in static:
+        if not any(can_collide(model, g, b) for b in mine):
+            continue
+        if int(model.geom_type[g]) == _HFIELD:
+            if _same_heightfield(model, g, surface):
+                found.append((g, "the heightfield of the sand surface itself"))
+            continue
+        normal = data.geom_xmat[g].reshape(3, 3)[:, 2]
+        facing = float(normal @ up)
+        height = float(data.geom_xpos[g] @ up)
+        if facing >= 1.0 - HORIZONTAL_TOL:
+            if height >= low - FLOOR_HEIGHT_TOL:
+                found.append((g, f"a plane at height {height:g} m, at or above the sand's lowest point {low:g} m"))
+        elif facing > HORIZONTAL_TOL:
+            found.append((g, f"a tilted plane (normal . up = {facing:.3g}) that crosses the sand surface"))
+    return found
+
+
+def check_rigid_floor(model, body_ids: Sequence[int], terrain: Terrain) -> list[str]:
+    """Warn (:class:`SandSetupWarning`, once for all of them) about the :func:`rigid_floors` of a sand.
+
+    Returns the names (or ``"geom <id>"``) of the floors found, [] when none.
+    """
+    found = rigid_floors(model, body_ids, terrain)
+    if not found:
+        return []
+    names = [model.geom(g).name or f"geom {g}" for g, _ in found]
+    named = [model.geom(g).name for g, _ in found]
+    what = "; ".join(f"{n!r}: {why}" for n, (_, why) in zip(names, found))
+    bodies = [model.body(int(b)).name or f"body {int(b)}" for b in body_ids]
+    how = (f"handle.replace_rigid({named!r})" if all(named) else
+           f"handle.replace_rigid({[g for g, _ in found]!r})")
+    region = (" Around a bounded SandRegion, build the rigid ground from box geoms outside the region."
+              if isinstance(terrain, SandRegion) else "")
+    warnings.warn(
+        f"rft_mujoco: rigid floor geoms collide with the sand bodies {bodies} where the sand is ({what}): "
+        "MuJoCo's contacts will carry the bodies and the sand will do (almost) nothing. Allowed: rigid "
+        "geoms below the sand (a rigid bottom) or geoms that do not collide with the sand bodies. Do: "
+        f"{how} to let the sand replace them (restored at detach), or lower them below the sand as a "
+        f"rigid bottom, or set their contype/conaffinity to 0.{region}",
+        SandSetupWarning, stacklevel=user_stacklevel())
+    return names
+
+
+# --- timestep ----------------------------------------------------------------------------------------
+def check_timestep(model) -> bool:
+    """Warn (:class:`SandSetupWarning`) when ``model.opt.timestep`` exceeds :data:`STUDIED_TIMESTEP_MAX`.
+
+    Returns True when it warned.
+    """
+    dt = float(model.opt.timestep)
+    if dt <= STUDIED_TIMESTEP_MAX:
+        return False
+    warnings.warn(
+        f"rft_mujoco: timestep {dt:g} s is beyond the validated range: the stability study covers up to "
+        f"{STUDIED_TIMESTEP_MAX:g} s, and the rest treatment was measured accurate up to "
+        f"{ACCURATE_TIMESTEP_MAX:g} s. At {dt:g} s bodies may chatter, sink or come to rest late. Use "
+        f"model.opt.timestep <= {ACCURATE_TIMESTEP_MAX:g} (with a frame_skip to keep the control period).",
+        SandSetupWarning, stacklevel=user_stacklevel())
+    return True
+
+
+# --- actuation flag ----------------------------------------------------------------------------------
+def check_actuation_flag(model) -> bool:
+    """True when ``mjDSBL_ACTUATION`` is set in ``model.opt.disableflags`` (MuJoCo then never calls
+    ``mjcb_control``, so the sand is not applied; raise :data:`ACTUATION_DISABLED_MESSAGE`)."""
+    return bool(int(model.opt.disableflags) & int(mujoco.mjtDisableBit.mjDSBL_ACTUATION))

@@ -1,0 +1,85 @@
+"""The public per-element 3D-RFT force, ``rft_mujoco.element_forces``: the compiled kernel where numba is.
+
+:func:`element_forces` takes the arguments of the numpy reference :func:`rft_mujoco.physics.law.element_forces`
+(the readable one, which the tests compare against) and runs :func:`rft_mujoco.compiled.elements.element_forces`
+(~20x faster: ``python -m rft_mujoco bench``) unless ``backend="numpy"``. Both give the same forces to
+round-off and raise the same errors for bad input (tests/test_forces.py). This module sits above
+``physics/`` and ``compiled/`` so that neither imports the other's caller.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from rft_mujoco.compiled import elements as fastkernel
+from rft_mujoco.coupling.callers import user_stacklevel
+from rft_mujoco.physics import law
+from rft_mujoco.physics.law import PUBLISHED, Guards
+from rft_mujoco.physics.media import Media
+
+BACKENDS = ("auto", "numba", "numpy")
+"""Values of ``element_forces(backend=...)``: "auto" (numba when it imports and compiles, else numpy),
+"numba" (compiled, an error without numba) or "numpy" (the reference)."""
+
+
+def element_forces(centroids, normals, areas, velocities, media: Media, surface_height: float = 0.0,
+                   gravity=(0.0, 0.0, -9.81), *, guards: Guards = PUBLISHED, backend: str = "auto",
+                   out: np.ndarray | None = None) -> np.ndarray:
+    """3D-RFT force on each surface element, in newtons (world frame).
+
+    Args:
+        centroids: (N, 3) float, element centroids in m, world frame.
+        normals: (N, 3) float, outward normals, world frame; any positive length (normalized here).
+        areas: (N,) float, element areas in m^2 (>= 0).
+        velocities: (N, 3) float, element velocities in m/s, world frame (only the direction matters).
+        media: the granular medium (:class:`rft_mujoco.Media`).
+        surface_height: height of the flat free surface in m, measured against gravity (along -g).
+        gravity: (3,) gravity vector in m/s^2; depth is measured along it.
+        guards: artefact clean-ups (default: none, the published model).
+        backend: "auto" (default), "numba" or "numpy" (:data:`BACKENDS`). The first call with numba
+            compiles the kernels once per machine (~20 s, cached afterwards).
+        out: optional (N, 3) float64 C-contiguous array to write the forces into.
+    Returns:
+        (N, 3) float forces in N (``out`` when given). Zero for elements above the surface, trailing
+        (n.v < 0), or at rest.
+    Raises:
+        ValueError: on wrong shapes, non-finite input, negative areas or zero normals (the messages of
+            :func:`rft_mujoco.physics.law.element_forces`), a bad ``out``, an unknown backend, or
+            backend="numba" without numba.
+    """
+    if _use_numba(backend):
+        return fastkernel.element_forces(centroids, normals, areas, velocities, media, surface_height, gravity,
+                                         guards=guards, out=out)
+    forces = law.element_forces(centroids, normals, areas, velocities, media, surface_height, gravity,
+                                guards=guards)
+    if out is None:
+        return forces
+    n = forces.shape[0]
+    if out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous float64 array of shape ({n}, 3), got {out.shape} "
+                         f"{out.dtype}")
+    out[...] = forces
+    return out
+
+
+def _use_numba(backend: str) -> bool:
+    """Whether ``backend`` runs the compiled kernel (raises for a bad name or numba requested but missing)."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "numpy" or (backend == "auto" and not fastkernel.AVAILABLE):
+        return False
+    if not fastkernel.AVAILABLE:
+        raise ValueError(f"backend='numba' needs numba, which failed to import ({fastkernel.IMPORT_ERROR}); "
+                         "use backend='auto' or 'numpy'")
+    try:
+        fastkernel.ensure_compiled()
+    except Exception as exc:  # a broken numba/LLVM install must not break the law
+        if backend == "numba":
+            raise
+        warnings.warn(f"rft_mujoco: the numba kernel failed to compile ({type(exc).__name__}: {exc}); "
+                      "element_forces uses numpy (slower). Pass backend='numpy' to silence this.",
+                      RuntimeWarning, stacklevel=user_stacklevel())
+        return False
+    return True
