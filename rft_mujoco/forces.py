@@ -1,7 +1,7 @@
 """The public per-element 3D-RFT force, ``rft_mujoco.element_forces``: the compiled kernel where numba is.
 
 :func:`element_forces` takes the arguments of the numpy reference :func:`rft_mujoco.physics.law.element_forces`
-(the readable one, which the tests compare against) and runs :func:`rft_mujoco.compiled.elements.element_forces`
+(the readable one, which the tests compare against) and runs :func:`rft_mujoco.compiled.law.element_forces`
 (~20x faster: ``python -m rft_mujoco bench``) unless ``backend="numpy"``. Both give the same forces to
 round-off and raise the same errors for bad input (tests/test_forces.py). This module sits above
 ``physics/`` and ``compiled/`` so that neither imports the other's caller.
@@ -13,7 +13,7 @@ import warnings
 
 import numpy as np
 
-from rft_mujoco.compiled import elements as fastkernel
+from rft_mujoco import compiled
 from rft_mujoco.coupling.callers import user_stacklevel
 from rft_mujoco.physics import law
 from rft_mujoco.physics.law import PUBLISHED, Guards
@@ -50,7 +50,9 @@ def element_forces(centroids, normals, areas, velocities, media: Media, surface_
             backend="numba" without numba.
     """
     if _use_numba(backend):
-        return fastkernel.element_forces(centroids, normals, areas, velocities, media, surface_height, gravity,
+        from rft_mujoco.compiled import law as fastlaw
+
+        return fastlaw.element_forces(centroids, normals, areas, velocities, media, surface_height, gravity,
                                          guards=guards, out=out)
     forces = law.element_forces(centroids, normals, areas, velocities, media, surface_height, gravity,
                                 guards=guards)
@@ -68,13 +70,13 @@ def _use_numba(backend: str) -> bool:
     """Whether ``backend`` runs the compiled kernel (raises for a bad name or numba requested but missing)."""
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if backend == "numpy" or (backend == "auto" and not fastkernel.AVAILABLE):
+    if backend == "numpy" or (backend == "auto" and not compiled.AVAILABLE):
         return False
-    if not fastkernel.AVAILABLE:
-        raise ValueError(f"backend='numba' needs numba, which failed to import ({fastkernel.IMPORT_ERROR}); "
+    if not compiled.AVAILABLE:
+        raise ValueError(f"backend='numba' needs numba, which failed to import ({compiled.IMPORT_ERROR}); "
                          "use backend='auto' or 'numpy'")
     try:
-        fastkernel.ensure_compiled()
+        compiled.ensure_compiled()
     except Exception as exc:  # a broken numba/LLVM install must not break the law
         if backend == "numba":
             raise

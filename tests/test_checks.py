@@ -192,9 +192,8 @@ def test_timestep_limits_are_the_studies_ranges():
 
 # --- d. mjDSBL_ACTUATION ------------------------------------------------------------------------------
 def test_mujoco_skips_mjcb_control_when_actuation_is_disabled():
-    """The MuJoCo fact behind check_actuation_flag (mujoco-notes.md); if this fails, MuJoCo changed."""
+    """The MuJoCo fact behind the dispatcher's passive hook (mujoco-notes.md); if this fails, MuJoCo changed."""
     model, data = make()
-    assert not checks.check_actuation_flag(model)
     calls = []
     previous = mujoco.get_mjcb_control()
     mujoco.set_mjcb_control(lambda m, d: calls.append(d.time))
@@ -203,7 +202,6 @@ def test_mujoco_skips_mjcb_control_when_actuation_is_disabled():
         mujoco.mj_forward(model, data)
         assert len(calls) == 2
         model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
-        assert checks.check_actuation_flag(model)
         mujoco.mj_step(model, data)
         mujoco.mj_forward(model, data)
         assert len(calls) == 2, "no mjcb_control call with mjDSBL_ACTUATION set"
@@ -259,18 +257,28 @@ def plate_on_sand(settle_steps: int):
     return model, data, float(z0 - data.qpos[2]), held
 
 
-def test_the_sand_vanishes_or_freezes_with_mjdsbl_actuation():
-    """What the flag does to a sand scene. Set before the first step: no sand at all, the plate falls
-    freely (g t^2 / 2 = 4.9 m in 1 s). Set after the plate settled: xfrc_applied keeps the last sand
-    wrench (MuJoCo never clears it), which holds the plate's weight forever but no longer resists motion."""
+def test_attach_refuses_a_model_where_no_hook_would_run():
+    model, _ = make()
+    bit = mujoco.mjtDisableBit
+    model.opt.disableflags |= int(bit.mjDSBL_ACTUATION) | int(bit.mjDSBL_SPRING)
+    assert not checks.check_actuation_flag(model)
+    model.opt.disableflags |= int(bit.mjDSBL_DAMPER)
+    assert checks.check_actuation_flag(model)
+    with pytest.raises(ValueError, match="mjDSBL_ACTUATION, mjDSBL_SPRING and mjDSBL_DAMPER"):
+        rft_mujoco.attach(model, MEDIA, resolution=0.02)
+
+
+def test_the_sand_acts_with_mjdsbl_actuation():
+    """MuJoCo skips mjcb_control under the flag (without the dispatcher's passive hook the plate fell
+    g t^2 / 2 = 4.9 m in 1 s, or a settled plate kept its last wrench frozen in xfrc_applied and nothing
+    resisted a push). With the hook the sand still carries the plate, set before the first step or after
+    settling, and still resists motion."""
     _, _, fall, _ = plate_on_sand(0)
-    assert fall == pytest.approx(0.5 * 9.81 * 1.0**2, rel=0.01)
+    assert 0.0 < fall < 0.05                                        # it sinks in a little, then rests
     model, data, fall, held = plate_on_sand(250)
-    assert abs(fall) < 1e-6 and held[2] == pytest.approx(0.2 * 9.81, rel=1e-6)
-    np.testing.assert_array_equal(data.xfrc_applied[1], held)       # frozen
-    data.qvel[0] = 0.1                                              # a push: nothing slows it down
+    assert abs(fall) < 1e-4 and held[2] == pytest.approx(0.2 * 9.81, rel=1e-3)
+    data.qvel[0] = 0.1                                              # a push: the sand stops it
     for _ in range(100):
         mujoco.mj_step(model, data)
-    assert data.qvel[0] == pytest.approx(0.1, abs=1e-9)
+    assert abs(data.qvel[0]) < 1e-3
     rft_mujoco.detach_all()
-    assert "mjDSBL_ACTUATION" in checks.ACTUATION_DISABLED_MESSAGE

@@ -192,8 +192,6 @@ def test_diagnostics_is_a_live_view_and_copy_a_snapshot():
         assert not any(np.shares_memory(getattr(live, field.name), getattr(s, field.name)) for s in snapshots)
 
 
-@pytest.mark.xfail(strict=True, reason="diagnostics(data) before data's first evaluation returns a throwaway "
-                   "Diagnostics.zeros, not the live view (SandHandle.diagnostics should create the workspace)")
 def test_diagnostics_taken_before_the_first_step_is_live():
     model, data, sand = sinking_ball()
     live = sand.diagnostics(data)

@@ -10,7 +10,8 @@ import pytest
 
 import rft_mujoco
 from rft_mujoco import forces
-from rft_mujoco.compiled import elements as fastkernel
+from rft_mujoco import compiled
+from rft_mujoco.compiled import law as fastlaw
 from rft_mujoco.physics import law
 
 MEDIA = rft_mujoco.LI_LOOSE_GLASS_BEADS
@@ -19,7 +20,7 @@ RTOL = 1e-12
 ``xi_n |z| dA`` (the law's ``|alpha| / xi_n`` is of order 1). Relative to the element's own force it can be
 larger where the fitted force nearly vanishes: measured 2.3e-11 at worst over 1e6 random elements, whose
 force there was 3e-6 of its scale; against the scale the worst was 1.2e-15."""
-COMPILED = [pytest.param(b, marks=pytest.mark.skipif(not fastkernel.AVAILABLE, reason="numba not importable"))
+COMPILED = [pytest.param(b, marks=pytest.mark.skipif(not compiled.AVAILABLE, reason="numba not importable"))
             for b in ("auto", "numba")]
 
 
@@ -69,19 +70,19 @@ def test_compiled_backends_give_the_reference_forces(backend, seed):
 
 
 def test_the_default_runs_the_compiled_kernel(monkeypatch):
-    if not fastkernel.AVAILABLE:
+    if not compiled.AVAILABLE:
         pytest.skip("numba not importable")
     calls = []
-    real = fastkernel.element_forces
-    monkeypatch.setattr(fastkernel, "element_forces", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = fastlaw.element_forces
+    monkeypatch.setattr(fastlaw, "element_forces", lambda *a, **k: calls.append(1) or real(*a, **k))
     c, nrm, a, v = random_elements(np.random.default_rng(1), 10)
     rft_mujoco.element_forces(c, nrm, a, v, MEDIA)
     assert calls == [1]
 
 
 def test_auto_falls_back_to_numpy_without_numba_and_numba_says_why(monkeypatch):
-    monkeypatch.setattr(fastkernel, "AVAILABLE", False)
-    monkeypatch.setattr(fastkernel, "IMPORT_ERROR", "ModuleNotFoundError: No module named 'numba'")
+    monkeypatch.setattr(compiled, "AVAILABLE", False)
+    monkeypatch.setattr(compiled, "IMPORT_ERROR", "ModuleNotFoundError: No module named 'numba'")
     c, nrm, a, v = random_elements(np.random.default_rng(2), 20)
     np.testing.assert_array_equal(rft_mujoco.element_forces(c, nrm, a, v, MEDIA), law.element_forces(c, nrm, a, v, MEDIA))
     with pytest.raises(ValueError, match=r"backend='numba' needs numba.*No module named 'numba'.*'auto' or 'numpy'"):

@@ -1,19 +1,14 @@
-"""attach() runs the set-up checks (rft_mujoco.coupling.checks) where a user meets them.
-
-Strict xfail until the call sites are in attach() and SandHandle._evaluate (see the checks module's
-docstring); then these pass and the marker must go.
-"""
+"""attach() runs the set-up checks (rft_mujoco.coupling.checks) where a user meets them."""
 
 import sys
 import warnings
 
 import mujoco
+import numpy as np
 import pytest
 
 import rft_mujoco
 from rft_mujoco.coupling.checks import SandSetupWarning
-
-pytestmark = pytest.mark.xfail(strict=True, reason="attach() does not call rft_mujoco.coupling.checks yet")
 
 MEDIA = rft_mujoco.LI_LOOSE_GLASS_BEADS
 SCENE = """
@@ -75,8 +70,20 @@ def test_the_floor_warns_at_the_first_step_unless_replaced():
         mujoco.mj_step(model, data)
 
 
-def test_attach_refuses_a_model_with_actuation_disabled():
-    model, _ = make()
-    model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
-    with pytest.raises(ValueError, match="mjDSBL_ACTUATION"):
-        rft_mujoco.attach(model, MEDIA, bodies=["ball"], resolution=0.02)
+@pytest.mark.parametrize("when", ["before attach", "while stepping"])
+def test_the_sand_still_acts_with_actuation_disabled(when):
+    """MuJoCo skips mjcb_control under mjDSBL_ACTUATION (a plate then fell 4.9 m in 1 s); the dispatcher's
+    passive callback evaluates the sand instead: the ball rests on the sand, carried by it."""
+    model, data = make()
+    off = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+    if when == "before attach":
+        model.opt.disableflags |= off
+    sand = rft_mujoco.attach(model, MEDIA, bodies=["ball"], resolution=0.02)
+    sand.replace_rigid(["floor"])
+    for i in range(1500):
+        if when == "while stepping" and i == 200:
+            model.opt.disableflags |= off
+        mujoco.mj_step(model, data)
+    d = sand.diagnostics(data)
+    assert -0.1 < data.qpos[2] < 0.05 and abs(data.qvel[2]) < 1e-3
+    np.testing.assert_allclose(d.force[0, 2], 9.81, rtol=1e-3)

@@ -9,9 +9,9 @@ Each check reads the model (and the handles or the terrain) as it is now and eit
   point, carries them and the sand does nothing (warns); it reads ``geom_contype``/``geom_conaffinity``
   now, so run it after ``handle.replace_rigid`` had its chance (at the handle's first evaluation);
 * :func:`check_timestep` -- timesteps beyond what the stability study measured (warns);
-* :func:`check_actuation_flag` -- ``mjDSBL_ACTUATION`` makes MuJoCo skip ``mjcb_control``, and with it the
-  sand: no sand forces, or the last ones frozen in ``xfrc_applied`` (returns True; the caller raises
-  :data:`ACTUATION_DISABLED_MESSAGE`).
+* :func:`check_actuation_flag` -- ``mjDSBL_ACTUATION`` makes MuJoCo skip ``mjcb_control``; the dispatcher
+  then evaluates the sand from ``mjcb_passive``, which MuJoCo also skips once springs and dampers are
+  disabled too: with all three flags there is no hook left (raises :data:`ACTUATION_DISABLED_MESSAGE`).
 
 MuJoCo's collision filter (:func:`can_collide`, ``../shared/reference/mujoco-notes.md``): two geoms of
 different weld bodies collide when ``contype1 & conaffinity2 or contype2 & conaffinity1`` and no
@@ -42,13 +42,11 @@ FLOOR_HEIGHT_TOL = 1e-9
 HORIZONTAL_TOL = 1e-9
 """A plane whose unit normal has ``n . up >= 1 - HORIZONTAL_TOL`` is horizontal (``up = -g_hat``)."""
 ACTUATION_DISABLED_MESSAGE = (
-    "model.opt.disableflags has mjtDisableBit.mjDSBL_ACTUATION set: MuJoCo then skips mjcb_control, "
-    "through which rft_mujoco computes the sand, so the sand stops responding: set before the first step "
-    "there is no sand at all (measured: a 0.2 kg plate on sand falls 4.9 m in 1 s), set later the last "
-    "sand wrench stays frozen in data.xfrc_applied. Clear the flag (model.opt.disableflags &= "
-    "~int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)) and zero data.ctrl or the actuator gains instead if you "
-    "want the actuators off, or detach the sand (handle.detach()).")
-"""What the dispatcher raises when :func:`check_actuation_flag` is True."""
+    "model.opt.disableflags has mjDSBL_ACTUATION, mjDSBL_SPRING and mjDSBL_DAMPER set: MuJoCo then skips "
+    "both mjcb_control and mjcb_passive, through which rft_mujoco computes the sand, so there would be no "
+    "sand at all (measured: a 0.2 kg plate on sand falls 4.9 m in 1 s). Clear one of the flags (with "
+    "mjDSBL_ACTUATION alone the sand still acts), or zero data.ctrl or the actuator gains instead.")
+"""What :func:`rft_mujoco.attach` raises when :func:`check_actuation_flag` is True."""
 
 _PLANE = int(mujoco.mjtGeom.mjGEOM_PLANE)
 _HFIELD = int(mujoco.mjtGeom.mjGEOM_HFIELD)
@@ -227,6 +225,8 @@ def check_timestep(model) -> bool:
 
 # --- actuation flag ----------------------------------------------------------------------------------
 def check_actuation_flag(model) -> bool:
-    """True when ``mjDSBL_ACTUATION`` is set in ``model.opt.disableflags`` (MuJoCo then never calls
-    ``mjcb_control``, so the sand is not applied; raise :data:`ACTUATION_DISABLED_MESSAGE`)."""
-    return bool(int(model.opt.disableflags) & int(mujoco.mjtDisableBit.mjDSBL_ACTUATION))
+    """True when MuJoCo would call neither of the dispatcher's hooks: ``mjDSBL_ACTUATION`` (no
+    ``mjcb_control``) together with ``mjDSBL_SPRING`` and ``mjDSBL_DAMPER`` (no ``mjcb_passive``)."""
+    flags, bit = int(model.opt.disableflags), mujoco.mjtDisableBit
+    off = int(bit.mjDSBL_ACTUATION) | int(bit.mjDSBL_SPRING) | int(bit.mjDSBL_DAMPER)
+    return flags & off == off

@@ -4,6 +4,8 @@ MuJoCo callbacks are global to the process, so every attached sand handle of eve
 one dispatcher installed with ``mujoco.set_mjcb_control``. It
 
 * chains a control callback the user had installed before (called first, so ``ctrl`` is final);
+* also installs a passive callback (chaining the user's) that evaluates the sand when
+  ``mjDSBL_ACTUATION`` is set: MuJoCo then skips ``mjcb_control``, and the sand must act anyway;
 * routes each evaluation to the handles of that model (several models and datas work independently);
 * owns the ``xfrc_applied`` bookkeeping per MjData, so that the row always ends as user wrench + sand
   wrench, whether the user left the row alone (we subtract what we added), zeroed it, assigned a new
@@ -38,6 +40,7 @@ _COMPILE_ENTRY_POINTS = (
 
 
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
+_ACTUATION_OFF = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
 RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
 """Times of RK4 stages 2-4 after the first, in steps (mj_RungeKutta evaluates at t + dt/2, t + dt/2, t + dt)."""
 
@@ -101,6 +104,8 @@ class Dispatcher:
     def __init__(self) -> None:
         self._handles: list = []
         self._chained = None
+        self._chained_passive = None
+        self._passive = self.passive          # one bound method: MuJoCo hands back the object it was given
         self._originals: dict = {}
         self._books: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
         self._routes: dict = {}              # id(model) -> (model, handles, rows), rebuilt on (un)register
@@ -136,6 +141,9 @@ class Dispatcher:
         current = mujoco.get_mjcb_control()
         self._chained = current if current is not self else None
         mujoco.set_mjcb_control(self)
+        current = mujoco.get_mjcb_passive()
+        self._chained_passive = current if current is not self._passive else None
+        mujoco.set_mjcb_passive(self._passive)
         for owner, name, static in _COMPILE_ENTRY_POINTS:
             original = owner.__dict__[name] if name in owner.__dict__ else getattr(owner, name)
             self._originals[(owner, name)] = original
@@ -146,7 +154,10 @@ class Dispatcher:
     def _uninstall(self) -> None:
         if mujoco.get_mjcb_control() is self:
             mujoco.set_mjcb_control(self._chained)
+        if mujoco.get_mjcb_passive() is self._passive:
+            mujoco.set_mjcb_passive(self._chained_passive)
         self._chained = None
+        self._chained_passive = None
         for (owner, name), original in self._originals.items():
             setattr(owner, name, original)
         self._originals.clear()
@@ -155,12 +166,14 @@ class Dispatcher:
         @functools.wraps(func)
         def call(*args, **kwargs):
             with self._lock:
-                current = mujoco.get_mjcb_control()
+                current, passive = mujoco.get_mjcb_control(), mujoco.get_mjcb_passive()
                 mujoco.set_mjcb_control(None)
+                mujoco.set_mjcb_passive(None)
                 try:
                     return func(*args, **kwargs)
                 finally:
                     mujoco.set_mjcb_control(current)
+                    mujoco.set_mjcb_passive(passive)
         return call
 
     # --- xfrc bookkeeping -------------------------------------------------------------------------
@@ -193,6 +206,18 @@ class Dispatcher:
     def __call__(self, model, data) -> None:
         if self._chained is not None:
             self._chained(model, data)
+        self._dispatch(model, data)
+
+    def passive(self, model, data) -> None:
+        """The passive callback: the user's, then the sand when MuJoCo will skip ``mjcb_control``
+        (``mjDSBL_ACTUATION``; the actuator forces are then zero, as MuJoCo computes them)."""
+        if self._chained_passive is not None:
+            self._chained_passive(model, data)
+        if model.opt.disableflags & _ACTUATION_OFF:
+            self._dispatch(model, data)
+
+    def _dispatch(self, model, data) -> None:
+        """One evaluation of the sand of ``model`` on ``data``."""
         handles, rows = self._route(model)
         if not handles:
             return

@@ -43,7 +43,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco import compiled, tol
-from rft_mujoco.coupling import reference, setup
+from rft_mujoco.coupling import checks, reference, setup
 from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.monitor import ValidityMonitor
 from rft_mujoco.geometry import occlusion, surface
@@ -201,6 +201,7 @@ class SandHandle:
         self.monitor = (monitor if isinstance(monitor, ValidityMonitor) else
                         ValidityMonitor() if monitor else None)
         self._replaced: list[tuple[int, int, int]] = []
+        self._floor_checked = False
         self._opt = model.opt
         self._opt_gravity = model.opt.gravity            # a live view: gravity changes are seen
         self._gravity_seen = None
@@ -280,8 +281,7 @@ class SandHandle:
     def diagnostics(self, data) -> Diagnostics:
         """Per-body force, torque, submerged element count, max depth and rest state of the latest
         evaluation of ``data`` (a live view, updated by later steps; ``.copy()`` keeps a snapshot)."""
-        work = self._work.get(data)
-        return work.diag if work is not None else Diagnostics.zeros(len(self.body_ids))
+        return self._workspace(data).diag
 
     @property
     def terrain(self) -> Terrain:
@@ -375,6 +375,12 @@ class SandHandle:
     def _workspace(self, data) -> _Workspace:
         work = self._work.get(data)
         if work is None:
+            if not isinstance(data, mujoco.MjData) or data.xpos.shape[0] != self.model.nbody \
+                    or data.qvel.shape[0] != self.model.nv:
+                raise ValueError(f"data must be a mujoco.MjData of this handle's model (nbody {self.model.nbody}, "
+                                 f"nv {self.model.nv}), got {type(data).__name__}"
+                                 + (f" with nbody {data.xpos.shape[0]}, nv {data.qvel.shape[0]}"
+                                    if isinstance(data, mujoco.MjData) else ""))
             work = self._work[data] = _Workspace(self, data)
         return work
 
@@ -383,6 +389,9 @@ class SandHandle:
         dispatcher's Python path; its native route runs the compiled phases of every handle at once)."""
         work = self._workspace(data)
         dt = self._opt.timestep
+        if not self._floor_checked:                      # after replace_rigid had its chance
+            self._floor_checked = True
+            checks.check_rigid_floor(self.model, self.body_ids, self._terrain)
         if self._fast is not None:
             return self._evaluate_compiled(data, work, user_xfrc, sand_out, dt)
         self._evaluations += 1
@@ -511,6 +520,10 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     if not ids:
         raise ValueError("no bodies to attach sand to: the model has no body with surface geoms")
     gravity_direction(model.opt.gravity)  # raises on zero gravity
+    checks.check_not_attached(model, ids, DISPATCHER.handles, terrain=terrain)
+    checks.check_timestep(model)
+    if checks.check_actuation_flag(model):
+        raise ValueError(checks.ACTUATION_DISABLED_MESSAGE)
     handle = SandHandle(model, media, ids, terrain, size, guards, stabilize, passive, monitor, backend, cull)
     handle.rk4_stages = rk4_stages
     DISPATCHER.register(handle)
