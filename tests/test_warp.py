@@ -209,6 +209,37 @@ def test_element_mask_removes_a_foot(quadruped):
         assert _rel(f[i, 1:], forces[i]) < FORCE_RTOL
 
 
+SCRATCH_FLOATS = ("mf", "qacc", "jac", "minv_jt", "twist", "free", "u", "vs", "a", "low", "gram", "rft_g", "cap",
+                  "wv", "rhs", "weight", "x", "diag0", "rem", "y", "capacity", "total", "size", "arm")
+"""The float work arrays of the per-world solves (rft_mujoco.warp.handle._State)."""
+
+
+@pytest.mark.parametrize("nworld", [4, 20])
+def test_work_buffers_hold_nothing_stale(quadruped, nworld):
+    """Fewer and more worlds than dofs (18), every float work array NaN-filled before the evaluation: the same
+    wrenches, bit for bit, as with fresh buffers (a kernel that reads what it did not write this evaluation,
+    or loops over the world axis instead of another, fails)."""
+    model, mjw_model = quadruped
+    states, forces, _, _ = _cpu_snapshots(model, None)
+    states = (states * 4)[:nworld]
+    clean = _evaluate_warp(model, mjw_model, states, None).force
+    dw = _warp_data(model, states)
+    handle = rw.attach(model, mjw_model, MEDIA, None, data=dw)
+    try:
+        st = handle.bind(dw)
+        st.last_time.assign(np.array([s["time"] - model.opt.timestep for s in states], dtype=np.float32))
+        for name in SCRATCH_FLOATS:
+            arr = getattr(st, name)
+            arr.assign(np.full(arr.numpy().shape, np.nan))
+        mjw.forward(mjw_model, dw)
+        dirty = handle.forces(dw)
+    finally:
+        handle.detach()
+    assert np.array_equal(dirty, clean)
+    for i in range(min(nworld, len(CPU_SNAPSHOT_STEPS))):
+        assert _rel(clean[i], forces[i]) < FORCE_RTOL
+
+
 # --- parity over a trajectory (the issue's targets) ----------------------------------------------------
 def test_trajectories_match_cpu_over_0p1_s(quadruped):
     """N worlds on warp against N MjData on the CPU path: quadruped from ``home`` 1-2 cm into the sand, joint

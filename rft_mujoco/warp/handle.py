@@ -88,26 +88,26 @@ class _State:
         sv = wp.spatial_vector
         self.user, self.added, self.written, self.sand, self.rft = (z((w, b), sv) for _ in range(5))
         self.wrench = z((w, b), sv)
-        self.touch, self.count, self.slot, self.resting = (z((w, b), int) for _ in range(4))
+        self.touch, self.count, self.resting = (z((w, b), int) for _ in range(3))
         self.max_depth, self.scale = z((w, b)), z((w, b))
         self.v_lin, self.v_ang = z((w, b), wp.vec3), z((w, b), wp.vec3)
-        self.arm = z((w, b), wp.vec3d)
         self.last_time = wp.array(np.full(w, -np.inf, dtype=np.float32), dtype=float, device=dev)
         self.errors, self.status, self.ngroups = z(w, int), z(w, int), z(w, int)
-        # float64 work of the per-world solves
+        # work of the one-thread-per-world kernels (float64), world index last: the threads of a GPU warp
+        # (consecutive worlds) read consecutive addresses
         f8 = wp.float64
-        self.active = z((w, g), int)
-        self.mf = z((w, nv, nv), f8)
-        self.qacc = z((w, 1, nv), f8)
-        self.jac, self.minv_jt = z((w, n6, nv), f8), z((w, n6, nv), f8)
-        self.twist, self.free, self.u, self.vs = (z((w, n6), f8) for _ in range(4))
-        self.a, self.low, self.gram = (z((w, n6, n6), f8) for _ in range(3))
-        self.rft_g, self.cap, self.wv, self.rhs, self.weight, self.x = (z((w, n6), f8) for _ in range(6))
-        self.diag0, self.rem, self.y = (z((w, n6), f8) for _ in range(3))
-        self.idx, self.order, self.kept = (z((w, n6), int) for _ in range(3))
-        self.capacity, self.total = z((w, g), f8), z((w, g), f8)
-        self.rest_flag, self.flow = z((w, g), int), z((w, g), int)
-        self.size = z((w, b), f8)
+        self.slot, self.arm, self.size = z((b, w), int), z((b, w), wp.vec3d), z((b, w), f8)
+        self.active = z((g, w), int)
+        self.mf = z((nv, nv, w), f8)
+        self.qacc = z((1, nv, w), f8)
+        self.jac, self.minv_jt = z((n6, nv, w), f8), z((n6, nv, w), f8)
+        self.twist, self.free, self.u, self.vs = (z((n6, w), f8) for _ in range(4))
+        self.a, self.low, self.gram = (z((n6, n6, w), f8) for _ in range(3))
+        self.rft_g, self.cap, self.wv, self.rhs, self.weight, self.x = (z((n6, w), f8) for _ in range(6))
+        self.diag0, self.rem, self.y = (z((n6, w), f8) for _ in range(3))
+        self.idx, self.order, self.kept = (z((n6, w), int) for _ in range(3))
+        self.capacity, self.total = z((g, w), f8), z((g, w), f8)
+        self.rest_flag, self.flow = z((g, w), int), z((g, w), int)
 
 
 def _terrain_spec(terrain: Terrain) -> tuple[int, np.ndarray, np.ndarray, float]:

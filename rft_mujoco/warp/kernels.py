@@ -17,6 +17,10 @@ Launch order of one evaluation (:meth:`rft_mujoco.warp.handle.WarpSandHandle._ev
     rest_solve       (nworld,)     rest_wrenches + _share + diagnostics (stabilize) or the naive rule
     commit           (nworld, B)   xfrc_applied = user + sand; the book
 
+Work arrays of the one-thread-per-world kernels keep the world index last ((n, w), (n, m, w)): on a GPU the
+threads of a warp (consecutive worlds) then read consecutive addresses. Per-body and per-element arrays of
+MuJoCo Warp's layout keep it first.
+
 Nothing here allocates or reads back to the host: a whole evaluation can be recorded in a CUDA graph.
 Per-element work masks: ``elem_mask`` (1 or nworld, E) int; an element with mask 0 does not exist for
 that world (neither touches nor loads), the hook for run-time culling.
@@ -252,12 +256,12 @@ def _jacobian(w: int, b: int, p: wp.vec3d, cdof: wp.array2d(dtype=wp.spatial_vec
               body_dofnum: wp.array(dtype=int), body_dofadr: wp.array(dtype=int),
               body_parentid: wp.array(dtype=int), dof_parentid: wp.array(dtype=int),
               out: wp.array3d(dtype=F64), row: int):
-    """Rows row..row+5 of out[w] := [linear velocity of world point p (m/s per dof); angular velocity] of
+    """Rows row..row+5 of out[:, :, w] := [linear velocity of world point p (m/s per dof); angular velocity] of
     body b (``mj_jac``), from ``cdof`` (motion axes about subtree_com of the root, rot:lin)."""
-    nv = out.shape[2]
+    nv = out.shape[1]
     for r in range(6):
         for j in range(nv):
-            out[w, row + r, j] = F64(0.0)
+            out[row + r, j, w] = F64(0.0)
     c = subtree_com[w, body_rootid[b]]
     d = p - wp.vec3d(F64(c[0]), F64(c[1]), F64(c[2]))
     j = _chain_dof(b, body_dofnum, body_dofadr, body_parentid)
@@ -266,8 +270,8 @@ def _jacobian(w: int, b: int, p: wp.vec3d, cdof: wp.array2d(dtype=wp.spatial_vec
         ang = wp.vec3d(F64(cd[0]), F64(cd[1]), F64(cd[2]))
         lin = wp.vec3d(F64(cd[3]), F64(cd[4]), F64(cd[5])) + wp.cross(ang, d)
         for k in range(3):
-            out[w, row + k, j] = lin[k]
-            out[w, row + 3 + k, j] = ang[k]
+            out[row + k, j, w] = lin[k]
+            out[row + 3 + k, j, w] = ang[k]
         j = dof_parentid[j]
 
 
@@ -277,7 +281,7 @@ def _add_jt_f(w: int, b: int, p: wp.vec3d, f: wp.spatial_vector, cdof: wp.array2
               body_dofnum: wp.array(dtype=int), body_dofadr: wp.array(dtype=int),
               body_parentid: wp.array(dtype=int), dof_parentid: wp.array(dtype=int),
               qfrc: wp.array3d(dtype=F64)):
-    """qfrc[w, 0] += J(b, p)^T (force, torque) (``mj_applyFT``)."""
+    """qfrc[0, :, w] += J(b, p)^T (force, torque) (``mj_applyFT``)."""
     c = subtree_com[w, body_rootid[b]]
     d = p - wp.vec3d(F64(c[0]), F64(c[1]), F64(c[2]))
     force = wp.vec3d(F64(f[0]), F64(f[1]), F64(f[2]))
@@ -287,40 +291,40 @@ def _add_jt_f(w: int, b: int, p: wp.vec3d, f: wp.spatial_vector, cdof: wp.array2
         cd = cdof[w, j]
         ang = wp.vec3d(F64(cd[0]), F64(cd[1]), F64(cd[2]))
         lin = wp.vec3d(F64(cd[3]), F64(cd[4]), F64(cd[5])) + wp.cross(ang, d)
-        qfrc[w, 0, j] = qfrc[w, 0, j] + wp.dot(lin, force) + wp.dot(ang, torque)
+        qfrc[0, j, w] = qfrc[0, j, w] + wp.dot(lin, force) + wp.dot(ang, torque)
         j = dof_parentid[j]
 
 
 @wp.func
 def _cholesky(w: int, mf: wp.array3d(dtype=F64), n: int):
-    """mf[w] := its lower Cholesky factor, in place (lower triangle read and written)."""
+    """mf[:, :, w] := its lower Cholesky factor, in place (lower triangle read and written)."""
     for c in range(n):
-        t = mf[w, c, c]
+        t = mf[c, c, w]
         for k in range(c):
-            t -= mf[w, c, k] * mf[w, c, k]
+            t -= mf[c, k, w] * mf[c, k, w]
         d = wp.sqrt(t)
-        mf[w, c, c] = d
+        mf[c, c, w] = d
         for r in range(c + 1, n):
-            s = mf[w, r, c]
+            s = mf[r, c, w]
             for k in range(c):
-                s -= mf[w, r, k] * mf[w, c, k]
-            mf[w, r, c] = s / d
+                s -= mf[r, k, w] * mf[c, k, w]
+            mf[r, c, w] = s / d
 
 
 @wp.func
 def _cholesky_solve(w: int, mf: wp.array3d(dtype=F64), n: int, x: wp.array3d(dtype=F64), row: int):
-    """x[w, row] := M^-1 x[w, row] with mf[w] the lower Cholesky factor of M."""
+    """x[row, :, w] := M^-1 x[row, :, w] with mf[:, :, w] the lower Cholesky factor of M."""
     for i in range(n):
-        s = x[w, row, i]
+        s = x[row, i, w]
         for k in range(i):
-            s -= mf[w, i, k] * x[w, row, k]
-        x[w, row, i] = s / mf[w, i, i]
+            s -= mf[i, k, w] * x[row, k, w]
+        x[row, i, w] = s / mf[i, i, w]
     for ii in range(n):
         i = n - 1 - ii
-        s = x[w, row, i]
+        s = x[row, i, w]
         for k in range(i + 1, n):
-            s -= mf[w, k, i] * x[w, row, k]
-        x[w, row, i] = s / mf[w, i, i]
+            s -= mf[k, i, w] * x[row, k, w]
+        x[row, i, w] = s / mf[i, i, w]
 
 
 @wp.func
@@ -354,7 +358,7 @@ def free_twist(
         vs: wp.array2d(dtype=F64), a: wp.array3d(dtype=F64), arm: wp.array2d(dtype=wp.vec3d),
         v_lin: wp.array2d(dtype=wp.vec3), v_ang: wp.array2d(dtype=wp.vec3)):
     """One thread per world: SandHandle._free_twists + the blend of _evaluate_rest (compiled rest.evaluate
-    steps 1-4). Outputs the touching groups (``active[w, :ngroups[w]]``, increasing), each attached body's
+    steps 1-4). Outputs the touching groups (``active[:ngroups[w], w]``, increasing), each attached body's
     row among them (``slot``, -1 if not touching), the scaled free twists ``vs`` and scaled mobility
     ``a = dt S J M^-1 J^T S`` of rest.rest_wrenches, the blended twists ``u`` (unscaled), and the element
     motions (``v_lin``, ``v_ang``) at each touching body's COM."""
@@ -376,14 +380,14 @@ def free_twist(
             if touch[w, b] != 0 and body_group[b] == g:
                 hit = 1
         if hit == 1:
-            active[w, ng] = g
+            active[ng, w] = g
             ng += 1
     for b in range(nb):
-        slot[w, b] = -1
+        slot[b, w] = -1
         if touch[w, b] != 0:
             for r in range(ng):
-                if active[w, r] == body_group[b]:
-                    slot[w, b] = r
+                if active[r, w] == body_group[b]:
+                    slot[b, w] = r
     ngroups[w] = ng
     if ng == 0:
         return
@@ -392,7 +396,7 @@ def free_twist(
         f = F64(qfrc_passive[w, i]) - F64(qfrc_bias[w, i]) + F64(qfrc_actuator[w, i]) + F64(qfrc_applied[w, i])
         if lagged:
             f += F64(qfrc_constraint[w, i])
-        qacc[w, 0, i] = f
+        qacc[0, i, w] = f
     for bb in range(1, nbody):
         k = attached_index[bb]
         fu = xfrc[w, bb]
@@ -408,14 +412,14 @@ def free_twist(
     # the mass matrix (CSR rows, diagonal last) densified and factored
     for i in range(nv):
         for j in range(i + 1):
-            mf[w, i, j] = F64(0.0)
+            mf[i, j, w] = F64(0.0)
         for adr in range(M_rowadr[i], M_rowadr[i] + M_rownnz[i]):
-            mf[w, i, M_colind[adr]] = F64(M[w, adr])
+            mf[i, M_colind[adr], w] = F64(M[w, adr])
     _cholesky(w, mf, nv)
     _cholesky_solve(w, mf, nv, qacc, 0)
     finite = int(1)
     for i in range(nv):
-        if not wp.isfinite(qacc[w, 0, i]):
+        if not wp.isfinite(qacc[0, i, w]):
             finite = 0
     if finite == 0:
         errors[w] = errors[w] | BAD_ACCELERATION
@@ -423,7 +427,7 @@ def free_twist(
         return
     # 3. Jacobians of the reference points, twists now and free, scaled mobility dt S J M^-1 J^T S
     for r in range(ng):
-        bref = body_id[group_ref[active[w, r]]]
+        bref = body_id[group_ref[active[r, w]]]
         _jacobian(w, bref, _v3(xipos[w, bref]), cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
                   body_parentid, dof_parentid, jac, 6 * r)
     n6 = 6 * ng
@@ -431,54 +435,54 @@ def free_twist(
         tw = F64(0.0)
         s = F64(0.0)
         for j in range(nv):
-            tw += jac[w, i, j] * F64(qvel[w, j])
-            s += jac[w, i, j] * qacc[w, 0, j]
-            minv_jt[w, i, j] = jac[w, i, j]
-        twist[w, i] = tw
-        free[w, i] = tw + dt * s
+            tw += jac[i, j, w] * F64(qvel[w, j])
+            s += jac[i, j, w] * qacc[0, j, w]
+            minv_jt[i, j, w] = jac[i, j, w]
+        twist[i, w] = tw
+        free[i, w] = tw + dt * s
         _cholesky_solve(w, mf, nv, minv_jt, i)
     for i in range(n6):
         si = F64(1.0)
         if i % 6 >= 3:
-            si = group_radius[active[w, i // 6]]
-        vs[w, i] = free[w, i] * si
+            si = group_radius[active[i // 6, w]]
+        vs[i, w] = free[i, w] * si
         for j in range(i + 1):
             sj = F64(1.0)
             if j % 6 >= 3:
-                sj = group_radius[active[w, j // 6]]
+                sj = group_radius[active[j // 6, w]]
             s = F64(0.0)
             for c in range(nv):
-                s += jac[w, i, c] * minv_jt[w, j, c]
+                s += jac[i, c, w] * minv_jt[j, c, w]
             x = dt * (si * s * sj)
-            a[w, i, j] = x
-            a[w, j, i] = x
+            a[i, j, w] = x
+            a[j, i, w] = x
     # 4. blended twists (rest.blend)
     for r in range(ng):
-        rad = group_radius[active[w, r]]
+        rad = group_radius[active[r, w]]
         o = 6 * r
-        sl = wp.vec3d(free[w, o] - twist[w, o], free[w, o + 1] - twist[w, o + 1], free[w, o + 2] - twist[w, o + 2])
-        sa = wp.vec3d(free[w, o + 3] - twist[w, o + 3], free[w, o + 4] - twist[w, o + 4],
-                      free[w, o + 5] - twist[w, o + 5])
-        vl = wp.vec3d(twist[w, o], twist[w, o + 1], twist[w, o + 2])
-        va = wp.vec3d(twist[w, o + 3], twist[w, o + 4], twist[w, o + 5])
+        sl = wp.vec3d(free[o, w] - twist[o, w], free[o + 1, w] - twist[o + 1, w], free[o + 2, w] - twist[o + 2, w])
+        sa = wp.vec3d(free[o + 3, w] - twist[o + 3, w], free[o + 4, w] - twist[o + 4, w],
+                      free[o + 5, w] - twist[o + 5, w])
+        vl = wp.vec3d(twist[o, w], twist[o + 1, w], twist[o + 2, w])
+        va = wp.vec3d(twist[o + 3, w], twist[o + 4, w], twist[o + 5, w])
         s = wp.length(sl) + rad * wp.length(sa)
         vv = wp.length(vl) + rad * wp.length(va)
         wgt = F64(0.0)
         if s > F64(0.0):
             wgt = s * s / (vv * vv + s * s)
         for c in range(6):
-            u[w, o + c] = twist[w, o + c] + wgt * (free[w, o + c] - twist[w, o + c])
+            u[o + c, w] = twist[o + c, w] + wgt * (free[o + c, w] - twist[o + c, w])
     # the blended motion at each touching body's COM
     for b in range(nb):
-        r = slot[w, b]
+        r = slot[b, w]
         if r < 0:
             continue
-        bref = body_id[group_ref[active[w, r]]]
+        bref = body_id[group_ref[active[r, w]]]
         ab = _v3(xipos[w, body_id[b]]) - _v3(xipos[w, bref])
-        arm[w, b] = ab
+        arm[b, w] = ab
         o = 6 * r
-        om = wp.vec3d(u[w, o + 3], u[w, o + 4], u[w, o + 5])
-        lin = wp.vec3d(u[w, o], u[w, o + 1], u[w, o + 2]) + wp.cross(om, ab)
+        om = wp.vec3d(u[o + 3, w], u[o + 4, w], u[o + 5, w])
+        lin = wp.vec3d(u[o, w], u[o + 1, w], u[o + 2, w]) + wp.cross(om, ab)
         v_lin[w, b] = wp.vec3(float(lin[0]), float(lin[1]), float(lin[2]))
         v_ang[w, b] = wp.vec3(float(om[0]), float(om[1]), float(om[2]))
 
@@ -514,78 +518,78 @@ def _pivoted_solve(w: int, a: wp.array3d(dtype=F64), idx: wp.array2d(dtype=int),
                    diag0: wp.array2d(dtype=F64), rem: wp.array2d(dtype=F64), order: wp.array2d(dtype=int),
                    kept: wp.array2d(dtype=int), low: wp.array3d(dtype=F64), gram: wp.array3d(dtype=F64),
                    y: wp.array2d(dtype=F64)):
-    """rest.pivoted_solve of the matrix a[w][idx, idx] (m rows of idx[w]); the solution into x[w, :m]."""
+    """rest.pivoted_solve of the matrix a[idx, idx, w] (the first m rows of idx[:, w]); the solution into x[:m, w]."""
     for i in range(m):
-        d = a[w, idx[w, i], idx[w, i]]
-        diag0[w, i] = d
-        rem[w, i] = d
-        kept[w, i] = 0
-        x[w, i] = F64(0.0)
+        d = a[idx[i, w], idx[i, w], w]
+        diag0[i, w] = d
+        rem[i, w] = d
+        kept[i, w] = 0
+        x[i, w] = F64(0.0)
     k = int(0)
     while k < m:
         p = int(-1)
         best = F64(DEPENDENT_TOL)
         for i in range(m):
-            if kept[w, i] == 0 and diag0[w, i] > TINY and rem[w, i] > best * diag0[w, i]:
-                best = rem[w, i] / diag0[w, i]
+            if kept[i, w] == 0 and diag0[i, w] > TINY and rem[i, w] > best * diag0[i, w]:
+                best = rem[i, w] / diag0[i, w]
                 p = i
         if p < 0:
             break
-        kept[w, p] = 1
-        order[w, k] = p
-        piv = wp.sqrt(rem[w, p])
+        kept[p, w] = 1
+        order[k, w] = p
+        piv = wp.sqrt(rem[p, w])
         for i in range(m):
-            if kept[w, i] == 1 and i != p:
+            if kept[i, w] == 1 and i != p:
                 continue
-            t = a[w, idx[w, i], idx[w, p]]
+            t = a[idx[i, w], idx[p, w], w]
             for j in range(k):
-                t -= low[w, i, j] * low[w, p, j]
-            low[w, i, k] = t / piv
+                t -= low[i, j, w] * low[p, j, w]
+            low[i, k, w] = t / piv
         for i in range(m):
-            if kept[w, i] == 0:
-                rem[w, i] = rem[w, i] - low[w, i, k] * low[w, i, k]
+            if kept[i, w] == 0:
+                rem[i, w] = rem[i, w] - low[i, k, w] * low[i, k, w]
         k += 1
     if k == 0:
         return
     for r in range(k):                              # B D B^T, B = a[order[:k], :]
-        ir = idx[w, order[w, r]]
+        ir = idx[order[r, w], w]
         for c in range(r + 1):
-            ic = idx[w, order[w, c]]
+            ic = idx[order[c, w], w]
             t = F64(0.0)
             for j in range(m):
-                ij = idx[w, j]
-                t += a[w, ir, ij] * weight[w, j] * a[w, ic, ij]
-            gram[w, r, c] = t
+                ij = idx[j, w]
+                t += a[ir, ij, w] * weight[j, w] * a[ic, ij, w]
+            gram[r, c, w] = t
     for c in range(k):                              # Cholesky, in place (lower)
-        t = gram[w, c, c]
+        t = gram[c, c, w]
         for j in range(c):
-            t -= gram[w, c, j] * gram[w, c, j]
+            t -= gram[c, j, w] * gram[c, j, w]
         d = wp.sqrt(TINY)
         if t > TINY:
             d = wp.sqrt(t)
-        gram[w, c, c] = d
+        gram[c, c, w] = d
         for r in range(c + 1, k):
-            s = gram[w, r, c]
+            s = gram[r, c, w]
             for j in range(c):
-                s -= gram[w, r, j] * gram[w, c, j]
-            gram[w, r, c] = s / d
+                s -= gram[r, j, w] * gram[c, j, w]
+            gram[r, c, w] = s / d
     for r in range(k):
-        t = rhs[w, order[w, r]]
+        t = rhs[order[r, w], w]
         for c in range(r):
-            t -= gram[w, r, c] * y[w, c]
-        y[w, r] = t / gram[w, r, r]
+            t -= gram[r, c, w] * y[c, w]
+        y[r, w] = t / gram[r, r, w]
     for rr in range(k):
         r = k - 1 - rr
-        t = y[w, r]
+        t = y[r, w]
         for c in range(r + 1, k):
-            t -= gram[w, c, r] * y[w, c]
-        y[w, r] = t / gram[w, r, r]
+            t -= gram[c, r, w] * y[c, w]
+        y[r, w] = t / gram[r, r, w]
     for j in range(m):
-        ij = idx[w, j]
+        ij = idx[j, w]
         t = F64(0.0)
         for r in range(k):
-            t += a[w, idx[w, order[w, r]], ij] * y[w, r]
-        x[w, j] = weight[w, j] * t
+            t += a[idx[order[r, w], w], ij, w] * y[r, w]
+        x[j, w] = weight[j, w] * t
 
 
 @wp.func
@@ -655,152 +659,152 @@ def rest_solve(
         # the groups' RFT wrenches about their reference points
         n6 = 6 * ng
         for i in range(n6):
-            rft_g[w, i] = F64(0.0)
+            rft_g[i, w] = F64(0.0)
         for b in range(nb):
-            r = slot[w, b]
+            r = slot[b, w]
             if r < 0:
                 continue
             f = _sv(wrench[w, b])
             fl = wp.vec3d(f[0], f[1], f[2])
-            tq = wp.vec3d(f[3], f[4], f[5]) + wp.cross(arm[w, b], fl)
+            tq = wp.vec3d(f[3], f[4], f[5]) + wp.cross(arm[b, w], fl)
             for c in range(3):
-                rft_g[w, 6 * r + c] = rft_g[w, 6 * r + c] + fl[c]
-                rft_g[w, 6 * r + 3 + c] = rft_g[w, 6 * r + 3 + c] + tq[c]
+                rft_g[6 * r + c, w] = rft_g[6 * r + c, w] + fl[c]
+                rft_g[6 * r + 3 + c, w] = rft_g[6 * r + 3 + c, w] + tq[c]
         # rest.rest_wrenches in scaled coordinates: twists (v, R w), wrenches (f, tau / R)
         for r in range(ng):
-            rad = group_radius[active[w, r]]
+            rad = group_radius[active[r, w]]
             nonzero = int(0)
             dsum = F64(0.0)
             for c in range(6):
-                xc = rft_g[w, 6 * r + c]
+                xc = rft_g[6 * r + c, w]
                 if c >= 3:
                     xc = xc / rad
-                cap[w, 6 * r + c] = xc
+                cap[6 * r + c, w] = xc
                 if xc != F64(0.0):
                     nonzero = 1
-                dsum -= rft_g[w, 6 * r + c] * u[w, 6 * r + c]
-            capacity[w, r] = wp.max(dsum, F64(0.0))
-            rest_flag[w, r] = nonzero
-            flow[w, r] = 0
+                dsum -= rft_g[6 * r + c, w] * u[6 * r + c, w]
+            capacity[r, w] = wp.max(dsum, F64(0.0))
+            rest_flag[r, w] = nonzero
+            flow[r, w] = 0
         again = int(1)
         while again == 1:
             for r in range(ng):
                 for c in range(6):
-                    wv[w, 6 * r + c] = F64(0.0)
-                if flow[w, r] != 0:
+                    wv[6 * r + c, w] = F64(0.0)
+                if flow[r, w] != 0:
                     h = F64(0.0)
                     q = F64(0.0)
                     for c in range(6):
-                        h += cap[w, 6 * r + c] * vs[w, 6 * r + c]
+                        h += cap[6 * r + c, w] * vs[6 * r + c, w]
                         t = F64(0.0)
                         for e in range(6):
-                            t += a[w, 6 * r + c, 6 * r + e] * cap[w, 6 * r + e]
-                        q += cap[w, 6 * r + c] * t
+                            t += a[6 * r + c, 6 * r + e, w] * cap[6 * r + e, w]
+                        q += cap[6 * r + c, w] * t
                     ff = _flow_factor(h, q)
                     for c in range(6):
-                        wv[w, 6 * r + c] = ff * cap[w, 6 * r + c]
+                        wv[6 * r + c, w] = ff * cap[6 * r + c, w]
             m = int(0)
             for r in range(ng):
-                if rest_flag[w, r] != 0:
+                if rest_flag[r, w] != 0:
                     for c in range(6):
-                        idx[w, m] = 6 * r + c
+                        idx[m, w] = 6 * r + c
                         m += 1
             over = int(0)
             if m > 0:
                 top = F64(0.0)
                 for i in range(m):
-                    ii = idx[w, i]
-                    s = vs[w, ii]
+                    ii = idx[i, w]
+                    s = vs[ii, w]
                     for j in range(n6):
-                        s += a[w, ii, j] * wv[w, j]
-                    rhs[w, i] = s
+                        s += a[ii, j, w] * wv[j, w]
+                    rhs[i, w] = s
                     gi = ii // 6
                     t = F64(0.0)
                     for c in range(6):
-                        t += cap[w, 6 * gi + c] * cap[w, 6 * gi + c]
-                    weight[w, i] = t
+                        t += cap[6 * gi + c, w] * cap[6 * gi + c, w]
+                    weight[i, w] = t
                     top = wp.max(top, t)
                 for i in range(m):
-                    weight[w, i] = wp.max(weight[w, i], WEIGHT_FLOOR * top)
+                    weight[i, w] = wp.max(weight[i, w], WEIGHT_FLOOR * top)
                 _pivoted_solve(w, a, idx, m, rhs, weight, x, diag0, rem, order, kept, low, gram, y)
                 for i in range(m):
-                    wv[w, idx[w, i]] = -x[w, i]
+                    wv[idx[i, w], w] = -x[i, w]
                 for r in range(ng):
-                    if rest_flag[w, r] != 0:
-                        rad = group_radius[active[w, r]]
+                    if rest_flag[r, w] != 0:
+                        rad = group_radius[active[r, w]]
                         demand = F64(0.0)
                         for c in range(6):
                             sc = F64(1.0)
                             if c >= 3:
                                 sc = rad
-                            demand -= wv[w, 6 * r + c] * u[w, 6 * r + c] * sc
-                        if demand > capacity[w, r] * (F64(1.0) + CAPACITY_TOL):
-                            rest_flag[w, r] = 0
-                            flow[w, r] = 1
+                            demand -= wv[6 * r + c, w] * u[6 * r + c, w] * sc
+                        if demand > capacity[r, w] * (F64(1.0) + CAPACITY_TOL):
+                            rest_flag[r, w] = 0
+                            flow[r, w] = 1
                             over = 1
             again = over
         # passivity of the whole impulse (rest.passive_scale)
         h = F64(0.0)
         q = F64(0.0)
         for i in range(n6):
-            h += wv[w, i] * vs[w, i]
+            h += wv[i, w] * vs[i, w]
             t = F64(0.0)
             for j in range(n6):
-                t += a[w, i, j] * wv[w, j]
-            q += wv[w, i] * t
+                t += a[i, j, w] * wv[j, w]
+            q += wv[i, w] * t
         pscale = F64(1.0)
         if h + F64(0.5) * q > F64(0.0):
             pscale = F64(0.0)
             if h < F64(0.0):
                 pscale = _flow_factor(h, q)
         for r in range(ng):
-            rad = group_radius[active[w, r]]
+            rad = group_radius[active[r, w]]
             for c in range(6):
                 sc = pscale
                 if c >= 3:
                     sc = pscale * rad
-                wv[w, 6 * r + c] = wv[w, 6 * r + c] * sc
+                wv[6 * r + c, w] = wv[6 * r + c, w] * sc
         # each body's part (coupling._share)
         for r in range(ng):
-            total[w, r] = F64(0.0)
+            total[r, w] = F64(0.0)
         for b in range(nb):
-            r = slot[w, b]
+            r = slot[b, w]
             if r < 0:
                 continue
-            size[w, b] = _norm6(_sv(wrench[w, b]), group_radius[active[w, r]])
-            total[w, r] = total[w, r] + size[w, b]
+            size[b, w] = _norm6(_sv(wrench[w, b]), group_radius[active[r, w]])
+            total[r, w] = total[r, w] + size[b, w]
         for b in range(nb):
-            r = slot[w, b]
-            if r < 0 or total[w, r] <= F64(0.0):
+            r = slot[b, w]
+            if r < 0 or total[r, w] <= F64(0.0):
                 continue
             o = 6 * r
-            rad = group_radius[active[w, r]]
-            if rest_flag[w, r] == 0:
-                gw = wp.spatial_vectord(rft_g[w, o], rft_g[w, o + 1], rft_g[w, o + 2], rft_g[w, o + 3],
-                                        rft_g[w, o + 4], rft_g[w, o + 5])
-                aw = wp.spatial_vectord(wv[w, o], wv[w, o + 1], wv[w, o + 2], wv[w, o + 3], wv[w, o + 4],
-                                        wv[w, o + 5])
+            rad = group_radius[active[r, w]]
+            if rest_flag[r, w] == 0:
+                gw = wp.spatial_vectord(rft_g[o, w], rft_g[o + 1, w], rft_g[o + 2, w], rft_g[o + 3, w],
+                                        rft_g[o + 4, w], rft_g[o + 5, w])
+                aw = wp.spatial_vectord(wv[o, w], wv[o + 1, w], wv[o + 2, w], wv[o + 3, w], wv[o + 4, w],
+                                        wv[o + 5, w])
                 gn = _norm6(gw, rad)
                 ff = F64(0.0)
                 if gn > F64(0.0):
                     ff = _norm6(aw, rad) / gn
                 sand[w, b] = _svf(_sv(wrench[w, b]) * ff)
             else:
-                share = size[w, b] / total[w, r]
-                sand[w, b] = _svf(wp.spatial_vectord(share * wv[w, o], share * wv[w, o + 1], share * wv[w, o + 2],
+                share = size[b, w] / total[r, w]
+                sand[w, b] = _svf(wp.spatial_vectord(share * wv[o, w], share * wv[o + 1, w], share * wv[o + 2, w],
                                                      F64(0.0), F64(0.0), F64(0.0)))
         for r in range(ng):
-            if rest_flag[w, r] == 0 or total[w, r] <= F64(0.0):
+            if rest_flag[r, w] == 0 or total[r, w] <= F64(0.0):
                 continue
             o = 6 * r
-            mom = wp.vec3d(wv[w, o + 3], wv[w, o + 4], wv[w, o + 5])
+            mom = wp.vec3d(wv[o + 3, w], wv[o + 4, w], wv[o + 5, w])
             for b in range(nb):
-                if slot[w, b] == r:
+                if slot[b, w] == r:
                     sb = sand[w, b]
-                    mom = mom - wp.cross(arm[w, b], wp.vec3d(F64(sb[0]), F64(sb[1]), F64(sb[2])))
+                    mom = mom - wp.cross(arm[b, w], wp.vec3d(F64(sb[0]), F64(sb[1]), F64(sb[2])))
             for b in range(nb):
-                if slot[w, b] == r:
-                    share = size[w, b] / total[w, r]
+                if slot[b, w] == r:
+                    share = size[b, w] / total[r, w]
                     sb = sand[w, b]
                     sand[w, b] = wp.spatial_vector(sb[0], sb[1], sb[2], float(share * mom[0]),
                                                    float(share * mom[1]), float(share * mom[2]))
@@ -815,7 +819,7 @@ def rest_solve(
         if rn > F64(0.0):
             scale[w, b] = float(_norm6(_sv(sb), rb) / rn)
             if stabilize != 0:
-                resting[w, b] = rest_flag[w, slot[w, b]]
+                resting[w, b] = rest_flag[slot[b, w], w]
         for c in range(6):
             if not wp.isfinite(sb[c]):
                 st = -1
