@@ -88,7 +88,7 @@ class _State:
         sv = wp.spatial_vector
         self.user, self.added, self.written, self.sand, self.rft = (z((w, b), sv) for _ in range(5))
         self.wrench = z((w, b), sv)
-        self.touch, self.count, self.resting = (z((w, b), int) for _ in range(3))
+        self.cand, self.touch, self.count, self.resting = (z((w, b), int) for _ in range(4))
         self.max_depth, self.scale = z((w, b)), z((w, b))
         self.v_lin, self.v_ang = z((w, b), wp.vec3), z((w, b), wp.vec3)
         self.last_time = wp.array(np.full(w, -np.inf, dtype=np.float32), dtype=float, device=dev)
@@ -121,6 +121,7 @@ def _terrain_spec(terrain: Terrain) -> tuple[int, np.ndarray, np.ndarray, float]
     if isinstance(inner, FlatSurface):
         return int(K.FLAT), tp, np.zeros((2, 2), dtype=np.float32), float(inner.height)
     if isinstance(inner, HeightfieldSurface):
+        tp[0] = inner.max_height
         tp[1:5] = (*inner.x_range, *inner.y_range)
         tp[5] = 1.0 if inner.outside == "none" else 0.0
         return int(K.HEIGHTFIELD), tp, np.ascontiguousarray(inner.heights, dtype=np.float32), 0.0
@@ -194,7 +195,7 @@ class WarpSandHandle:
         attached_index[layout.body_ids] = np.arange(self.n_bodies)
         self._a = dict(
             body_id=i4(layout.body_ids), elem_body=i4(layout.elem_body), centroid=v3(layout.centroids),
-            normal=v3(layout.normals), area=wp.array(layout.areas.astype(np.float32), dtype=float, device=dev),
+            normal=v3(layout.normals), bound_center=v3(layout.bound_center), area=wp.array(layout.areas.astype(np.float32), dtype=float, device=dev),
             body_group=i4(layout.groups.of_body), group_ref=i4(layout.groups.ref),
             group_radius=wp.array(layout.groups.radius, dtype=wp.float64, device=dev),
             bound_radius=wp.array(layout.bound_radius, dtype=wp.float64, device=dev),
@@ -326,10 +327,12 @@ class WarpSandHandle:
         guards = (int(self.guards.no_tension), int(self.guards.no_forward_tangential),
                   int(self.guards.no_positive_power))
         wp.launch(K.user_part, dim=wb, device=dev,
-                  inputs=[a["body_id"], d.xfrc_applied, st.written, st.added, st.user, st.touch, st.wrench,
-                          st.count, st.max_depth])
+                  inputs=[a["body_id"], d.xfrc_applied, st.written, st.added, a["bound_center"], a["bound_radius"],
+                          d.xpos, d.xmat, m.opt.gravity, self._kind, st.flat_height, a["tp"], st.user, st.cand,
+                          st.touch, st.wrench, st.count, st.max_depth])
         wp.launch(K.touch_pass, dim=we, device=dev,
-                  inputs=[a["body_id"], a["elem_body"], a["centroid"], st.elem_mask, d.xpos, d.xmat, m.opt.gravity,
+                  inputs=[a["body_id"], a["elem_body"], a["centroid"], st.elem_mask, st.cand, d.xpos, d.xmat,
+                          m.opt.gravity,
                           self._kind, st.flat_height, a["tp"], a["heights"], st.touch])
         if self.stabilize:
             mjw.fwd_actuation(m, d)            # MuJoCo computes qfrc_actuator only after the control callback

@@ -8,7 +8,7 @@ twists, mobility, the rest solve) in float64 -- the rank-revealing Cholesky of
 
 Launch order of one evaluation (:meth:`rft_mujoco.warp.handle.WarpSandHandle._evaluate`)::
 
-    user_part        (nworld, B)   xfrc_applied -> the user's part (the dispatcher's book); zero accumulators
+    user_part        (nworld, B)   xfrc_applied -> the user's part (the dispatcher's book); broadphase; zeroing
     touch_pass       (nworld, E)   depth of every active element: touch[w, b] = 1 if one is submerged
     [fwd_actuation]                MuJoCo Warp's own, for this step's qfrc_actuator (stabilize only)
     free_twist       (nworld,)     touching groups, free acceleration, Jacobians, mobility, blended twists
@@ -111,8 +111,9 @@ def depth(p: wp.vec3, g: wp.vec3, w: int, kind: int, flat_height: wp.array(dtype
           tp: wp.array(dtype=float), heights: wp.array2d(dtype=float)):
     """Depth (m) of world point ``p`` below the free surface of world ``w`` (-inf where there is no sand).
 
-    ``tp``: [unused, x0, x1, y0, y1, outside_none, is_region, rx0, rx1, ry0, ry1] (the layout of the
-    compiled CPU kernel's terrain_spec); ``flat_height`` (1 or nworld,) m.
+    ``tp``: [heightfield max height, x0, x1, y0, y1, outside_none, is_region, rx0, rx1, ry0, ry1] (the
+    layout of the compiled CPU kernel's terrain_spec, whose flat height moved to ``flat_height``, (1 or
+    nworld,) m).
     """
     if tp[6] != 0.0:
         if not (p[0] >= tp[7] and p[0] <= tp[8] and p[1] >= tp[9] and p[1] <= tp[10]):
@@ -151,12 +152,25 @@ def gravity_of(gravity: wp.array(dtype=wp.vec3), w: int):
 @wp.kernel
 def user_part(body_id: wp.array(dtype=int), xfrc: wp.array2d(dtype=wp.spatial_vector),
               written: wp.array2d(dtype=wp.spatial_vector), added: wp.array2d(dtype=wp.spatial_vector),
-              user: wp.array2d(dtype=wp.spatial_vector), touch: wp.array2d(dtype=int),
+              bound_center: wp.array(dtype=wp.vec3), bound_radius: wp.array(dtype=F64),
+              xpos: wp.array2d(dtype=wp.vec3), xmat: wp.array2d(dtype=wp.mat33), gravity: wp.array(dtype=wp.vec3),
+              kind: int, flat_height: wp.array(dtype=float), tp: wp.array(dtype=float),
+              user: wp.array2d(dtype=wp.spatial_vector), cand: wp.array2d(dtype=int), touch: wp.array2d(dtype=int),
               wrench: wp.array2d(dtype=wp.spatial_vector), count: wp.array2d(dtype=int),
               max_depth: wp.array2d(dtype=float)):
     """``user = xfrc - added`` on the components the user left as written (dispatch.untouched_components);
-    zeroes this evaluation's per-body accumulators."""
+    the broadphase (cand[w, b] = 0 when body b's bounding sphere is above the highest point of the sand, as
+    SandHandle._touching_numpy: a shortcut, nothing changes); zeroes this evaluation's accumulators."""
     w, b = wp.tid()
+    bid = body_id[b]
+    center = xpos[w, bid] + xmat[w, bid] * bound_center[b]
+    g, _mag = gravity_of(gravity, w)
+    top = tp[0]                                   # heightfield: its highest point
+    if kind == FLAT:
+        top = flat_height[w % flat_height.shape[0]]
+    cand[w, b] = 0
+    if -wp.dot(center, g) - float(bound_radius[b]) < top:
+        cand[w, b] = 1
     x = xfrc[w, body_id[b]]
     wr = written[w, b]
     ad = added[w, b]
@@ -178,16 +192,16 @@ def user_part(body_id: wp.array(dtype=int), xfrc: wp.array2d(dtype=wp.spatial_ve
 # --- 2. element passes (float32; rft_mujoco.physics.elements.body_wrenches) ---------------------------
 @wp.kernel
 def touch_pass(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), centroid: wp.array(dtype=wp.vec3),
-               elem_mask: wp.array2d(dtype=int), xpos: wp.array2d(dtype=wp.vec3),
+               elem_mask: wp.array2d(dtype=int), cand: wp.array2d(dtype=int), xpos: wp.array2d(dtype=wp.vec3),
                xmat: wp.array2d(dtype=wp.mat33), gravity: wp.array(dtype=wp.vec3), kind: int,
                flat_height: wp.array(dtype=float), tp: wp.array(dtype=float), heights: wp.array2d(dtype=float),
                touch: wp.array2d(dtype=int)):
     """touch[w, b] = 1 when an active element of attached body b is below the surface (the CPU broadphase and
     depth pre-pass; the broadphase is only a shortcut there and changes nothing)."""
     w, e = wp.tid()
-    if elem_mask[w % elem_mask.shape[0], e] == 0:
-        return
     b = elem_body[e]
+    if cand[w, b] == 0 or elem_mask[w % elem_mask.shape[0], e] == 0:
+        return
     bid = body_id[b]
     p = xpos[w, bid] + xmat[w, bid] * centroid[e]
     g, _mag = gravity_of(gravity, w)
