@@ -349,3 +349,12 @@ def test_attach_errors(quadruped):
     finally:
         handle.detach()
     assert mjw_model.callback.control is None
+
+
+def test_core_library_does_not_import_warp():
+    import subprocess
+    import sys
+
+    code = ("import sys, rft_mujoco, rft_mujoco.coupling.handle, rft_mujoco.studies.bench_warp, rft_mujoco.studies.cli; "
+            "sys.exit(('warp' in sys.modules) + 2 * ('mujoco_warp' in sys.modules))")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
