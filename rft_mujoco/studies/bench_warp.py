@@ -215,7 +215,7 @@ def plot(rows: list[dict], out: Path) -> Path:
     for r in warp_rows:
         if r["case"] == "sand: feet" and r["nworld"] in bare:
             ax.annotate(f"{r['world_steps_per_s'] / bare[r['nworld']]:.2f}x", (r["nworld"], r["world_steps_per_s"]),
-                        textcoords="offset points", xytext=(0, -14), ha="center", fontsize=8, color="tab:orange")
+                        textcoords="offset points", xytext=(6, -13), ha="left", fontsize=8, color="tab:orange")
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
     ax.set_xlim(0.7, nmax * 1.4)

@@ -42,6 +42,11 @@ from rft_mujoco.warp import kernels as K
 from rft_mujoco.warp import layout as _layout
 
 
+PER_WORLD_BLOCK = 32
+"""Threads per block of the one-thread-per-world kernels (free_twist, rest_solve): one warp, so that a few
+thousand worlds spread over every multiprocessor of a GPU instead of filling a few 256-thread blocks."""
+
+
 @dataclasses.dataclass
 class WarpDiagnostics:
     """Per-world, per-body sand state of the latest evaluation (numpy copies; arrays over ``body_ids``).
@@ -336,7 +341,7 @@ class WarpSandHandle:
                           self._kind, st.flat_height, a["tp"], a["heights"], st.touch])
         if self.stabilize:
             mjw.fwd_actuation(m, d)            # MuJoCo computes qfrc_actuator only after the control callback
-            wp.launch(K.free_twist, dim=nw, device=dev, inputs=[
+            wp.launch(K.free_twist, dim=nw, device=dev, block_dim=PER_WORLD_BLOCK, inputs=[
                 self.mj_model.nbody, a["body_rootid"], a["body_dofnum"], a["body_dofadr"], a["body_parentid"],
                 a["dof_parentid"], m.M_rownnz, m.M_rowadr, m.M_colind, m.opt.timestep,
                 a["body_id"], a["attached_index"], a["body_group"], a["group_ref"], a["group_radius"],
@@ -351,7 +356,7 @@ class WarpSandHandle:
             a["body_id"], a["elem_body"], a["centroid"], a["normal"], a["area"], st.elem_mask, d.xpos, d.xmat,
             d.xipos, m.opt.gravity, self._kind, st.flat_height, a["tp"], a["heights"], a["coef"], st.xi_per_g,
             st.mu_surf, *guards, st.touch, st.v_lin, st.v_ang, st.wrench, st.count, st.max_depth])
-        wp.launch(K.rest_solve, dim=nw, device=dev, inputs=[
+        wp.launch(K.rest_solve, dim=nw, device=dev, block_dim=PER_WORLD_BLOCK, inputs=[
             int(self.stabilize), int(self.passive), a["body_group"], a["group_radius"], a["bound_radius"],
             st.ngroups, st.active, st.slot, st.touch, st.wrench, st.count, st.vs, st.a, st.u, st.arm, st.v_lin,
             st.v_ang, st.rft_g, st.cap, st.capacity, st.rest_flag, st.flow, st.wv, st.idx, st.rhs, st.weight,
