@@ -17,7 +17,7 @@ mjw = pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (p
 wp = pytest.importorskip("warp", reason="warp-lang is not installed (pip install 'rft_mujoco[warp]')")
 
 import rft_mujoco  # noqa: E402
-from rft_mujoco.physics.terrain import HeightfieldSurface  # noqa: E402
+from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion  # noqa: E402
 from rft_mujoco.studies.gait import FOOT_BODIES  # noqa: E402
 from rft_mujoco.warp import kernels as K  # noqa: E402
 from rft_mujoco.warp import layout as wlayout  # noqa: E402
@@ -145,10 +145,16 @@ def test_naive_coupling_matches_cpu(quadruped):
         assert _rel(diag.force[i], forces[i]) < FORCE_RTOL
 
 
-def test_heightfield_terrain_matches_cpu(quadruped):
-    model, mjw_model = quadruped
+def _heightfield():
     x, y = np.meshgrid(np.linspace(-1, 1, 9), np.linspace(-1, 1, 7))
-    terrain = HeightfieldSurface(0.01 * np.sin(3 * x) * np.cos(2 * y) + 0.005, (-1.0, 1.0), (-1.0, 1.0))
+    return HeightfieldSurface(0.01 * np.sin(3 * x) * np.cos(2 * y) + 0.005, (-1.0, 1.0), (-1.0, 1.0))
+
+
+@pytest.mark.parametrize("terrain", [_heightfield(), SandRegion(FlatSurface(0.0), (0.0, 1.0), (-1.0, 1.0)),
+                                     SandRegion(_heightfield(), (-1.0, 1.0), (-1.0, 0.0))],
+                         ids=["heightfield", "flat_region_front_feet", "heightfield_region_right_feet"])
+def test_terrains_match_cpu(quadruped, terrain):
+    model, mjw_model = quadruped
     states, forces, _, _ = _cpu_snapshots(model, FOOT_BODIES, steps=(20, 60), surface_height=terrain)
     diag = _evaluate_warp(model, mjw_model, states, FOOT_BODIES, surface_height=terrain)
     assert np.abs(forces).max() > 1.0
@@ -186,6 +192,32 @@ def test_per_world_media(quadruped):
         handle.detach()
     for i in range(2):
         assert _rel(f[i], expect[i]) < FORCE_RTOL
+
+
+def test_per_world_surface_height(quadruped):
+    model, mjw_model = quadruped
+    state = _cpu_snapshots(model, FOOT_BODIES, steps=(20,))[0][0]
+    expect = _cpu_forward(model, MEDIA, FOOT_BODIES, state)
+    handle = rft_mujoco.attach(model, MEDIA, FOOT_BODIES, surface_height=0.004, monitor=False)
+    try:
+        d = mujoco.MjData(model)
+        d.qpos[:], d.qvel[:], d.time = state["qpos"], state["qvel"], state["time"]
+        d.ctrl[:] = model.key("home").ctrl
+        mujoco.mj_forward(model, d)
+        expect_high = handle.diagnostics(d).force.copy()
+    finally:
+        handle.detach()
+    dw = _warp_data(model, [state, state])
+    handle = rw.attach(model, mjw_model, MEDIA, FOOT_BODIES, data=dw)
+    try:
+        handle.set_surface_height(dw, 0.004, worlds=[1])
+        assert np.allclose(handle.surface_height(dw), [0.0, 0.004])
+        mjw.forward(mjw_model, dw)
+        f = handle.forces(dw)
+    finally:
+        handle.detach()
+    assert _rel(f[0], expect) < FORCE_RTOL and _rel(f[1], expect_high) < FORCE_RTOL
+    assert np.abs(expect_high).sum() > 1.2 * np.abs(expect).sum()
 
 
 def test_element_mask_removes_a_foot(quadruped):
