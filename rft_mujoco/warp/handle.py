@@ -13,7 +13,9 @@ re-capturing: the medium (:meth:`WarpSandHandle.set_media`), the flat surface he
 CUDA graphs: the evaluation launches kernels only -- no allocation, no host read-back, no Python branch on
 device values. Call :meth:`WarpSandHandle.bind` (or ``attach(..., data=d)``) before capturing, so that the
 per-data buffers exist; after capture, change per-world values only through the setters (they copy into the
-same buffers). Errors (a non-finite acceleration or wrench) cannot raise inside a step: they set bits of a
+same buffers). Re-capture after attach/detach, or after a ``set_element_mask`` that changes the mask's shape
+(1 <-> nworld rows: a new buffer). Not tested on a GPU here: the code keeps to these rules by construction.
+On a GPU the per-body sums use atomics, so wrenches may differ run to run in the last float32 bit. Errors (a non-finite acceleration or wrench) cannot raise inside a step: they set bits of a
 per-world flag and that world gets no sand for the evaluation; :meth:`WarpSandHandle.check` raises them.
 
 Differences from the CPU coupling, by design: no validity monitor (it would read back every step); RK4 in
