@@ -1,0 +1,82 @@
+"""The static part of a batched sand: which bodies, their surface elements, weld groups and radii (numpy).
+
+Built with the CPU coupling's own helpers (:mod:`rft_mujoco.coupling.setup`), so that the warp path cuts
+the same elements (culled at attach inside the body's other geoms and inside geoms welded to it), forms the
+same weld groups and uses the same radii as :class:`rft_mujoco.SandHandle` (tests/test_warp.py compares them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+
+from rft_mujoco.coupling import setup
+from rft_mujoco.coupling.handle import _body_id
+from rft_mujoco.coupling.setup import Groups
+from rft_mujoco.geometry import surface
+
+_TERRAIN_GEOMS = (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Layout:
+    """Elements and groups of the attached bodies (B bodies, E elements, G weld groups).
+
+    Attributes:
+        body_ids: (B,) int, MuJoCo ids of the attached bodies.
+        body_names: their names.
+        centroids: (E, 3) float, m, body frame. normals: (E, 3) unit, body frame. areas: (E,) m^2.
+        elem_body: (E,) int, row of each element's body in ``body_ids``; elements of a body are contiguous.
+        bound_center: (B, 3) m, body frame; bound_radius: (B,) m: the bodies' bounding spheres (the CPU
+            broadphase's; here they only scale torques in the diagnostics).
+        groups: the weld groups (:class:`rft_mujoco.coupling.handle.Groups`).
+        element_size: m.
+    """
+
+    body_ids: np.ndarray
+    body_names: list
+    centroids: np.ndarray
+    normals: np.ndarray
+    areas: np.ndarray
+    elem_body: np.ndarray
+    bound_center: np.ndarray
+    bound_radius: np.ndarray
+    groups: Groups
+    element_size: float
+
+    @property
+    def n_elements(self) -> int:
+        return int(self.areas.size)
+
+
+def default_bodies(model) -> list[int]:
+    """Every body but the world that has a non-terrain geom (``rft_mujoco.attach(bodies=None)``)."""
+    return [b for b in range(1, model.nbody)
+            if any(model.geom_bodyid[g] == b and model.geom_type[g] not in _TERRAIN_GEOMS for g in range(model.ngeom))]
+
+
+def build(model, bodies: Sequence[str | int] | None, resolution: str | float) -> Layout:
+    """The layout of ``bodies`` (names or ids; None: :func:`default_bodies`) at ``resolution``."""
+    size = surface.element_size(resolution)
+    if bodies is None:
+        ids = default_bodies(model)
+    else:
+        if isinstance(bodies, (str, int, np.integer)):
+            bodies = [bodies]
+        ids = [_body_id(model, b) for b in bodies]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"bodies lists a body twice: {list(bodies)}")
+    if not ids:
+        raise ValueError("no bodies to attach sand to: the model has no body with surface geoms")
+    names = [model.body(int(b)).name for b in ids]
+    ids = np.asarray(ids, dtype=np.int64)
+    s = setup.surfaces(model, ids, names, size)
+    centroids = np.ascontiguousarray(s.centroids, dtype=float)
+    bound_center, bound_radius = setup.bounding_spheres(centroids, s.elem_body, len(ids), size)
+    bound_radius = np.where(np.isfinite(bound_radius), bound_radius, size)     # a body without elements
+    return Layout(ids, names, centroids, np.ascontiguousarray(s.normals, dtype=float),
+                  np.ascontiguousarray(s.areas, dtype=float), s.elem_body, bound_center, bound_radius,
+                  setup.groups(model, ids, centroids, s.elem_body, size), size)
