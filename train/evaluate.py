@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from train.config import (
+from .config import (
     MODEL_FILENAME,
     VECNORMALIZE_FILENAME,
     RunConfig,
@@ -34,8 +34,8 @@ from train.config import (
     load_config,
     set_num_threads,
 )
-from train.environments import check_env_id, make_env
-from train.experiment import CHECKPOINT_PREFIX
+from .environments import check_env_id, make_env
+from .experiment import CHECKPOINT_PREFIX
 
 SPEED_KEYS = ("x_velocity", "forward_speed")
 EVAL_SEED_OFFSET = 10_000  # default episode seeds start at the training seed + this (unseen resets)
@@ -180,7 +180,7 @@ def plot_evaluation(results: dict, run_dir: str | Path, out: str | Path, *, wind
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from train.plot import load_monitor, plot_learning_curves
+    from .plot import load_monitor, plot_learning_curves
 
     policies = results["policies"]
     names = list(policies)
