@@ -33,7 +33,7 @@ stability: $(STAMP)     ## drop/drag/rotate stability study: table and map in ou
 	$(BIN)/python -m rft_mujoco stability
 
 train: $(STAMP)         ## PPO on SandSwimmer-v0, the README's learning run (runs/swimmer_ppo_1m)
-	$(BIN)/python -m train train --algo ppo --env rft_mujoco/SandSwimmer-v0 --timesteps 1000000 --seed 0 --run-name swimmer_ppo_1m
+	$(BIN)/python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandSwimmer-v0 --timesteps 1000000 --seed 0 --run-name swimmer_ppo_1m
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

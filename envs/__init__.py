@@ -4,6 +4,7 @@
 |------------------------------------|---------------------------------------------------------------|
 | ``rft_mujoco/SandSwimmer-v0``      | sandfish-like undulator swimming inside sand                  |
 | ``rft_mujoco/SandQuadruped-v0``    | Go1-class quadruped tracking a planar velocity command on sand|
+| ``rft_mujoco/SandQuadruped-v1``    | the same, sand on every body, rewarded for tracking the command|
 | ``rft_mujoco/SandWheel-v0``        | driven wheel on a carriage pulling a drawbar load on sand     |
 | ``rft_mujoco/SandAnt-v0``          | Gymnasium Ant-v5 on sand                                      |
 | ``rft_mujoco/SandHalfCheetah-v0``  | Gymnasium HalfCheetah-v5 on sand                              |
@@ -22,6 +23,7 @@ from .sand_bed import MediaRanges
 ENV_IDS = {
     "rft_mujoco/SandSwimmer-v0": ("sand_swimmer_v0:SandSwimmerEnv", 1000),
     "rft_mujoco/SandQuadruped-v0": ("sand_quadruped_v0:SandQuadrupedEnv", 1000),
+    "rft_mujoco/SandQuadruped-v1": ("sand_quadruped_v1:SandQuadrupedEnv", 1000),
     "rft_mujoco/SandWheel-v0": ("sand_wheel_v0:SandWheelEnv", 500),
     "rft_mujoco/SandAnt-v0": ("sand_wrapper:SandAntEnv", 1000),
     "rft_mujoco/SandHalfCheetah-v0": ("sand_wrapper:SandHalfCheetahEnv", 1000),

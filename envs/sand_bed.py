@@ -168,6 +168,15 @@ def surface_of(model, geoms: Sequence[str | int]):
     return surfaces[0]
 
 
+def all_sand_bodies(model) -> list[int]:
+    """Every body (but the world) with a non-terrain geom: whatever part of the robot reaches the sand feels it."""
+    has_geom = np.zeros(model.nbody, dtype=bool)
+    for g in range(model.ngeom):
+        if int(model.geom_type[g]) not in (_PLANE, _HFIELD):
+            has_geom[model.geom_bodyid[g]] = True
+    return [b for b in range(1, model.nbody) if has_geom[b]]
+
+
 def auto_sand_bodies(model) -> list[int]:
     """Bodies that usually touch the ground: foot-like names (:data:`FOOT_NAME_PATTERN`) and the leaves of
     the kinematic tree (distal links), each only if it has a non-terrain geom.
@@ -176,15 +185,13 @@ def auto_sand_bodies(model) -> list[int]:
     v5): Ant -> the four lower legs (unnamed leaves); HalfCheetah -> bshin, bfoot, fshin, ffoot; Hopper ->
     foot; Walker2d -> foot, foot_left; Humanoid -> shins, feet and lower arms.
     """
+    with_geom = all_sand_bodies(model)
     has_geom = np.zeros(model.nbody, dtype=bool)
-    for g in range(model.ngeom):
-        if int(model.geom_type[g]) not in (_PLANE, _HFIELD):
-            has_geom[model.geom_bodyid[g]] = True
-    has_geom[0] = False
+    has_geom[with_geom] = True
     parents = set(int(p) for p in model.body_parentid[1:])
     picked = [b for b in range(1, model.nbody) if has_geom[b]
               and (b not in parents or FOOT_NAME_PATTERN.search(model.body(b).name or ""))]
-    return picked or [b for b in range(1, model.nbody) if has_geom[b]]
+    return picked or with_geom
 
 
 class SandBed:
@@ -193,7 +200,8 @@ class SandBed:
     Args:
         model: the MjModel, usually compiled from a spec edited by :func:`make_sand_floor`.
         media: a :class:`rft_mujoco.Media` or a preset name.
-        bodies: body names or ids, or ``"auto"`` (:func:`auto_sand_bodies`).
+        bodies: body names or ids, ``"auto"`` (:func:`auto_sand_bodies`) or ``"all"`` (every body with a
+            non-terrain geom, :func:`all_sand_bodies`).
         resolution: element size, a preset name or metres (see ``rft_mujoco.geometry.surface.RESOLUTIONS``).
         surface: the free surface: names or ids of floor geoms (:func:`surface_of`), a height in m or a
             terrain object (``rft_mujoco.FlatSurface``, ``HeightfieldSurface``, ``SandRegion``).
@@ -212,7 +220,7 @@ class SandBed:
         if isinstance(surface, (list, tuple)):
             surface = surface_of(model, surface)
         if isinstance(bodies, str):
-            ids = auto_sand_bodies(model) if bodies == "auto" else [bodies]
+            ids = {"auto": auto_sand_bodies, "all": all_sand_bodies}.get(bodies, lambda _: [bodies])(model)
         else:
             ids = list(bodies)
         # monitor=False: random exploration leaves the quasi-static range all the time; a validity warning

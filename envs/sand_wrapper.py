@@ -28,6 +28,7 @@ from gymnasium.spaces import Box
 
 from rft_mujoco.physics.media import Media
 
+from .camera import track_body
 from .sand_bed import FEATURES_PER_BODY, MediaRanges, SandBed, initialize_sand_simulation, step_with_sand
 
 DEFAULT_MEDIA = "li_loose_glass_beads"
@@ -57,6 +58,10 @@ The base observation, followed, when ``include_sand_in_observation=True``, by 4 
 
 ## Action Space
 Unchanged (``{base}``).
+
+## Rendering
+Without ``camera_id`` or ``camera_name`` the camera follows the root body (MuJoCo's tracking camera,
+:func:`rft_mujoco.envs.camera.track_body`; the base env's free camera stays where the robot started).
 
 ## Rewards, Termination, Truncation
 Unchanged. ``info`` adds ``sand_force`` (B, 3) N and ``sand_sinkage`` (B,) m; ``env.unwrapped.sand.media``
@@ -92,6 +97,8 @@ class _SandEnv:
         self.sand = None
         self._bed_depth_m = bed_depth_m
         super().__init__(**base_kwargs)
+        if base_kwargs.get("camera_id") is None and base_kwargs.get("camera_name") is None:
+            track_body(self)  # the base renders from a free camera that the robot walks out of
         utils.EzPickle.__init__(self, media=media, resolution=resolution, sand_bodies=sand_bodies,
                                 bed_depth_m=bed_depth_m, sand_in_contact_forces=sand_in_contact_forces,
                                 include_sand_in_observation=include_sand_in_observation,

@@ -1,6 +1,7 @@
 """The Gymnasium sand tasks (envs/, installed as rft_mujoco.envs): API, determinism, physics sanity."""
 
 import copy
+import gc
 import os
 import warnings
 
@@ -15,9 +16,12 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 import rft_mujoco  # noqa: E402
 import rft_mujoco.envs  # noqa: E402
 from rft_mujoco.envs import ENV_IDS, MediaRanges, make_sand_env  # noqa: E402
+from rft_mujoco.envs.camera import track_body  # noqa: E402
+from rft_mujoco.envs.sand_quadruped_v1 import DEFAULT_REWARD_WEIGHTS, scripted_trot  # noqa: E402
 from rft_mujoco.envs.sand_swimmer_v0 import serpenoid_action  # noqa: E402
 
-NATIVE_IDS = ["rft_mujoco/SandSwimmer-v0", "rft_mujoco/SandQuadruped-v0", "rft_mujoco/SandWheel-v0"]
+QUADRUPED_V1 = "rft_mujoco/SandQuadruped-v1"
+NATIVE_IDS = ["rft_mujoco/SandSwimmer-v0", "rft_mujoco/SandQuadruped-v0", QUADRUPED_V1, "rft_mujoco/SandWheel-v0"]
 WRAPPED_IDS = ["rft_mujoco/SandAnt-v0", "rft_mujoco/SandHalfCheetah-v0", "rft_mujoco/SandHopper-v0",
                "rft_mujoco/SandWalker2d-v0", "rft_mujoco/SandHumanoid-v0"]
 
@@ -353,3 +357,179 @@ def test_compiling_and_two_env_kinds_in_one_process():
     swimmer.step(swimmer.action_space.sample())
     swimmer.close()
     assert not rft_mujoco.coupling.dispatch.DISPATCHER.handles
+
+
+# --- SandQuadruped-v1 ------------------------------------------------------------------------------
+V1_SHORT_EPISODE_STEPS = 150
+"""One short v1 episode: 3 s (the trot ramps up over its first 0.5 s)."""
+
+V1_COMMAND = (0.4, 0.0, 0.0)
+"""The command of the scripted-trot comparison: 0.4 m/s forward (the trot's nominal speed)."""
+
+
+def episode_return(env, policy, seed, steps, command=V1_COMMAND):
+    obs, _ = env.reset(seed=seed, options={"command": command})
+    total = 0.0
+    for _ in range(steps):
+        obs, reward, terminated, truncated, _ = env.step(policy(obs))
+        total += reward
+        if terminated or truncated:
+            break
+    return total
+
+
+def test_quadruped_v1_scores_walking_above_standing():
+    """The reward pays for tracking the command: under 0.4 m/s forward the scripted trot scores well above
+    the zero action (standing in the home pose), which scores above random actions (which fall)."""
+    env = gymnasium.make(QUADRUPED_V1)
+    zero = episode_return(env, lambda obs: np.zeros(12, np.float32), 0, V1_SHORT_EPISODE_STEPS)
+    trot = episode_return(env, scripted_trot(env, speed_mps=0.4), 0, V1_SHORT_EPISODE_STEPS)
+    env.action_space.seed(0)
+    rand = episode_return(env, lambda obs: env.action_space.sample(), 0, V1_SHORT_EPISODE_STEPS)
+    env.close()
+    assert trot > 1.5 * zero > 0
+    assert rand < zero
+
+
+def test_quadruped_v1_reward_terms_and_info():
+    env = gymnasium.make(QUADRUPED_V1)
+    obs, info = env.reset(seed=0, options={"command": (0.4, 0.0, 0.1)})
+    np.testing.assert_array_equal(obs[46:49], [0.4, 0.0, 0.1])
+    np.testing.assert_array_equal(info["command"], [0.4, 0.0, 0.1])
+    env.action_space.seed(0)
+    u = env.unwrapped
+    for _ in range(30):
+        _, reward, terminated, _, info = env.step(env.action_space.sample() * 0.3)
+        terms = {k[len("reward_"):]: v for k, v in info.items() if k.startswith("reward_")}
+        assert set(terms) == set(DEFAULT_REWARD_WEIGHTS)
+        assert reward == pytest.approx(max(sum(terms.values()), 0.0), abs=1e-12)   # only_positive_rewards
+        assert info["sand_force"].shape == (17, 3) and info["sand_sinkage"].shape == (17,)
+        assert not terminated
+    # the weighted terms are the methods times the weights
+    assert terms["torques"] == pytest.approx(-2e-5 * np.sum(np.square(u.data.actuator_force)))
+    assert terms["healthy"] == DEFAULT_REWARD_WEIGHTS["healthy"]
+    env.close()
+    raw = gymnasium.make(QUADRUPED_V1, only_positive_rewards=False, reward_weights={"healthy": 0.0})
+    raw.reset(seed=0)
+    _, reward, *_, info = raw.step(np.ones(12, np.float32))
+    assert info["reward_healthy"] == 0.0
+    assert reward == pytest.approx(sum(v for k, v in info.items() if k.startswith("reward_")), abs=1e-12)
+    raw.close()
+
+
+def test_quadruped_v1_sand_on_every_body():
+    """Every body of the robot feels the sand; standing, the feet and the lower calves are in it."""
+    env = gymnasium.make(QUADRUPED_V1)
+    u = env.unwrapped
+    assert len(u.sand.body_names) == u.model.nbody - 1 == 17
+    env.reset(seed=0)
+    for _ in range(25):
+        *_, info = env.step(np.zeros(12, np.float32))
+    env.close()
+    rows = {n: i for i, n in enumerate(u.sand.body_names)}
+    for leg in ("FL", "FR", "RL", "RR"):
+        assert info["sand_force"][rows[f"{leg}_foot"], 2] > 0
+        assert info["sand_sinkage"][rows[f"{leg}_calf"]] > 0
+    assert info["sand_sinkage"][rows["trunk"]] == 0
+
+
+def test_quadruped_v1_commands_resets_and_termination():
+    env = gymnasium.make(QUADRUPED_V1)
+    commands = np.array([env.reset(seed=s)[1]["command"] for s in range(20)])
+    assert np.all((commands[:, 0] >= 0.0) & (commands[:, 0] <= 0.6)) and np.ptp(commands[:, 0]) > 0.3
+    assert np.all(commands[:, 1] == 0.0)
+    assert np.all(np.abs(commands[:, 2]) <= 0.5) and np.ptp(commands[:, 2]) > 0.3
+    u = env.unwrapped
+    home = u.model.key("home").qpos
+    obs, _ = env.reset(seed=3)
+    assert np.abs(u.data.qpos[7:] - home[7:]).max() <= 0.05          # home with small noise
+    np.testing.assert_array_equal(u.data.qpos[:7], home[:7])
+    qpos = u.data.qpos.copy()
+    qpos[3:7] = [0.0, 1.0, 0.0, 0.0]                                  # upside down
+    u.set_state(qpos, u.data.qvel.copy())
+    *_, terminated, _, _ = env.step(np.zeros(12, np.float32))
+    assert terminated
+    env.reset(seed=0)
+    qpos = u.data.qpos.copy()
+    qpos[2] = 0.08                                                    # trunk down on the sand
+    u.set_state(qpos, np.zeros(u.model.nv))
+    *_, terminated, _, _ = env.step(np.zeros(12, np.float32))
+    assert terminated
+    with pytest.raises(ValueError, match="command"):
+        env.reset(options={"command": (1.0, 2.0)})
+    env.close()
+    with pytest.raises(ValueError, match="reward_weights"):
+        gymnasium.make(QUADRUPED_V1, reward_weights={"upright": 1.0})
+    with pytest.raises(ValueError, match="command_ranges"):
+        gymnasium.make(QUADRUPED_V1, command_ranges=((0.6, 0.0), (0, 0), (0, 0)))
+
+
+def test_quadruped_v1_sand_observation_per_leg():
+    env = gymnasium.make(QUADRUPED_V1, include_sand_in_observation=True)
+    assert env.observation_space.shape == (49 + 16,)
+    env.reset(seed=0)
+    for _ in range(20):
+        obs, *_, info = env.step(np.zeros(12, np.float32))
+    names = env.unwrapped.sand.body_names
+    env.close()
+    sand = obs[49:].reshape(4, 4)
+    for i, leg in enumerate(("FL", "FR", "RL", "RR")):
+        rows = [k for k, n in enumerate(names) if n.startswith(f"{leg}_")]
+        np.testing.assert_allclose(sand[i, :3], info["sand_force"][rows].sum(axis=0))
+        assert sand[i, 3] == info["sand_sinkage"][rows].max() > 0
+
+
+# --- cameras that follow the robot -----------------------------------------------------------------
+def robot_pixels(frame, kind):
+    """Boolean mask of the robot in an RGB frame: the quadruped's greys (not the yellow sand, its shadow or
+    the blue sky), the Ant's tan."""
+    rgb = frame.astype(float)
+    if kind == "grey":
+        return (np.abs(rgb[..., 0] - rgb[..., 2]) < 12) & (rgb.mean(axis=-1) < 200)
+    return (rgb[..., 0] - rgb[..., 2] > 60) & (rgb[..., 0] > 120)
+
+
+def frames_before_and_after_a_move(env, dx_m=3.0):
+    env.reset(seed=0)
+    before = env.render()
+    u = env.unwrapped
+    qpos = u.data.qpos.copy()
+    qpos[0] += dx_m
+    u.set_state(qpos, u.data.qvel.copy())
+    return before, env.render()
+
+
+@pytest.mark.parametrize("env_id, kind", [(QUADRUPED_V1, "grey"), ("rft_mujoco/SandAnt-v0", "tan")])
+def test_render_camera_follows_the_robot(env_id, kind):
+    """Moved 3 m, the robot is still where it was in the frame; with the free camera it has left it."""
+    masks = {}
+    for camera in ("default", "free"):
+        # Gymnasium's OffScreenViewer.__del__ releases whatever GL context is current, even after close():
+        # collect the closed envs of earlier tests now, not in the middle of this one (black frames).
+        gc.collect()
+        extra = {} if camera == "default" else {"camera_id": -1}
+        env = gymnasium.make(env_id, render_mode="rgb_array", width=160, height=120, **extra)
+        try:
+            before, after = frames_before_and_after_a_move(env)
+        except Exception as exc:  # no GL on this machine
+            env.close()
+            pytest.skip(f"offscreen rendering unavailable: {exc}")
+        env.close()
+        masks[camera] = robot_pixels(before, kind), robot_pixels(after, kind)
+    seen, moved = masks["default"]
+    assert seen.sum() > 200
+    assert (seen & moved).sum() > 0.6 * seen.sum()          # the same pixels: the camera followed
+    seen_free, moved_free = masks["free"]
+    assert (seen_free & moved_free).sum() < 0.3 * seen_free.sum()
+
+
+def test_track_body_switches_a_free_camera_only():
+    free = gymnasium.make("rft_mujoco/SandQuadruped-v0", render_mode="rgb_array")   # Gymnasium's free camera
+    assert track_body(free)
+    config = free.unwrapped.mujoco_renderer.default_cam_config
+    assert config["type"] == mujoco.mjtCamera.mjCAMERA_TRACKING and config["trackbodyid"] == 1
+    free.close()
+    fixed = gymnasium.make(QUADRUPED_V1, render_mode="rgb_array")                   # the model's track camera
+    assert not track_body(fixed)
+    assert fixed.unwrapped.mujoco_renderer.camera_id == fixed.unwrapped.model.camera("track").id
+    fixed.close()

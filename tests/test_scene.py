@@ -89,3 +89,19 @@ def test_view_has_its_own_options(monkeypatch, capsys):
         cli.main(["demo", "--help"])
     text = capsys.readouterr().out
     assert "--out" in text and "--no-video" in text
+
+
+def test_viewer_camera_tracks_the_trunk():
+    """The viewer's camera (demo.track) looks at the trunk's subtree centre of mass wherever it goes."""
+    scene = demo.Demo()
+    model, data = scene.model, scene.data
+    cam = mujoco.MjvCamera()
+    demo.track(cam, scene.trunk)
+    opt, pert, scn = mujoco.MjvOption(), mujoco.MjvPerturb(), mujoco.MjvScene(model, maxgeom=1000)
+    for dx in (0.0, 2.0):
+        data.qpos[0] += dx
+        mujoco.mj_forward(model, data)
+        mujoco.mjv_updateScene(model, data, opt, pert, cam, mujoco.mjtCatBit.mjCAT_ALL, scn)
+        np.testing.assert_allclose(cam.lookat, data.subtree_com[scene.trunk], atol=1e-12)
+    assert cam.distance == demo.VIEW_DISTANCE_M
+    scene.close()

@@ -1,13 +1,16 @@
-"""Tests of ``python -m train``: CLI help, config resolution and round trip, and a smoke run that trains,
-saves, reloads from ``config.yaml`` alone and evaluates.
+"""Tests of ``python -m rft_mujoco.train`` (``train/`` installed as ``rft_mujoco.train``; ``python -m train``
+from the repository root is an alias): CLI help from any directory, config resolution and round trip, and
+smoke runs that train, save, reload from ``config.yaml`` alone and evaluate.
 
-The smoke run uses ``rft_mujoco/SandSwimmer-v0`` when it is registered (100-step episodes through the
-``max_episode_steps`` env kwarg of ``gymnasium.make``), else ``Pendulum-v1`` with a warning.
+The main smoke run uses ``rft_mujoco/SandSwimmer-v0`` when it is registered (100-step episodes through the
+``max_episode_steps`` env kwarg of ``gymnasium.make``), else ``Pendulum-v1`` with a warning; a second one
+runs ``rft_mujoco/SandQuadruped-v1`` with its own hyperparameter entry.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -17,19 +20,19 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # ``train/`` is a top-level folder run as ``python -m train``, not installed
-    sys.path.insert(0, str(ROOT))
 
 pytest.importorskip("stable_baselines3")
 gym = pytest.importorskip("gymnasium")
 
-from train import config as cfg  # noqa: E402
-from train.cli import main  # noqa: E402
-from train.environments import check_env_id, sand_env_ids  # noqa: E402
+from rft_mujoco.train import config as cfg  # noqa: E402
+from rft_mujoco.train.cli import main  # noqa: E402
+from rft_mujoco.train.environments import check_env_id, sand_env_ids  # noqa: E402
 
 SAND_ID = "rft_mujoco/SandSwimmer-v0"
+QUADRUPED_V1 = "rft_mujoco/SandQuadruped-v1"
 SAND_IDS = ("rft_mujoco/SandSwimmer-v0", "rft_mujoco/SandAnt-v0", "rft_mujoco/SandHalfCheetah-v0",
-            "rft_mujoco/SandQuadruped-v0")
+            "rft_mujoco/SandQuadruped-v0", QUADRUPED_V1)
+PROG = "python -m rft_mujoco.train"
 
 
 def _smoke_env_id() -> str:
@@ -44,14 +47,38 @@ def _smoke_env_id() -> str:
 # --- command line -------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("command", [[], ["train"], ["evaluate"], ["plot"]])
-def test_help(command):
-    result = subprocess.run([sys.executable, "-m", "train", *command, "--help"], cwd=ROOT,
+def test_help_from_any_directory(command, tmp_path):
+    """The installed package runs outside the repository (cwd: an empty temporary folder)."""
+    result = subprocess.run([sys.executable, "-m", "rft_mujoco.train", *command, "--help"], cwd=tmp_path,
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
-    assert result.stdout.startswith("usage: python -m train")
+    assert result.stdout.startswith(f"usage: {PROG}")
     expected = {(): "evaluate", ("train",): "--hyperparams", ("evaluate",): "--episodes",
                 ("plot",): "--window"}[tuple(command)]
     assert expected in result.stdout
+    assert not list(tmp_path.iterdir())
+
+
+def test_console_script_and_repository_alias(tmp_path):
+    script = shutil.which("rft-mujoco-train", path=str(Path(sys.executable).parent))
+    if script is None:
+        pytest.skip("the rft-mujoco-train console script is not installed beside this Python")
+    result = subprocess.run([script, "train", "--help"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("usage: rft-mujoco-train train")
+    alias = subprocess.run([sys.executable, "-m", "train", "--help"], cwd=ROOT, capture_output=True, text=True,
+                           timeout=60)
+    assert alias.returncode == 0, alias.stderr
+    assert alias.stdout.startswith("usage: python -m train")
+
+
+def test_hyperparameters_are_package_data():
+    import importlib.resources
+
+    shipped = importlib.resources.files("rft_mujoco.train") / "hyperparams"
+    assert {p.name for p in shipped.iterdir()} >= {"ppo.yml", "sac.yml"}
+    assert cfg.hyperparams_path("ppo") == cfg.HYPERPARAMS_DIR / "ppo.yml"
+    assert Path(str(shipped / "ppo.yml")).resolve() == cfg.hyperparams_path("ppo").resolve()
 
 
 def test_unknown_algo_is_a_clear_error(capsys):
@@ -121,7 +148,7 @@ def test_config_round_trip(tmp_path):
                                 hyperparams=["learning_rate=lin_1e-3", "normalize=true",
                                              "policy_kwargs.activation_fn=relu"],
                                 env_kwargs=["max_episode_steps=50", "label=1e-3"],
-                                command="python -m train train --algo sac")
+                                command=f"{PROG} train --algo sac")
     path = cfg.save_config(config, tmp_path / "run")
     assert path == tmp_path / "run" / "config.yaml"
     loaded = cfg.load_config(tmp_path / "run")
@@ -157,7 +184,7 @@ def test_hyperparams_files_cover_the_sand_tasks(algo):
 
 
 def test_unknown_hyperparameter_is_a_clear_error(tmp_path):
-    from train.experiment import train
+    from rft_mujoco.train.experiment import train
 
     config = cfg.resolve_config(algo="ppo", env_id="Pendulum-v1", timesteps=64,
                                 hyperparams=["learnin_rate=1e-3"])
@@ -168,7 +195,7 @@ def test_unknown_hyperparameter_is_a_clear_error(tmp_path):
 # --- learning curves ----------------------------------------------------------------------------
 
 def test_monitor_files_merge_by_end_time(tmp_path):
-    from train.plot import load_monitor, moving_average, plot
+    from rft_mujoco.train.plot import load_monitor, moving_average, plot
 
     (tmp_path / "monitor").mkdir()
     (tmp_path / "monitor" / "0.monitor.csv").write_text(
@@ -215,13 +242,14 @@ def test_ppo_smoke_run_writes_the_run_directory(ppo_run):
     assert (config.algo, config.env_id, config.seed, config.n_envs, config.n_timesteps) == (
         "ppo", env_id, 1, 2, 2048)
     assert config.hyperparams["n_steps"] == 256 and config.env_kwargs == {"max_episode_steps": 100}
-    assert config.command.startswith("python -m train train --algo ppo")
+    assert config.command.startswith(f"{PROG} train --algo ppo")
+    assert f"{PROG} evaluate --run" in (run / "config.yaml").read_text()
     print(f"PPO smoke training on {env_id}: {seconds:.1f} s")
 
 
 @pytest.mark.slow
 def test_ppo_smoke_run_evaluates_from_config_alone(ppo_run, tmp_path):
-    from train.evaluate import evaluate
+    from rft_mujoco.train.evaluate import evaluate
 
     env_id, run, _ = ppo_run
     start = time.perf_counter()
@@ -260,3 +288,31 @@ def test_sac_smoke_run_on_pendulum(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "trained" in out and "zero" in out and "no forward speed" in out
     assert json.loads((run / "eval" / "eval.json").read_text())["speed_key"] is None
+
+
+@pytest.mark.slow
+def test_quadruped_v1_smoke_train_save_load_evaluate(tmp_path):
+    """SandQuadruped-v1 with its YAML entry (2 x 128 PPO steps instead of 4 x 1024), then evaluation
+    (trained, random, zero) and a few video frames, rebuilt from config.yaml."""
+    from rft_mujoco.train.evaluate import evaluate
+
+    start = time.perf_counter()
+    code = main(["train", "--algo", "ppo", "--env", QUADRUPED_V1, "--timesteps", "256", "--n-envs", "2",
+                 "--seed", "2", "--hyperparams", "n_steps=128", "batch_size=128", "n_epochs=1",
+                 "--env-kwargs", "max_episode_steps=40", "--save-freq", "0", "--runs-dir", str(tmp_path),
+                 "--run-name", "v1", "--no-progress-bar", "--verbose", "0"])
+    trained_s = time.perf_counter() - start
+    assert code == 0
+    run = tmp_path / "v1"
+    assert (run / "model.zip").is_file() and (run / "vecnormalize.pkl").is_file()
+    config = cfg.load_config(run)
+    assert config.hyperparams_entries == ["default", QUADRUPED_V1]
+    assert config.hyperparams["policy_kwargs"]["net_arch"] == {"pi": [256, 256], "vf": [256, 256]}
+    assert config.normalize is not None and config.hyperparams["gamma"] == 0.99
+    start = time.perf_counter()
+    results = evaluate(run, episodes=1, out_dir=tmp_path / "eval", max_video_frames=5)
+    assert set(results["policies"]) == {"trained", "random", "zero"}
+    assert results["speed_key"] == "x_velocity"
+    assert results["policies"]["zero"]["lengths"] == [40]
+    assert results["video"] is not None or results["video_message"].startswith("video skipped")
+    print(f"SandQuadruped-v1 smoke: training {trained_s:.1f} s, evaluation {time.perf_counter() - start:.1f} s")

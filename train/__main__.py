@@ -1,8 +1,8 @@
-"""``python -m train``: see :mod:`train.cli`."""
+"""``python -m rft_mujoco.train`` (installed) or ``python -m train`` (the repository root): see :mod:`.cli`."""
 
 import sys
 
-from train.cli import main
+from .cli import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(prog=f"python -m {__package__}"))

@@ -1,11 +1,13 @@
-"""Command line: ``python -m train {train,evaluate,plot}`` (``--help`` on each).
+"""Command line: ``python -m rft_mujoco.train {train,evaluate,plot}`` (``--help`` on each), also installed
+as ``rft-mujoco-train``; ``python -m train`` is the same from the repository root.
 
-Examples (from the repository root)::
+Examples (from any directory; runs go to ./runs)::
 
-    python -m train train --algo ppo --env rft_mujoco/SandSwimmer-v0 --timesteps 200000 --n-envs 4 --seed 0
-    python -m train train --algo sac --env Pendulum-v1 --timesteps 20000 --hyperparams learning_rate=1e-3
-    python -m train evaluate --run runs/rft_mujoco-SandSwimmer-v0_ppo_0_20250101-120000 --episodes 10
-    python -m train plot runs/*SandSwimmer* --out swimmer_curves.png
+    python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandQuadruped-v1 --seed 0
+    python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandSwimmer-v0 --timesteps 200000 --n-envs 4
+    python -m rft_mujoco.train train --algo sac --env Pendulum-v1 --timesteps 20000 --hyperparams learning_rate=1e-3
+    python -m rft_mujoco.train evaluate --run runs/rft_mujoco-SandSwimmer-v0_ppo_0_20250101-120000 --episodes 10
+    python -m rft_mujoco.train plot runs/*SandSwimmer* --out swimmer_curves.png
     tensorboard --logdir runs
 """
 
@@ -15,16 +17,23 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from train.config import ALGOS, VEC_ENVS
+from .config import ALGOS, HYPERPARAMS_DIR, VEC_ENVS
+
+PROG = "python -m rft_mujoco.train"
+"""The command's name in help and error messages and in each run's recorded command line."""
+
+SCRIPT = "rft-mujoco-train"
+"""The console script installed with the package (:func:`script_main`)."""
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m train", description=__doc__,
+def _parser(prog: str = PROG) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", metavar="{train,evaluate,plot}")
 
     tr = sub.add_parser("train", help="train PPO or SAC; writes runs/<env>_<algo>_<seed>_<timestamp>/",
-                        description="Train an SB3 agent. Hyperparameters come from train/hyperparams/<algo>.yml "
+                        description=f"Train an SB3 agent. Hyperparameters come from {HYPERPARAMS_DIR.name}/<algo>.yml "
+                        "(shipped with the package) "
                         "(the 'default' entry updated by the env id's entry), then --hyperparams, then the "
                         "explicit flags. The resolved configuration is saved as config.yaml in the run "
                         "directory, beside model.zip, vecnormalize.pkl, checkpoints/, monitor/ and tb/.")
@@ -41,7 +50,7 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--env-kwargs", nargs="+", default=[], metavar="KEY=VALUE",
                     help="keyword arguments of gymnasium.make (YAML values), on top of the YAML env_kwargs")
     tr.add_argument("--hyperparams-file", default=None,
-                    help="YAML of hyperparameters keyed by env id (default train/hyperparams/<algo>.yml)")
+                    help=f"YAML of hyperparameters keyed by env id (default {HYPERPARAMS_DIR}/<algo>.yml)")
     tr.add_argument("--runs-dir", default="runs", help="parent folder of run directories (default runs)")
     tr.add_argument("--run-name", default=None, help="run directory name (default <env>_<algo>_<seed>_<timestamp>)")
     tr.add_argument("--save-freq", type=int, default=100_000,
@@ -81,30 +90,31 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
+    """Run the command line on ``argv`` (default ``sys.argv[1:]``); ``prog`` names it in messages."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = _parser()
+    parser = _parser(prog)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 2
     try:
         if args.command == "train":
-            from train.config import command_line, resolve_config
-            from train.environments import check_env_id
-            from train.experiment import new_run_dir, train
+            from .config import command_line, resolve_config
+            from .environments import check_env_id
+            from .experiment import new_run_dir, train
 
             check_env_id(args.env_id)
             config = resolve_config(
                 algo=args.algo, env_id=args.env_id, seed=args.seed, timesteps=args.timesteps,
                 n_envs=args.n_envs, hyperparams=args.hyperparams, env_kwargs=args.env_kwargs,
                 hyperparams_file=args.hyperparams_file, vec_env=args.vec_env, save_freq=args.save_freq,
-                device=args.device, num_threads=args.num_threads, command=command_line(argv),
+                device=args.device, num_threads=args.num_threads, command=command_line(argv, prog),
             )
             train(config, new_run_dir(config, args.runs_dir, args.run_name),
-                  progress_bar=not args.no_progress_bar, verbose=args.verbose)
+                  progress_bar=not args.no_progress_bar, verbose=args.verbose, prog=prog)
         elif args.command == "evaluate":
-            from train.evaluate import evaluate
+            from .evaluate import evaluate
 
             evaluate(args.run, episodes=args.episodes, seed=args.seed, model_path=args.model,
                      out_dir=args.out, deterministic=not args.stochastic, video=not args.no_video,
@@ -112,14 +122,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             from pathlib import Path
 
-            from train.plot import plot
+            from .plot import plot
 
             out = args.out or (Path(args.runs[0]) / "learning_curve.png" if len(args.runs) == 1
                                and Path(args.runs[0]).is_dir() else "learning_curves.png")
             print(f"wrote {plot(args.runs, out, window=args.window)}")
     except (ValueError, FileNotFoundError) as err:
-        parser.exit(2, f"python -m train {args.command}: error: {err}\n")
+        parser.exit(2, f"{prog} {args.command}: error: {err}\n")
     return 0
+
+
+def script_main() -> int:
+    """The ``rft-mujoco-train`` console script."""
+    return main(prog=SCRIPT)
 
 
 if __name__ == "__main__":

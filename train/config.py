@@ -2,7 +2,8 @@
 
 Resolution order, lowest to highest precedence (rl-zoo3's scheme):
 
-1. the ``default`` entry of ``train/hyperparams/<algo>.yml``;
+1. the ``default`` entry of ``hyperparams/<algo>.yml`` (package data of ``rft_mujoco.train``,
+   :data:`HYPERPARAMS_DIR`);
 2. the entry named by the env id, which replaces default keys one by one (so an env's ``policy_kwargs``
    replaces the default's whole mapping);
 3. ``--hyperparams key=value`` overrides; dotted keys reach inside mappings
@@ -36,6 +37,8 @@ import yaml
 
 ALGOS = ("ppo", "sac")
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
+"""The shipped hyperparameter YAMLs (``<algo>.yml``), package data beside this module."""
+DEFAULT_PROG = "python -m rft_mujoco.train"
 DEFAULT_ENTRY = "default"
 CONFIG_FILENAME = "config.yaml"
 MODEL_FILENAME = "model.zip"
@@ -129,7 +132,7 @@ def deep_update(base: Mapping[str, Any], updates: Mapping[str, Any]) -> dict[str
 
 
 def hyperparams_path(algo: str, path: str | Path | None = None) -> Path:
-    """``path`` if given, else ``train/hyperparams/<algo>.yml``."""
+    """``path`` if given, else the shipped ``hyperparams/<algo>.yml`` (:data:`HYPERPARAMS_DIR`)."""
     return Path(path) if path is not None else HYPERPARAMS_DIR / f"{check_algo(algo)}.yml"
 
 
@@ -256,7 +259,7 @@ def resolve_config(
 ) -> RunConfig:
     """Resolve YAML entries and CLI overrides (``key=value`` strings) into a :class:`RunConfig`.
 
-    Does not check that ``env_id`` is registered (see :func:`train.environments.check_env_id`).
+    Does not check that ``env_id`` is registered (see :func:`.environments.check_env_id`).
     """
     algo = check_algo(algo)
     if vec_env not in VEC_ENVS:
@@ -300,17 +303,17 @@ def resolve_config(
     )
 
 
-def command_line(argv: Sequence[str]) -> str:
-    """``python -m train`` followed by ``argv``, shell-quoted."""
-    return shlex.join(["python", "-m", "train", *argv])
+def command_line(argv: Sequence[str], prog: str = DEFAULT_PROG) -> str:
+    """``prog`` (``python -m rft_mujoco.train``) followed by ``argv``, shell-quoted."""
+    return shlex.join([*shlex.split(prog), *argv])
 
 
-def save_config(config: RunConfig, run_dir: str | Path) -> Path:
+def save_config(config: RunConfig, run_dir: str | Path, prog: str = DEFAULT_PROG) -> Path:
     """Write ``run_dir/config.yaml``; returns its path."""
     path = Path(run_dir) / CONFIG_FILENAME
     path.parent.mkdir(parents=True, exist_ok=True)
-    header = (f"# Resolved configuration of this run ({config.command or 'python -m train'}).\n"
-              f"# Rebuild and evaluate with: python -m train evaluate --run {Path(run_dir)}\n")
+    header = (f"# Resolved configuration of this run ({config.command or prog}).\n"
+              f"# Rebuild and evaluate with: {prog} evaluate --run {Path(run_dir)}\n")
     path.write_text(header + yaml.dump(dataclasses.asdict(config), Dumper=_Dumper, sort_keys=False,
                                           default_flow_style=None, width=100))
     return path
@@ -323,7 +326,7 @@ def load_config(path: str | Path) -> RunConfig:
         path = path / CONFIG_FILENAME
     if not path.is_file():
         raise FileNotFoundError(f"no {CONFIG_FILENAME} at {path}: pass a run directory written by "
-                                "`python -m train train` (runs/<env>_<algo>_<seed>_<timestamp>)")
+                                f"`{DEFAULT_PROG} train` (runs/<env>_<algo>_<seed>_<timestamp>)")
     data = load_yaml(path)
     fields = [f.name for f in dataclasses.fields(RunConfig)]
     if not isinstance(data, dict):

@@ -72,7 +72,7 @@ def make_env(env_id: str, env_kwargs: Mapping[str, Any] | None = None,
 
 
 def make_vec_env(config, *, monitor_dir: str | Path | None = None):
-    """The training envs of ``config`` (a :class:`train.config.RunConfig`), Monitor-wrapped, not normalized.
+    """The training envs of ``config`` (a :class:`.config.RunConfig`), Monitor-wrapped, not normalized.
 
     Env rank ``i`` is seeded with ``config.seed + i``; rank ``i`` writes ``monitor_dir/<i>.monitor.csv``.
     """

@@ -11,7 +11,9 @@ Per policy: mean and standard deviation of the episode return (raw env reward, n
 episode length and, when the env's ``info`` has a forward speed (first of :data:`SPEED_KEYS`), the mean
 over episodes of the per-episode mean forward speed. Writes ``eval.json``, ``eval.png`` (bar charts and
 the learning curve from the run's Monitor CSVs) and ``video.mp4`` (one trained episode rendered with
-``render_mode="rgb_array"``; skipped with a message when offscreen rendering or mp4 writing fails).
+``render_mode="rgb_array"`` from a camera that follows the robot: the env's own camera when it names
+one, else MuJoCo's tracking camera on the root body, :func:`rft_mujoco.envs.camera.track_body`; skipped
+with a message when offscreen rendering or mp4 writing fails).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from train.config import (
+from .config import (
     MODEL_FILENAME,
     VECNORMALIZE_FILENAME,
     RunConfig,
@@ -32,8 +34,8 @@ from train.config import (
     load_config,
     set_num_threads,
 )
-from train.environments import check_env_id, make_env
-from train.experiment import CHECKPOINT_PREFIX
+from .environments import check_env_id, make_env
+from .experiment import CHECKPOINT_PREFIX
 
 SPEED_KEYS = ("x_velocity", "forward_speed")
 EVAL_SEED_OFFSET = 10_000  # default episode seeds start at the training seed + this (unseen resets)
@@ -127,13 +129,18 @@ def _summary(episodes: Sequence[dict]) -> dict[str, Any]:
 
 def record_video(config: RunConfig, act: Policy, seed: int, path: str | Path, *,
                  max_frames: int) -> tuple[Path | None, str]:
-    """Render one episode of ``act`` to ``path`` (mp4; GIF when no mp4 writer); (path or None, message)."""
+    """Render one episode of ``act`` to ``path`` (mp4; GIF when no mp4 writer); (path or None, message).
+
+    MuJoCo envs that render from Gymnasium's free camera get a tracking camera on their root body."""
+    from rft_mujoco.envs.camera import track_body
+
     try:
         env = make_env(config.env_id, config.env_kwargs, render_mode="rgb_array")
     except Exception as err:  # noqa: BLE001 (any failure here only costs the video)
         return None, f"video skipped: the env cannot be made with render_mode='rgb_array' ({err})"
     frames = []
     try:
+        track_body(env)  # a free camera (Gymnasium's default) would stay where the robot started
         obs, _ = env.reset(seed=seed)
         frames.append(env.render())
         for _ in range(max_frames - 1):
@@ -173,7 +180,7 @@ def plot_evaluation(results: dict, run_dir: str | Path, out: str | Path, *, wind
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from train.plot import load_monitor, plot_learning_curves
+    from .plot import load_monitor, plot_learning_curves
 
     policies = results["policies"]
     names = list(policies)

@@ -11,7 +11,8 @@ import inspect
 import time
 from pathlib import Path
 
-from train.config import (
+from .config import (
+    DEFAULT_PROG,
     MODEL_FILENAME,
     VECNORMALIZE_FILENAME,
     RunConfig,
@@ -20,7 +21,7 @@ from train.config import (
     save_config,
     set_num_threads,
 )
-from train.environments import check_env_id, make_vec_env
+from .environments import check_env_id, make_vec_env
 
 CHECKPOINT_PREFIX = "model"
 
@@ -45,8 +46,11 @@ def _check_hyperparams(cls: type, kwargs: dict, config: RunConfig) -> None:
         )
 
 
-def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, verbose: int = 1) -> Path:
-    """Train ``config.algo`` on ``config.env_id`` for ``config.n_timesteps`` steps; returns the model path."""
+def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, verbose: int = 1,
+          prog: str = DEFAULT_PROG) -> Path:
+    """Train ``config.algo`` on ``config.env_id`` for ``config.n_timesteps`` steps; returns the model path.
+
+    ``prog`` is the command named in the hints it prints and writes (``config.yaml``'s header)."""
     from stable_baselines3.common.callbacks import CheckpointCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -55,7 +59,7 @@ def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, 
     cls = algo_class(config.algo)
     kwargs = algo_kwargs(config)
     _check_hyperparams(cls, kwargs, config)
-    save_config(config, run_dir)
+    save_config(config, run_dir, prog)
     set_num_threads(config)
 
     env = make_vec_env(config, monitor_dir=run_dir / "monitor")
@@ -89,5 +93,5 @@ def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, 
     finally:
         env.close()
     print(f"{model.num_timesteps} steps in {elapsed:.1f} s ({model.num_timesteps / max(elapsed, 1e-9):.0f} "
-          f"steps/s); saved {model_path}\nevaluate with: python -m train evaluate --run {run_dir}", flush=True)
+          f"steps/s); saved {model_path}\nevaluate with: {prog} evaluate --run {run_dir}", flush=True)
     return model_path

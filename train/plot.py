@@ -1,6 +1,6 @@
 """Learning curves (episode return vs environment steps) from the Monitor CSVs of training runs.
 
-``python -m train plot RUN_DIR [RUN_DIR ...] --out curve.png``. Each run's ``monitor/*.monitor.csv``
+``python -m rft_mujoco.train plot RUN_DIR [RUN_DIR ...] --out curve.png``. Each run's ``monitor/*.monitor.csv``
 files (one per training env) are merged in wall-clock order and the episode lengths summed to give the
 step count at each episode end, as stable-baselines3's ``results_plotter`` does (without pandas).
 """
@@ -106,8 +106,8 @@ def plot(runs: Sequence[str | Path], out: str | Path, *, window: int = 10) -> Pa
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m train.plot``: same as ``python -m train plot``."""
-    from train.cli import main as cli_main
+    """``python -m rft_mujoco.train.plot``: same as ``python -m rft_mujoco.train plot``."""
+    from .cli import main as cli_main
 
     return cli_main(["plot", *(sys.argv[1:] if argv is None else argv)])
 

@@ -3,7 +3,8 @@
 Headless. Prints a summary (sinkage, per-foot sand forces, simulated seconds per wall second), saves a
 plot and, where offscreen rendering works (``MUJOCO_GL=egl``, or ``osmesa`` with Debian's libosmesa6), a
 short video. ``python -m rft_mujoco view`` runs the same scene in the interactive ``mujoco.viewer`` with the
-sand forces drawn as arrows (needs a display).
+sand forces drawn as arrows (needs a display). Both follow the robot: the video from the model's
+``track`` camera, the viewer with a tracking camera on the trunk.
 """
 
 from __future__ import annotations
@@ -29,6 +30,12 @@ DEMO_GAIT = {"frequency_hz": 2.5, "step_height_m": 0.09, "hip_height_m": 0.26}
 
 ARROW_N_PER_M = 200.0
 """Force arrows in the viewer and video: 1 m of arrow per 200 N."""
+
+VIDEO_CAMERA = "track"
+"""The model's camera that follows the robot's centre of mass (``mode="trackcom"``): the video's view."""
+
+VIEW_DISTANCE_M = 1.6
+"""Distance of the viewer's tracking camera from the trunk, m."""
 
 
 def scene_path() -> Path:
@@ -81,6 +88,17 @@ class Demo:
 
     def close(self) -> None:
         self.sand.detach()
+
+
+def track(cam, body: int, distance_m: float = VIEW_DISTANCE_M, azimuth_deg: float = 120.0,
+          elevation_deg: float = -20.0) -> None:
+    """Make an MjvCamera follow ``body`` (its subtree's centre of mass; ``mjCAMERA_TRACKING``): the
+    viewer keeps the robot in view and the mouse still turns and zooms around it."""
+    cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+    cam.trackbodyid = int(body)
+    cam.distance = float(distance_m)
+    cam.azimuth = float(azimuth_deg)
+    cam.elevation = float(elevation_deg)
 
 
 def add_force_arrows(scene, sand, data, scale: float = 1.0 / ARROW_N_PER_M) -> None:
@@ -142,7 +160,7 @@ def _video(out: Path, seconds: float, fps: int = 30) -> Path | None:
     for i in range(n):
         demo.step()
         if i % every == 0:
-            renderer.update_scene(demo.data, camera="track")
+            renderer.update_scene(demo.data, camera=VIDEO_CAMERA)
             add_force_arrows(renderer.scene, demo.sand, demo.data)
             frames.append(renderer.render())
     renderer.close()
@@ -213,6 +231,8 @@ def view(seconds: float = 60.0, stand_s: float = 1.0) -> None:
                          "or the headless 'python -m rft_mujoco demo'")
     demo = Demo(stand_s=stand_s)
     with mujoco.viewer.launch_passive(demo.model, demo.data) as viewer:
+        with viewer.lock():
+            track(viewer.cam, demo.trunk)
         start = time.perf_counter()
         while viewer.is_running() and demo.data.time < seconds:
             demo.step()
