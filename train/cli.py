@@ -42,6 +42,8 @@ def _parser(prog: str = PROG) -> argparse.ArgumentParser:
                     help="gymnasium env id, e.g. rft_mujoco/SandSwimmer-v0 or Pendulum-v1")
     tr.add_argument("--timesteps", type=float, default=None,
                     help="total env steps over all envs (default: n_timesteps from the YAML)")
+    tr.add_argument("--max-minutes", type=float, default=None,
+                    help="stop (and save) after this many minutes of wall-clock time (default: no limit)")
     tr.add_argument("--n-envs", type=int, default=None, help="parallel training envs (default: YAML n_envs, else 1)")
     tr.add_argument("--seed", type=int, default=0, help="seed of the model and of env i (seed + i) (default 0)")
     tr.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY=VALUE",
@@ -112,7 +114,8 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
                 device=args.device, num_threads=args.num_threads, command=command_line(argv, prog),
             )
             train(config, new_run_dir(config, args.runs_dir, args.run_name),
-                  progress_bar=not args.no_progress_bar, verbose=args.verbose, prog=prog)
+                  progress_bar=not args.no_progress_bar, verbose=args.verbose, prog=prog,
+                  max_minutes=args.max_minutes)
         elif args.command == "evaluate":
             from .evaluate import evaluate
 

@@ -46,13 +46,35 @@ def _check_hyperparams(cls: type, kwargs: dict, config: RunConfig) -> None:
         )
 
 
+def _wall_clock_limit(minutes: float):
+    """An SB3 callback that stops training once ``minutes`` of wall-clock time have passed since it started."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class WallClockLimit(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.deadline = time.perf_counter() + 60.0 * minutes
+
+        def _on_step(self) -> bool:
+            if time.perf_counter() < self.deadline:
+                return True
+            print(f"wall-clock limit of {minutes:g} min reached at {self.num_timesteps} steps: stopping",
+                  flush=True)
+            return False
+
+    return WallClockLimit()
+
+
 def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, verbose: int = 1,
-          prog: str = DEFAULT_PROG) -> Path:
-    """Train ``config.algo`` on ``config.env_id`` for ``config.n_timesteps`` steps; returns the model path.
+          prog: str = DEFAULT_PROG, max_minutes: float | None = None) -> Path:
+    """Train ``config.algo`` on ``config.env_id`` for ``config.n_timesteps`` steps, or until ``max_minutes``
+    of wall-clock time (min) have passed; returns the model path.
 
     ``prog`` is the command named in the hints it prints and writes (``config.yaml``'s header)."""
     from stable_baselines3.common.callbacks import CheckpointCallback
     from stable_baselines3.common.vec_env import VecNormalize
+
+    if max_minutes is not None and not max_minutes > 0:
+        raise ValueError(f"max_minutes must be > 0 (minutes of wall-clock time), got {max_minutes!r}")
 
     check_env_id(config.env_id)
     run_dir = Path(run_dir)
@@ -77,6 +99,8 @@ def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, 
                 save_vecnormalize=True,
                 verbose=verbose,
             ))
+        if max_minutes is not None:
+            callbacks.append(_wall_clock_limit(max_minutes))
         print(f"training {config.algo.upper()} on {config.env_id}: {config.n_timesteps} steps, "
               f"{config.n_envs} env(s), seed {config.seed} -> {run_dir}", flush=True)
         start = time.perf_counter()
