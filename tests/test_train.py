@@ -17,6 +17,7 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -294,6 +295,7 @@ def test_sac_smoke_run_on_pendulum(tmp_path, capsys):
 def test_quadruped_v1_smoke_train_save_load_evaluate(tmp_path):
     """SandQuadruped-v1 with its YAML entry (2 x 128 PPO steps instead of 4 x 1024), then evaluation
     (trained, random, zero) and a few video frames, rebuilt from config.yaml."""
+    from rft_mujoco.train import commands
     from rft_mujoco.train.evaluate import evaluate
 
     start = time.perf_counter()
@@ -315,4 +317,13 @@ def test_quadruped_v1_smoke_train_save_load_evaluate(tmp_path):
     assert results["speed_key"] == "x_velocity"
     assert results["policies"]["zero"]["lengths"] == [40]
     assert results["video"] is not None or results["video_message"].startswith("video skipped")
+    rows = results["commands"]                      # the command-tracking table of the README
+    assert [(r["policy"], tuple(r["command"])) for r in rows] == [
+        (p, c) for p in ("trained", "zero", "random") for c in commands.COMMANDS]
+    assert all(np.isfinite(r["vx"]) and r["sinkage_m"] > 0.0 and 0 <= r["falls"] <= 1 for r in rows)
+    gap = commands.gap_table(run, run, episodes=1, out=tmp_path / "gap.json")
+    assert [(r["trained_on"], r["ground"]) for r in gap] == [("sand", "sand"), ("sand", "rigid"),
+                                                             ("rigid", "sand"), ("rigid", "rigid")]
+    assert gap[0]["sinkage_m"] > 0.0 and gap[1]["sinkage_m"] == 0.0     # no sand on the rigid floor
+    assert "trained on" in commands.format_gap(gap) and (tmp_path / "gap.json").is_file()
     print(f"SandQuadruped-v1 smoke: training {trained_s:.1f} s, evaluation {time.perf_counter() - start:.1f} s")

@@ -1,4 +1,4 @@
-"""Command line: ``python -m rft_mujoco.train {train,evaluate,plot}`` (``--help`` on each), also installed
+"""Command line: ``python -m rft_mujoco.train {train,evaluate,gap,plot}`` (``--help`` on each), also installed
 as ``rft-mujoco-train``; ``python -m train`` is the same from the repository root.
 
 Examples (from any directory; runs go to ./runs)::
@@ -7,6 +7,7 @@ Examples (from any directory; runs go to ./runs)::
     python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandSwimmer-v0 --timesteps 200000 --n-envs 4
     python -m rft_mujoco.train train --algo sac --env Pendulum-v1 --timesteps 20000 --hyperparams learning_rate=1e-3
     python -m rft_mujoco.train evaluate --run runs/rft_mujoco-SandSwimmer-v0_ppo_0_20250101-120000 --episodes 10
+    python -m rft_mujoco.train gap --sand runs/SAND_RUN --rigid runs/RIGID_RUN --speed 0.4
     python -m rft_mujoco.train plot runs/*SandSwimmer* --out swimmer_curves.png
     tensorboard --logdir runs
 """
@@ -29,7 +30,7 @@ SCRIPT = "rft-mujoco-train"
 def _parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", metavar="{train,evaluate,plot}")
+    sub = parser.add_subparsers(dest="command", metavar="{train,evaluate,gap,plot}")
 
     tr = sub.add_parser("train", help="train PPO or SAC; writes runs/<env>_<algo>_<seed>_<timestamp>/",
                         description=f"Train an SB3 agent. Hyperparameters come from {HYPERPARAMS_DIR.name}/<algo>.yml "
@@ -81,6 +82,18 @@ def _parser(prog: str = PROG) -> argparse.ArgumentParser:
     ev.add_argument("--no-video", action="store_true", help="do not render a video")
     ev.add_argument("--video-frames", type=int, default=1000, help="frame cap of the video (default 1000)")
     ev.add_argument("--window", type=int, default=10, help="moving-average window of the learning curve")
+    ev.add_argument("--no-commands", action="store_true",
+                    help="skip the command-tracking table (envs with a velocity command, e.g. SandQuadruped-v1)")
+
+    gp = sub.add_parser("gap", help="the sand gap: a sand-trained and a rigid-trained run, each on both grounds",
+                        description="Evaluate the run trained on sand and the run trained on rigid ground "
+                        "(env_kwargs ground=rigid) each on sand and on rigid ground at one forward command: "
+                        "forward speed, falls, sinkage, return.")
+    gp.add_argument("--sand", required=True, help="run directory of the policy trained on sand")
+    gp.add_argument("--rigid", required=True, help="run directory of the policy trained on rigid ground")
+    gp.add_argument("--speed", type=float, default=0.4, help="commanded forward speed, m/s (default 0.4)")
+    gp.add_argument("--episodes", type=int, default=3, help="episodes per cell (default 3)")
+    gp.add_argument("--out", default=None, help="JSON file of the table (default: none)")
 
     pl = sub.add_parser("plot", help="learning curves (episode return vs steps) from Monitor CSVs",
                         description="Plot episode return vs environment steps from the Monitor CSVs of one "
@@ -121,7 +134,13 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
 
             evaluate(args.run, episodes=args.episodes, seed=args.seed, model_path=args.model,
                      out_dir=args.out, deterministic=not args.stochastic, video=not args.no_video,
-                     max_video_frames=args.video_frames, window=args.window)
+                     max_video_frames=args.video_frames, window=args.window, commands=not args.no_commands)
+        elif args.command == "gap":
+            from .commands import format_gap, gap_table
+
+            rows = gap_table(args.sand, args.rigid, command=(args.speed, 0.0, 0.0), episodes=args.episodes,
+                             out=args.out)
+            print(format_gap(rows))
         else:
             from pathlib import Path
 

@@ -228,7 +228,7 @@ def format_table(results: dict) -> str:
 def evaluate(run_dir: str | Path, *, episodes: int = 10, seed: int | None = None,
              model_path: str | Path | None = None, out_dir: str | Path | None = None,
              deterministic: bool = True, video: bool = True, max_video_frames: int = 1000,
-             window: int = 10) -> dict[str, Any]:
+             window: int = 10, commands: bool = True) -> dict[str, Any]:
     """Evaluate the run in ``run_dir`` against random and zero-action baselines; returns the results dict.
 
     Args:
@@ -241,6 +241,8 @@ def evaluate(run_dir: str | Path, *, episodes: int = 10, seed: int | None = None
         video: render one trained episode (seed ``seed``) to ``out_dir/video.mp4``.
         max_video_frames: frame cap of the video.
         window: moving-average window of the learning curve.
+        commands: for an env with a velocity command (SandQuadruped-v1), also the command-tracking table
+            of :func:`.commands.command_table` (forward speed against command, falls, sinkage).
     """
     from tqdm.auto import tqdm
 
@@ -297,6 +299,17 @@ def evaluate(run_dir: str | Path, *, episodes: int = 10, seed: int | None = None
     results["video"] = None if video_path is None else str(video_path)
     results["video_message"] = message
     results["plot"] = str(plot_evaluation(results, run_dir, out / PLOT_FILENAME, window=window))
+    if commands:
+        from .commands import command_table, takes_commands
+
+        probe = make_env(config.env_id, config.env_kwargs)
+        try:
+            has_commands = takes_commands(probe)
+        finally:
+            probe.close()
+        if has_commands:
+            print("command tracking (mean over episodes after the first second):")
+            results["commands"] = command_table(run_dir, episodes=min(episodes, 3), seed=seed)
     json_path = out / JSON_FILENAME
     json_path.write_text(json.dumps(results, indent=2) + "\n")
     results["json"] = str(json_path)
