@@ -530,3 +530,21 @@ def test_nested_touching_and_coincident_geoms():
     # two identical geoms: each lies on, not inside, the other; both copies stay (documented), never none
     model, b = one_body("<geom type='sphere' size='0.02'/><geom type='sphere' size='0.02'/>")
     assert surface.body_elements(model, b, 0.005).area() == pytest.approx(2 * sphere_area(0.02), rel=1e-12)
+
+
+def test_load_mesh_reads_a_mesh_file_like_mesh(tmp_path):
+    """A mesh file (through trimesh) gives the elements of the same vertices and faces given directly."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(0.1, 0.06, 0.04))
+    path = tmp_path / "box.stl"
+    box.export(path)
+    got = surface.load_mesh(path, 0.01)
+    ref = surface.mesh(np.asarray(box.vertices), np.asarray(box.faces), 0.01)
+    assert len(got) == len(ref)
+    np.testing.assert_allclose(got.area(), 2 * (0.1 * 0.06 + 0.1 * 0.04 + 0.06 * 0.04), rtol=1e-6)
+    np.testing.assert_allclose(got.enclosed_volume(), 0.1 * 0.06 * 0.04, rtol=1e-6)
+    empty = tmp_path / "empty.obj"
+    empty.write_text("v 0 0 0\n")
+    with pytest.raises(ValueError, match="no triangles"):
+        surface.load_mesh(empty)

@@ -18,22 +18,27 @@ Constructions (each tested for convergence in tests/test_surface.py):
   quadrature of ``x_theta x x_phi``, centroid at the surface point with the mean normal.
 * box, cylinder: flat grid cells (cylinder sides: true normal at the mid angle; caps: polar annular
   sectors with their exact area centroids). Areas and volumes exact at every size.
-* mesh: each triangle is split into ``k^2`` congruent triangles (``k = ceil(longest edge / size)``);
-  degenerate triangles are dropped; inverted meshes raise, open ones warn.
+* mesh (:mod:`rft_mujoco.geometry.meshes`): each triangle is split into ``k^2`` congruent triangles
+  (``k = ceil(longest edge / size)``); degenerate triangles are dropped; inverted meshes raise, open ones
+  warn; :func:`load_mesh` reads mesh files through trimesh.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import types
 import warnings
-from typing import Sequence
 
 import mujoco
 import numpy as np
 
 from rft_mujoco.geometry import occlusion
+from rft_mujoco.geometry.elements import NORMAL_TOL, ROTATION_TOL, Elements, _check_length, _check_lengths
+from rft_mujoco.geometry.meshes import DEGENERATE_TOL, MERGE_TOL, VOLUME_TOL, _mesh, load_mesh, mesh
+
+__all__ = ["Elements", "RESOLUTIONS", "element_size", "sphere", "ellipsoid", "box", "cylinder", "capsule", "mesh",
+           "load_mesh", "geom_elements", "body_elements", "body_elements_with_culled", "NORMAL_TOL", "ROTATION_TOL",
+           "DEGENERATE_TOL", "VOLUME_TOL", "MERGE_TOL"]
 
 # --- presets and tolerances: one place -------------------------------------------------------------
 RESOLUTIONS = types.MappingProxyType({
@@ -44,24 +49,12 @@ RESOLUTIONS = types.MappingProxyType({
 })
 """Named element sizes (target edge length, m). Read-only mapping: pass a float for anything else.
 
-Measured error and cost (``python -m rft_mujoco bench``, section 4: largest relative error of the total
-force over 13 motion directions in the xz-plane, against 1 mm elements (0.5 mm for the foot); time of one
-evaluation of the whole body, fully submerged, by the numba kernel, including ~2 us of call overhead):
-
-=========  ===============  ===============  ==================  ===================
-preset     sphere r 5 cm    ellipsoid        foot: sphere r 2 cm  7.5 cm cube, prisms
-           27 cm deep       7.5/4.5/4.5 cm   3 cm deep           (three rotations)
-=========  ===============  ===============  ==================  ===================
-coarse     0.85%, 4.5 us    1.12%, 4.6 us    0.86%, 4.5 us       exact, 3-5 us
-default    0.38%, 6.4 us    0.32%, 10.6 us   0.86%, 4.5 us       exact, 6-15 us
-fine       0.14%, 17 us     0.10%, 32 us     0.67%, 5.7 us       exact, 17-51 us
-reference  0.03%, 85 us     0.02%, 198 us    0.21%, 17 us        exact, 100-280 us
-=========  ===============  ===============  ==================  ===================
-
-Flat faces are exact at every size (depth is linear over a flat face, so the centroid rule integrates
-it exactly); curved ones converge with the angular resolution, which :data:`MIN_CIRCLE_SEGMENTS` keeps
-up for small geoms. "default" stays 10 mm: within the 2% target with a margin (0.86% worst) for geoms the
-study does not cover (capsules, cylinders, curved meshes)."""
+Flat faces are exact at every size (depth is linear over a flat face, so the centroid rule integrates it
+exactly); curved ones converge with the angular resolution, which :data:`MIN_CIRCLE_SEGMENTS` keeps up
+for small geoms. The error and cost of each preset on the paper's validation shapes and a quadruped foot
+are measured by ``python -m rft_mujoco bench`` (section 4) and recorded in docs/performance.md; "default"
+is the largest size within the 2% force-error target on all of them, with a margin.
+"""
 
 MIN_CIRCLE_SEGMENTS = 20
 """Fewest segments around any circle (sphere/ellipsoid longitudes, cylinder and cap rings; spheres and
@@ -81,131 +74,10 @@ with the size (1.5% at 10 mm, 1.9% at 5 mm), with multiples of 4 it falls steadi
 (``python -m rft_mujoco bench``, section 4)."""
 QUADRATURE_POINTS = 4
 """Gauss-Legendre points per parameter direction per ellipsoid cell."""
-NORMAL_TOL = 1e-6
-"""Normals whose length differs from 1 by more than this are rejected by :class:`Elements`."""
-ROTATION_TOL = 1e-6
-"""``mat`` in :meth:`Elements.transformed` must satisfy ``|mat^T mat - I| <= ROTATION_TOL``."""
-DEGENERATE_TOL = 1e-9
-"""A mesh triangle with ``area <= DEGENERATE_TOL * (longest edge)^2`` is degenerate and dropped."""
-VOLUME_TOL = 1e-9
-"""A mesh whose enclosed volume is below ``-VOLUME_TOL * (bounding-box diagonal)^3`` is inverted."""
-MERGE_TOL = 1e-9
-"""Mesh vertices closer than ``MERGE_TOL * (bounding-box diagonal)`` count as one for the topology check."""
 
 _GEOM = mujoco.mjtGeom
 _TERRAIN_TYPES = occlusion.TERRAIN_TYPES
 _SUPPORTED = "sphere, ellipsoid, box, cylinder, capsule, mesh"
-
-
-# --- elements --------------------------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True, eq=False, repr=False)
-class Elements:
-    """Flat surface elements of a closed surface; arrays are read-only float64 copies.
-
-    Attributes:
-        centroids: (N, 3) float, element centroids in m.
-        normals: (N, 3) float, unit outward normals.
-        areas: (N,) float, element areas in m^2, all > 0.
-    """
-
-    centroids: np.ndarray
-    normals: np.ndarray
-    areas: np.ndarray
-
-    def __post_init__(self) -> None:
-        c = _as_points(self.centroids, "centroids")
-        n = _as_points(self.normals, "normals")
-        a = np.array(self.areas, dtype=float)
-        if a.ndim != 1 or a.shape[0] != c.shape[0] or n.shape[0] != c.shape[0]:
-            raise ValueError(f"centroids (N, 3), normals (N, 3) and areas (N,) must agree in N, got shapes "
-                             f"{c.shape}, {n.shape}, {a.shape}")
-        if not np.all(np.isfinite(a) & (a > 0)):
-            raise ValueError(f"areas must be finite and > 0 (m^2), got min {a.min()!r}")
-        length = np.linalg.norm(n, axis=1)
-        if np.any(np.abs(length - 1.0) > NORMAL_TOL):
-            raise ValueError(f"normals must be unit vectors (within {NORMAL_TOL}), got lengths in "
-                             f"[{length.min()}, {length.max()}]")
-        for name, arr in (("centroids", c), ("normals", n), ("areas", a)):
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
-
-    def __len__(self) -> int:
-        return int(self.areas.shape[0])
-
-    def __repr__(self) -> str:
-        return f"Elements(n={len(self)}, area={self.area():.6g} m^2)"
-
-    def area(self) -> float:
-        """Total area in m^2."""
-        return float(self.areas.sum())
-
-    def enclosed_volume(self) -> float:
-        """Enclosed volume in m^3 by the divergence theorem, ``(1/3) sum (c . n) A``.
-
-        Positive for a closed surface with outward normals; independent of the origin only when the
-        surface is closed (``sum n A = 0``).
-        """
-        return float(np.einsum("ij,ij,i->", self.centroids, self.normals, self.areas) / 3.0)
-
-    def transformed(self, pos, mat) -> "Elements":
-        """The elements moved rigidly: ``x' = pos + mat @ x``, ``n' = mat @ n``.
-
-        Args:
-            pos: (3,) float, translation in m.
-            mat: (3, 3) float, a rotation matrix (orthonormal, det +1); a flat (9,) array such as
-                MuJoCo's ``xmat`` rows is accepted.
-        """
-        p = np.asarray(pos, dtype=float)
-        r = np.asarray(mat, dtype=float)
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise ValueError(f"pos must be a finite (3,) float array, got shape {p.shape}")
-        if r.shape == (9,):
-            r = r.reshape(3, 3)
-        if r.shape != (3, 3):
-            raise ValueError(f"mat must be a (3, 3) rotation matrix, got shape {r.shape}")
-        if not (np.all(np.abs(r.T @ r - np.eye(3)) <= ROTATION_TOL) and np.linalg.det(r) > 0):
-            raise ValueError(f"mat must be a rotation (orthonormal, det +1), got {r.tolist()}; "
-                             "scale geometry before making elements, not through transformed()")
-        return Elements(self.centroids @ r.T + p, self.normals @ r.T, self.areas)
-
-    @staticmethod
-    def concatenate(parts: Sequence["Elements"]) -> "Elements":
-        """All elements of ``parts`` in order; an empty sequence gives zero elements."""
-        parts = list(parts)
-        if not parts:
-            return Elements(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
-        return Elements(np.concatenate([p.centroids for p in parts]),
-                        np.concatenate([p.normals for p in parts]),
-                        np.concatenate([p.areas for p in parts]))
-
-
-# --- argument checks -------------------------------------------------------------------------------
-def _as_points(x, name: str) -> np.ndarray:
-    arr = np.array(x, dtype=float)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name} must be an (n, 3) float array, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got non-finite values")
-    return arr
-
-
-def _check_length(value, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a positive finite length in m, got {value!r}") from None
-    if isinstance(value, bool) or not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a positive finite length in m, got {value!r}")
-    return v
-
-
-def _check_lengths(value, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (3,):
-        raise ValueError(f"{name} must be a (3,) float array of lengths in m, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr) & (arr > 0)):
-        raise ValueError(f"{name} must be positive finite lengths in m, got {arr.tolist()}")
-    return arr
 
 
 def element_size(resolution: str | float) -> float:
@@ -377,111 +249,6 @@ def capsule(radius, half_length, size) -> Elements:
     bottom = _latlong_cells(np.linspace(0.5 * np.pi, np.pi, n_theta + 1), r, h)
     return Elements.concatenate([_cylinder_side(r, hl, h), _spherical_cells(r, (0.0, 0.0, hl), *top),
                                  _spherical_cells(r, (0.0, 0.0, -hl), *bottom)])
-
-
-# --- triangle meshes -------------------------------------------------------------------------------
-def _subdivision_centroids(k: int) -> np.ndarray:
-    """(k^2, 2) barycentric (u, w) of the centroids of the k^2 congruent sub-triangles of a triangle
-    (point = v0 + u (v1 - v0) + w (v2 - v0))."""
-    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-    i, j = i.ravel(), j.ravel()
-    up = i + j <= k - 1
-    down = i + j <= k - 2
-    return np.concatenate([np.stack([i[up] + 1 / 3, j[up] + 1 / 3], axis=1),
-                           np.stack([i[down] + 2 / 3, j[down] + 2 / 3], axis=1)]) / k
-
-
-def _topology(vertices: np.ndarray, faces: np.ndarray, scale: float) -> tuple[int, int]:
-    """(open edges, inconsistently wound edges) after merging coincident vertices."""
-    key = np.round(vertices / (MERGE_TOL * scale)).astype(np.int64)
-    _, vid = np.unique(key, axis=0, return_inverse=True)
-    f = vid.reshape(-1)[faces]
-    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
-    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    undirected, count = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
-    n_open = int(np.count_nonzero(count != 2))
-    _, dcount = np.unique(directed, axis=0, return_counts=True)
-    # A consistently wound closed mesh uses each directed edge once.
-    n_flipped = int(np.count_nonzero(dcount > 1))
-    return n_open, n_flipped
-
-
-def mesh(vertices, faces, size=None, *, name: str = "mesh") -> Elements:
-    """Elements of a triangle mesh (counter-clockwise faces seen from outside = outward normals).
-
-    Args:
-        vertices: (n, 3) float, m.
-        faces: (m, 3) int, vertex indices.
-        size: if given, each triangle is split into ``k^2`` congruent triangles with
-            ``k = ceil(longest edge / size)``, so all edges are ``<= size``; ``None`` keeps the faces.
-        name: how errors and warnings name the mesh.
-    Raises:
-        ValueError: bad shapes or indices, no non-degenerate face, inverted mesh (negative enclosed
-            volume) or inconsistently wound faces.
-    Warns:
-        UserWarning: once, if the mesh is open (some edge not shared by exactly two faces).
-    """
-    return _mesh(vertices, faces, size, f"mesh {name!r}")
-
-
-def _mesh(vertices, faces, size, label: str) -> Elements:
-    """:func:`mesh`, with ``label`` naming the mesh in errors and warnings."""
-    v = _as_points(vertices, "vertices")
-    f = np.asarray(faces)
-    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
-        raise ValueError(f"faces of {label} must be a non-empty (m, 3) int array, got shape {f.shape}")
-    if not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"faces of {label} must be integers, got dtype {f.dtype}")
-    if f.min() < 0 or f.max() >= v.shape[0]:
-        raise ValueError(f"faces of {label} index vertices 0..{v.shape[0] - 1}, got indices "
-                         f"{f.min()}..{f.max()}")
-    h = None if size is None else _check_length(size, "size")
-    used = v[np.unique(f)]
-    scale = float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))   # bounding-box diagonal, m
-    if scale <= 0:
-        raise ValueError(f"{label} has zero extent")
-
-    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    cross = np.cross(p1 - p0, p2 - p0)
-    double_area = np.linalg.norm(cross, axis=1)
-    longest = np.sqrt(np.max(np.stack([((p1 - p0) ** 2).sum(1), ((p2 - p1) ** 2).sum(1),
-                                       ((p0 - p2) ** 2).sum(1)]), axis=0))
-    keep = 0.5 * double_area > DEGENERATE_TOL * longest**2
-    if not np.any(keep):
-        raise ValueError(f"{label} has only degenerate (zero-area) faces")
-
-    volume = float(np.einsum("ij,ij->", p0[keep] - used.mean(0), cross[keep]) / 6.0)
-    n_open, n_flipped = _topology(v, f[keep], scale)
-    if volume < -VOLUME_TOL * scale**3:
-        raise ValueError(f"{label} is inverted: its enclosed volume is {volume:.6g} m^3 < 0, so its "
-                         "face normals point inward; reverse the vertex order of every face (e.g. "
-                         "trimesh's mesh.invert() or swap two indices per face) and reload")
-    if n_flipped:
-        raise ValueError(f"{label} has inconsistently wound faces ({n_flipped} edges used twice in "
-                         "the same direction), so some normals point inward; fix the winding (e.g. "
-                         "trimesh.repair.fix_normals) and reload")
-    if n_open:
-        warnings.warn(f"{label} is open: {n_open} edges are not shared by exactly two faces; sand "
-                      "acts only on the outward side of the faces given and the volume check is "
-                      "approximate; close the mesh (e.g. trimesh.repair.fill_holes) for a solid intruder",
-                      UserWarning, stacklevel=2)
-
-    p0, e1, e2 = p0[keep], (p1 - p0)[keep], (p2 - p0)[keep]
-    normal = cross[keep] / double_area[keep, None]
-    area = 0.5 * double_area[keep]
-    if h is None:
-        return Elements(p0 + (e1 + e2) / 3.0, normal, area)
-    k = np.maximum(np.ceil(longest[keep] / h - 1e-9), 1).astype(np.int64)
-    parts = []
-    for kk in np.unique(k):          # one pass per subdivision level, vectorized over its triangles
-        sel = np.flatnonzero(k == kk)
-        uw = _subdivision_centroids(int(kk))
-        c = (p0[sel, None, :] + uw[None, :, 0, None] * e1[sel, None, :]
-             + uw[None, :, 1, None] * e2[sel, None, :])                    # (m_k, k^2, 3)
-        m = uw.shape[0]
-        parts.append(Elements(c.reshape(-1, 3), np.repeat(normal[sel], m, axis=0),
-                              np.repeat(area[sel] / m, m)))
-    return Elements.concatenate(parts)
 
 
 # --- MuJoCo geoms ----------------------------------------------------------------------------------
