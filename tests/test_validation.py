@@ -19,7 +19,7 @@ from rft_mujoco.coupling.rollout import kinematic_rollout
 SIZE = surface.RESOLUTIONS["default"]
 RADII = validation.ELLIPSOID_RADII
 PLOTS = ("directions.png", "drill.png", "guards.png", "convergence.png")
-TABLES = ("directions.csv", "guards.csv", "drill.csv", "checks.csv", "summary.txt", "config.json")
+TABLES = ("directions.csv", "guards.csv", "drill.csv", "overlap.csv", "checks.csv", "summary.txt", "config.json")
 
 
 @pytest.fixture(autouse=True)
@@ -31,7 +31,7 @@ def _clean():
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     out = tmp_path_factory.mktemp("validation")
-    res = validation.run(quick=True, out=out, log=validation._Log(stream=io.StringIO()))
+    res = validation.run(quick=True, out=out, log=validation.Log(stream=io.StringIO()))
     return res, out
 
 
@@ -58,12 +58,14 @@ def test_quick_run_writes_finite_tables_and_plots(quick):
     assert len(rows) == 1 + len(res.shapes) * len(res.angles_deg) * (1 + len(validation.GUARD_SETTINGS))
     text = (out / "summary.txt").read_text()
     assert "Fx (N)" in text and "Fz (N)" in text and "artefact guards" in text and "bunny" in text
+    assert "overlapping geoms" in text and "quadruped_leg" in text and "err culled" in text
 
 
 def test_quick_run_sanity_checks_pass(quick):
     res, _ = quick
     names = [c.name for c in res.checks]
-    for kind in ("straight down", "mirror", "affine in depth", "|F(2d)|/|F(d)|", "convergence", "drill"):
+    for kind in ("straight down", "mirror", "affine in depth", "|F(2d)|/|F(d)|", "convergence", "drill",
+                 "overlapping geoms"):
         assert any(kind in n for n in names), f"no {kind!r} check in {names}"
     failed = [c for c in res.checks if not c.passed]
     assert not failed, failed
