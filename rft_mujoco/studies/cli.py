@@ -1,4 +1,4 @@
-"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability}`` (``--help`` on each)."""
+"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim}`` (``--help`` on each)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ COMMANDS = {
     "validate": ("rft_mujoco.studies.validation", "the paper's validation intrusions: force tables and plots"),
     "bench": ("rft_mujoco.studies.bench", "speed and speed-accuracy benchmarks: tables and plots"),
     "stability": ("rft_mujoco.studies.stability", "drop / drag / rotate stability study: table and stability map"),
+    "swim": ("rft_mujoco.studies.swim", "sand-swimming: wave efficiency against A/lambda, against experiments"),
 }
 
 
