@@ -307,3 +307,13 @@ def test_monitor_depth_warning_and_switch_off():
         warnings.simplefilter("error", rft_mujoco.RFTValidityWarning)
         for _ in range(100):
             mujoco.mj_step(model, data)
+
+
+def test_stability_plots_are_written(tmp_path):
+    from rft_mujoco.studies import stability_plots
+
+    results = [stability.run_case(Case("drop", "sphere", m, 0.002, "implicitfast", stabilize=s))
+               for m in (0.1, 1.0) for s in (True, False)]
+    for fn, name in ((stability_plots.plot, "map.png"), (stability_plots.plot_naive, "naive.png")):
+        fn(results, tmp_path / name)
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
