@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q torch==2.13.0   # the CPU wheel, before stable-baselines3
-	$(BIN)/python -m pip install -q -e '.[envs,train,test]'
+	$(BIN)/python -m pip install -q -e '.[studies,envs,train,test]'
 	rm -f $(VENV)/.installed-* && touch $@
 
 demo: $(STAMP)          ## quadruped trotting on sand (headless): summary, plot and video in out/

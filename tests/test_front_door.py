@@ -87,3 +87,13 @@ def test_the_sand_still_acts_with_actuation_disabled(when):
     d = sand.diagnostics(data)
     assert -0.1 < data.qpos[2] < 0.05 and abs(data.qvel[2]) < 1e-3
     np.testing.assert_allclose(d.force[0, 2], 9.81, rtol=1e-3)
+
+
+def test_import_rft_mujoco_loads_no_training_or_plotting_stack():
+    """The library alone: no gymnasium, torch, matplotlib, stable-baselines3 or warp (issue #20)."""
+    import subprocess
+
+    code = ("import sys, rft_mujoco; heavy = {'gymnasium', 'torch', 'matplotlib', 'stable_baselines3', 'warp', "
+            "'mujoco_warp'}; print(sorted(heavy & {m.split('.')[0] for m in sys.modules}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

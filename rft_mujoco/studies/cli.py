@@ -16,6 +16,10 @@ COMMANDS = {
 }
 
 
+STUDY_DEPENDENCIES = ("matplotlib", "imageio", "imageio_ffmpeg", "gymnasium")
+"""Packages of the ``studies`` (and ``envs``) extras: a missing one gives an install hint, not a traceback."""
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(prog="python -m rft_mujoco", description=__doc__)
@@ -25,8 +29,16 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0 if argv else 2
     args, rest = parser.parse_known_args(argv[:1])
-    module = importlib.import_module(COMMANDS[args.command][0])
-    return int(module.main(argv[1:], command=args.command) or 0)
+    try:
+        module = importlib.import_module(COMMANDS[args.command][0])
+        return int(module.main(argv[1:], command=args.command) or 0)
+    except ModuleNotFoundError as exc:
+        if exc.name and exc.name.split(".")[0] in STUDY_DEPENDENCIES:
+            print(f"python -m rft_mujoco {args.command}: needs {exc.name}, which is not installed; install the "
+                  f"studies' dependencies: pip install 'rft_mujoco[studies]' (and [envs] for the env "
+                  "benchmarks)", file=sys.stderr)
+            return 2
+        raise
 
 
 if __name__ == "__main__":

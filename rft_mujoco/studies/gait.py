@@ -32,22 +32,11 @@ import math
 
 import numpy as np
 
-LEGS = ("FL", "FR", "RL", "RR")
-"""Leg prefixes in actuator order: front-left, front-right, rear-left, rear-right."""
-
-ACTUATOR_NAMES = tuple(f"{leg}_{joint}" for leg in LEGS for joint in ("hip", "thigh", "calf"))
-"""The model's 12 actuators in order; each drives the joint of the same name + ``_joint``."""
-
-FOOT_BODIES = tuple(f"{leg}_foot" for leg in LEGS)
-"""Names of the foot bodies (a sphere each, welded to the calf), the bodies that touch the ground."""
-
-SIDE = np.array([1.0, -1.0, 1.0, -1.0])
-"""(4,) +1 for left legs, -1 for right legs, in :data:`LEGS` order."""
+from rft_mujoco.models.quadruped import ACTUATOR_NAMES, FOOT_BODIES, LEGS, SIDE  # noqa: F401  (re-exported)
 
 TROT_PHASE = np.array([0.0, 0.5, 0.5, 0.0])
 """(4,) phase offsets (fraction of a cycle) of the trot: diagonal pairs FL+RR and FR+RL alternate."""
 
-SIDE.flags.writeable = False
 TROT_PHASE.flags.writeable = False
 
 _LEAD_DT_S = 1e-4
