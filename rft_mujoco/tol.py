@@ -13,3 +13,7 @@ one step" (the rest treatment's memory of MuJoCo's previous constraint solve), g
 
 VERTICAL_GRAVITY_TOL = 1e-9
 """Gravity counts as "along -z" (heightfields and bounded regions need it) when ``g_hat[2] <= -1 + this``."""
+
+ROUND_RTOL = 1e-9
+"""Relative slack when a count is the ceiling of a ratio of lengths (cells along an edge, facets along a
+curve): a ratio within this of an integer rounds down to it instead of adding a sliver cell."""

@@ -11,6 +11,8 @@ import warnings
 
 import numpy as np
 
+from rft_mujoco import tol
+
 from rft_mujoco.geometry.elements import Elements, _as_points, _check_length
 
 DEGENERATE_TOL = 1e-9
@@ -113,7 +115,7 @@ def _mesh(vertices, faces, size, label: str) -> Elements:
     area = 0.5 * double_area[keep]
     if h is None:
         return Elements(p0 + (e1 + e2) / 3.0, normal, area)
-    k = np.maximum(np.ceil(longest[keep] / h - 1e-9), 1).astype(np.int64)
+    k = np.maximum(np.ceil(longest[keep] / h - tol.ROUND_RTOL), 1).astype(np.int64)
     parts = []
     for kk in np.unique(k):          # one pass per subdivision level, vectorized over its triangles
         sel = np.flatnonzero(k == kk)

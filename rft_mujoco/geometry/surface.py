@@ -32,6 +32,8 @@ import warnings
 import mujoco
 import numpy as np
 
+from rft_mujoco import tol
+
 from rft_mujoco.geometry import occlusion
 from rft_mujoco.geometry.elements import NORMAL_TOL, ROTATION_TOL, Elements, _check_length, _check_lengths
 from rft_mujoco.geometry.meshes import DEGENERATE_TOL, MERGE_TOL, VOLUME_TOL, _mesh, load_mesh, mesh
@@ -101,7 +103,7 @@ def element_size(resolution: str | float) -> float:
 def _segments(length, size: float, minimum: int, multiple: int = 1) -> np.ndarray:
     """Cells along ``length`` (m, scalar or array): ``ceil(length / size)``, at least ``minimum``, rounded
     up to a multiple of ``multiple``."""
-    n = np.maximum(np.ceil(np.asarray(length, dtype=float) / size - 1e-9), minimum).astype(np.int64)
+    n = np.maximum(np.ceil(np.asarray(length, dtype=float) / size - tol.ROUND_RTOL), minimum).astype(np.int64)
     return -(-n // multiple) * multiple
 
 

@@ -17,12 +17,14 @@ import math
 
 import numpy as np
 
+from rft_mujoco import tol
+
 NO_SAND = -np.inf
 """Depth returned where there is no sand (outside a bounded region)."""
 
 
 def _check_vertical_gravity(g_hat: np.ndarray, what: str) -> None:
-    if g_hat[2] > -1.0 + 1e-9:
+    if g_hat[2] > -1.0 + tol.VERTICAL_GRAVITY_TOL:
         raise ValueError(f"{what} needs gravity along -z (heights are world z), got gravity direction "
                          f"{np.round(g_hat, 6).tolist()}; use a FlatSurface for tilted gravity")
 
