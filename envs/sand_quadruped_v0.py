@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import mujoco
 import numpy as np
 from gymnasium import utils
 from gymnasium.spaces import Box
@@ -13,6 +12,7 @@ from rft_mujoco.studies.gait import FOOT_BODIES
 from rft_mujoco.physics.media import Media
 
 from .sand_bed import MediaRanges
+from .quadruped_task import CommandedQuadruped
 from .sand_task import SandTaskEnv
 
 DEFAULT_CAMERA_CONFIG = {"trackbodyid": 1, "distance": 1.6, "elevation": -20.0, "azimuth": 120.0}
@@ -35,7 +35,7 @@ DEFAULT_REWARD_WEIGHTS = {
 """Reward weights (see the class docstring for each term); pass ``reward_weights`` to change some."""
 
 
-class SandQuadrupedEnv(SandTaskEnv, utils.EzPickle):
+class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
     r"""
     ## Description
     The bundled Go1-class quadruped (``models/quadruped.xml``: 12 kg, 12 position-servoed joints, ball
@@ -180,38 +180,6 @@ class SandQuadrupedEnv(SandTaskEnv, utils.EzPickle):
         self.observation_structure = {"base": 10, "joint_pos": 12, "joint_vel": 12, "last_action": 12,
                                       "command": 3, "sand": self._sand_obs_size()}
 
-    def _set_action_space(self):
-        self.action_space = Box(low=-1.0, high=1.0, shape=(self.model.nu,), dtype=np.float32)
-        return self.action_space
-
-    # --- state helpers ---------------------------------------------------------------------------
-    @property
-    def command(self) -> np.ndarray:
-        """(3,) the current command: forward velocity (m/s), lateral velocity (m/s), yaw rate (rad/s)."""
-        return self._command.copy()
-
-    def _trunk_rotation(self) -> np.ndarray:
-        q = self.data.qpos[3:7]
-        rot = np.empty(9)
-        mujoco.mju_quat2Mat(rot, q)
-        return rot.reshape(3, 3)
-
-    def _heading_velocity(self) -> tuple[np.ndarray, float]:
-        """Planar trunk velocity (2,) m/s in the heading (yaw) frame and yaw rate (rad/s)."""
-        rot = self._trunk_rotation()
-        yaw = np.arctan2(rot[1, 0], rot[0, 0])
-        c, s = np.cos(yaw), np.sin(yaw)
-        vx, vy = self.data.qvel[0], self.data.qvel[1]
-        omega_world = rot @ self.data.qvel[3:6]
-        return np.array([c * vx + s * vy, -s * vx + c * vy]), float(omega_world[2])
-
-    @property
-    def is_healthy(self) -> bool:
-        state = self.state_vector()
-        height = self.data.qpos[2] - self._surface_z
-        upright = self._trunk_rotation()[2, 2]
-        return bool(np.isfinite(state).all() and height >= self._min_height and upright >= self._min_upright)
-
     # --- reward terms (unweighted) -----------------------------------------------------------------
     def tracking_lin_vel(self, v_xy: np.ndarray) -> float:
         return float(np.exp(-np.sum(np.square(v_xy - self._command[:2])) / self._tracking_sigma))
@@ -222,20 +190,8 @@ class SandQuadrupedEnv(SandTaskEnv, utils.EzPickle):
     def upright(self) -> float:
         return float(self._trunk_rotation()[2, 2])
 
-    def healthy(self) -> float:
-        return float(self.is_healthy)
-
-    def lin_vel_z(self) -> float:
-        return -float(self.data.qvel[2] ** 2)
-
-    def ang_vel_xy(self) -> float:
-        return -float(np.sum(np.square(self.data.qvel[3:5])))
-
     def ctrl(self, action: np.ndarray) -> float:
         return -float(np.sum(np.square(action)))
-
-    def action_rate(self, action: np.ndarray) -> float:
-        return -float(np.sum(np.square(action - self._last_action)))
 
     def sinkage(self) -> float:
         return -float(np.sum(self.sand.handle.diagnostics(self.data).max_depth))
@@ -276,34 +232,3 @@ class SandQuadrupedEnv(SandTaskEnv, utils.EzPickle):
         omega_body = self.data.qvel[3:6]
         return np.concatenate([[height], gravity_body, v_body, omega_body, self.data.qpos[7:] - self._home_ctrl,
                                self.data.qvel[6:], self._last_action, self._command, self._sand_obs()])
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        self._reset_options = options or {}
-        return super().reset(seed=seed, options=options)
-
-    def reset_model(self):
-        self._randomize_media()
-        command = self._reset_options.get("command")
-        if command is None:
-            lo, hi = self._command_ranges.T
-            self._command = lo + self.np_random.uniform(size=3) * (hi - lo)
-        else:
-            command = np.asarray(command, dtype=float)
-            if command.shape != (3,) or not np.all(np.isfinite(command)):
-                raise ValueError(f"options['command'] must be 3 finite numbers (vx m/s, vy m/s, yaw rate rad/s), "
-                                 f"got {command.tolist()}")
-            self._command = command.copy()
-        self._last_action = np.zeros(self.model.nu)
-        noise = self._reset_noise_scale
-        qpos = self.init_qpos.copy()
-        qvel = self.init_qvel.copy()
-        qpos[7:] += self.np_random.uniform(-noise, noise, size=self.model.nu)
-        qvel += noise * self.np_random.standard_normal(self.model.nv)
-        self.set_state(qpos, qvel)
-        self.data.ctrl[:] = self._home_ctrl
-        return self._get_obs()
-
-    def _get_reset_info(self):
-        return {"x_position": self.data.qpos[0], "y_position": self.data.qpos[1], "command": self.command,
-                **self.sand.info(self.data)}
-

@@ -5,7 +5,6 @@ from __future__ import annotations
 import types
 from collections.abc import Callable, Mapping, Sequence
 
-import mujoco
 import numpy as np
 from gymnasium import utils
 from gymnasium.spaces import Box
@@ -14,6 +13,7 @@ from rft_mujoco.physics.media import Media
 from rft_mujoco.studies.gait import LEGS, TrotGait
 
 from .sand_bed import FEATURES_PER_BODY, MediaRanges
+from .quadruped_task import CommandedQuadruped
 from .sand_task import SandTaskEnv
 
 DEFAULT_COMMAND_RANGES = ((0.0, 0.6), (0.0, 0.0), (-0.5, 0.5))
@@ -47,7 +47,7 @@ OBS_SIZE = 49
 """Observation entries without the optional sand block (see the class docstring)."""
 
 
-class SandQuadrupedEnv(SandTaskEnv, utils.EzPickle):
+class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
     r"""
     ## Description
     The bundled Go1-class quadruped (``models/quadruped.xml``: 12 kg, 12 position-servoed joints, ball
@@ -261,16 +261,7 @@ class SandQuadrupedEnv(SandTaskEnv, utils.EzPickle):
         self.observation_structure = {"base": 10, "joint_pos": 12, "joint_vel": 12, "last_action": 12,
                                       "command": 3, "sand": sand_size}
 
-    def _set_action_space(self):
-        self.action_space = Box(low=-1.0, high=1.0, shape=(self.model.nu,), dtype=np.float32)
-        return self.action_space
-
     # --- state helpers ---------------------------------------------------------------------------
-    @property
-    def command(self) -> np.ndarray:
-        """(3,) the current command: forward velocity (m/s), lateral velocity (m/s), yaw rate (rad/s)."""
-        return self._command.copy()
-
     @property
     def home_ctrl(self) -> np.ndarray:
         """(12,) rad, the joint targets of the zero action (the ``home`` keyframe's ctrl)."""
@@ -281,31 +272,6 @@ class SandQuadrupedEnv(SandTaskEnv, utils.EzPickle):
         """Joint target offset per unit action, rad."""
         return self._action_scale
 
-    def _trunk_rotation(self) -> np.ndarray:
-        rot = np.empty(9)
-        mujoco.mju_quat2Mat(rot, self.data.qpos[3:7])
-        return rot.reshape(3, 3)
-
-    def _heading_velocity(self) -> tuple[np.ndarray, float]:
-        """Planar trunk velocity (2,) m/s in the heading (yaw) frame and yaw rate (rad/s, world z)."""
-        rot = self._trunk_rotation()
-        yaw = np.arctan2(rot[1, 0], rot[0, 0])
-        c, s = np.cos(yaw), np.sin(yaw)
-        vx, vy = self.data.qvel[0], self.data.qvel[1]
-        omega_world = rot @ self.data.qvel[3:6]
-        return np.array([c * vx + s * vy, -s * vx + c * vy]), float(omega_world[2])
-
-    def _gravity_body(self) -> np.ndarray:
-        """(3,) the gravity direction (unit) in the trunk frame."""
-        return -self._trunk_rotation()[2]
-
-    @property
-    def is_healthy(self) -> bool:
-        height = self.data.qpos[2] - self._surface_z
-        upright = self._trunk_rotation()[2, 2]
-        return bool(np.isfinite(self.state_vector()).all() and height >= self._min_height
-                    and upright >= self._min_upright)
-
     # --- reward terms (unweighted) -----------------------------------------------------------------
     def tracking_lin_vel(self, v_xy: np.ndarray) -> float:
         return float(np.exp(-np.sum(np.square(v_xy - self._command[:2])) / self._lin_vel_sigma))
@@ -313,23 +279,11 @@ class SandQuadrupedEnv(SandTaskEnv, utils.EzPickle):
     def tracking_ang_vel(self, yaw_rate: float) -> float:
         return float(np.exp(-(yaw_rate - self._command[2]) ** 2 / self._ang_vel_sigma))
 
-    def lin_vel_z(self) -> float:
-        return -float(self.data.qvel[2] ** 2)
-
-    def ang_vel_xy(self) -> float:
-        return -float(np.sum(np.square(self.data.qvel[3:5])))   # free joint: angular velocity in the trunk frame
-
     def orientation(self) -> float:
         return -float(np.sum(np.square(self._gravity_body()[:2])))
 
     def torques(self) -> float:
         return -float(np.sum(np.square(self.data.actuator_force)))
-
-    def action_rate(self, action: np.ndarray) -> float:
-        return -float(np.sum(np.square(action - self._last_action)))
-
-    def healthy(self) -> float:
-        return float(self.is_healthy)
 
     def _get_rew(self, action: np.ndarray) -> tuple[float, dict[str, float], np.ndarray, float]:
         """The reward, its weighted terms (``reward_<name>``), and the heading-frame velocity and yaw rate."""
@@ -380,36 +334,6 @@ class SandQuadrupedEnv(SandTaskEnv, utils.EzPickle):
         return np.concatenate([[height], self._gravity_body(), v_body, self.data.qvel[3:6],
                                self.data.qpos[7:] - self._home_ctrl, self.data.qvel[6:], self._last_action,
                                self._command, self._sand_obs()])
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        self._reset_options = options or {}
-        return super().reset(seed=seed, options=options)
-
-    def reset_model(self):
-        self._randomize_media()
-        command = self._reset_options.get("command")
-        if command is None:
-            lo, hi = self._command_ranges.T
-            self._command = lo + self.np_random.uniform(size=3) * (hi - lo)
-        else:
-            command = np.asarray(command, dtype=float)
-            if command.shape != (3,) or not np.all(np.isfinite(command)):
-                raise ValueError(f"options['command'] must be 3 finite numbers (vx m/s, vy m/s, yaw rate rad/s), "
-                                 f"got {command.tolist()}")
-            self._command = command.copy()
-        self._last_action = np.zeros(self.model.nu)
-        noise = self._reset_noise_scale
-        qpos = self.init_qpos.copy()
-        qpos[7:] += self.np_random.uniform(-noise, noise, size=self.model.nu)
-        qvel = noise * self.np_random.standard_normal(self.model.nv)
-        self.set_state(qpos, qvel)
-        self.data.ctrl[:] = self._home_ctrl
-        return self._get_obs()
-
-    def _get_reset_info(self):
-        return {"x_position": self.data.qpos[0], "y_position": self.data.qpos[1], "command": self.command,
-                **self.sand.info(self.data)}
-
 
 SCRIPTED_TROT = types.MappingProxyType({"frequency_hz": 2.5, "step_height_m": 0.06, "hip_height_m": 0.28,
                                         "ramp_time_s": 0.5})
