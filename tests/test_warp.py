@@ -513,3 +513,27 @@ def test_core_library_does_not_import_warp():
     code = ("import sys, rft_mujoco, rft_mujoco.coupling.handle, rft_mujoco.studies.bench_warp, rft_mujoco.studies.cli; "
             "sys.exit(('warp' in sys.modules) + 2 * ('mujoco_warp' in sys.modules))")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+# --- the benchmark's command line -----------------------------------------------------------------------
+def test_bench_warp_parser_takes_worlds_and_the_nworld_alias():
+    from rft_mujoco.studies import bench_warp
+
+    parser = bench_warp.make_parser()
+    assert parser.parse_args(["--worlds", "1", "8"]).worlds == [1, 8]
+    assert parser.parse_args(["--nworld", "4"]).worlds == [4]
+    assert parser.parse_args([]).worlds is None
+
+
+def test_bench_warp_cli_runs(tmp_path, capsys):
+    """``python -m rft_mujoco bench --warp ...`` through the CLI dispatcher, as small as it goes."""
+    from rft_mujoco.studies import cli
+
+    rc = cli.main(["bench", "--warp", "--device", DEVICE, "--quick", "--worlds", "1", "2", "--budget", "0.01",
+                   "--parity-steps", "2", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "1. Parity" in out and "2. Throughput" in out and "world-steps/s" in out
+    for case in ("no sand", "sand: feet", "sand: every body", "cull=False", "CPU path"):
+        assert case in out, case
+    assert (tmp_path / "world_steps.png").stat().st_size > 10_000
