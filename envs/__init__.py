@@ -46,3 +46,22 @@ def make_sand_env(env_id: str, **kwargs):
 
 
 __all__ = ["ENV_IDS", "MediaRanges", "make_sand_env"]
+
+
+def make_batched_sand_quadruped(num_envs: int, *, device: str | None = None, **kwargs):
+    """``num_envs`` SandQuadruped-v0 tasks stepped together on MuJoCo Warp, as one ``gymnasium.vector.VectorEnv``
+    (:class:`~.sand_quadruped_warp.SandQuadrupedVectorEnv`; every keyword of
+    :class:`~.sand_quadruped_warp.BatchedSandQuadruped`). Needs MuJoCo Warp (``pip install 'rft_mujoco[warp]'``).
+    Also the vector entry point of ``rft_mujoco/SandQuadruped-v0``: ``gymnasium.make_vec(
+    "rft_mujoco/SandQuadruped-v0", num_envs=N, vectorization_mode="vector_entry_point", device="cuda:0")`` (the
+    default mode of ``make_vec`` for this id; ``vectorization_mode="sync"`` or ``"async"`` gives N CPU envs)."""
+    try:
+        from .sand_quadruped_warp import SandQuadrupedVectorEnv
+    except ImportError as exc:
+        raise ImportError(f"the batched SandQuadruped needs MuJoCo Warp ({exc}): pip install 'rft_mujoco[warp]'; "
+                          "or gymnasium.make_vec(..., vectorization_mode='sync') for CPU envs") from exc
+    return SandQuadrupedVectorEnv(num_envs, device=device, **kwargs)
+
+
+registry["rft_mujoco/SandQuadruped-v0"].vector_entry_point = f"{__name__}:make_batched_sand_quadruped"
+__all__ += ["make_batched_sand_quadruped"]

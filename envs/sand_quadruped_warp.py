@@ -8,6 +8,11 @@ sand bed, action, observation, reward terms, termination and reset -- batched ov
   ``info["final_obs"]`` / ``info["final_info"]`` hold the last step of the worlds that reset);
 * :class:`rft_mujoco.envs.sb3_vec_env.SB3VecEnv`: the Stable-Baselines3 ``VecEnv`` adapter.
 
+Where users find it: ``rft_mujoco.envs.make_batched_sand_quadruped(num_envs, device=...)``, or gymnasium's
+vector entry point of ``rft_mujoco/SandQuadruped-v0``: ``gymnasium.make_vec("rft_mujoco/SandQuadruped-v0",
+num_envs=N, vectorization_mode="vector_entry_point", device="cuda:0")`` (both give a
+:class:`SandQuadrupedVectorEnv`; keywords go to :class:`BatchedSandQuadruped`).
+
 The reward is pluggable: ``reward=`` takes any object with ``weights`` (name -> float) and
 ``terms(state: QuadrupedState) -> {name: (num_envs,) array}`` (unweighted); the default
 :class:`QuadrupedRewardV0` computes v0's terms. Per-world commands (drawn at each reset from

@@ -119,6 +119,18 @@ def test_layout_is_the_cpu_handles(quadruped):
         assert np.array_equal(lay.groups.of_body, cpu.groups.of_body)
         assert np.array_equal(lay.groups.radius, cpu.groups.radius)
         assert np.allclose(lay.bound_radius, cpu._bound_radius)
+        assert np.array_equal(lay.culled_area, cpu.culled_area)
+        for name in ("start", "geom", "kind", "size", "rbound", "hs_start", "halfspaces"):
+            assert np.array_equal(getattr(lay.occluders, name), getattr(cpu._occluders, name)), name
+        assert lay.occluders.margin == cpu._occluders.margin
+        assert lay.occluders.geom.size > 0
+    finally:
+        cpu.detach()
+    cpu = rft_mujoco.attach(model, MEDIA, None, resolution="coarse", monitor=False, cull=False)
+    try:
+        lay = wlayout.build(model, None, "coarse", cull=False)
+        assert np.array_equal(lay.centroids, cpu.local_centroids) and lay.occluders.geom.size == 0
+        assert lay.n_elements > cpu.n_elements - 1 and not lay.culled_area.any()
     finally:
         cpu.detach()
 
@@ -273,9 +285,43 @@ def test_work_buffers_hold_nothing_stale(quadruped, nworld):
 
 
 # --- parity over a trajectory (the issue's targets) ----------------------------------------------------
-def test_trajectories_match_cpu_over_0p1_s(quadruped):
-    """N worlds on warp against N MjData on the CPU path: quadruped from ``home`` 1-2 cm into the sand, joint
-    targets and velocities perturbed per world, 50 steps (0.1 s)."""
+def _trajectory_parity(model, mjw_model, datas, bodies, steps=50, **kwargs):
+    """Step N MjData on the CPU path and N warp worlds made from them together: (first-step force error per
+    world, sum |F| over bodies, largest body-position difference m, first-step occluded area CPU and warp)."""
+    dw = mjw.put_data(model, datas[0], nworld=len(datas), nconmax=4, njmax=64)
+    for field, name in ((dw.qpos, "qpos"), (dw.qvel, "qvel"), (dw.ctrl, "ctrl")):
+        field.assign(np.array([getattr(d, name) for d in datas], dtype=np.float32))
+    cpu = rft_mujoco.attach(model, MEDIA, bodies, monitor=False, **kwargs)
+    handle = rw.attach(model, mjw_model, MEDIA, bodies, data=dw, **kwargs)
+    try:
+        worst = 0.0
+        for k in range(steps):
+            for d in datas:
+                mujoco.mj_step(model, d)
+            mjw.step(mjw_model, dw)
+            if k == 0:
+                fc = np.array([cpu.diagnostics(d).force for d in datas])
+                occ_cpu = np.array([cpu.diagnostics(d).occluded_area for d in datas])
+                diag = handle.diagnostics(dw)
+                total = np.abs(fc).sum(axis=(1, 2))
+                err = np.abs(diag.force - fc).sum(axis=(1, 2)) / total
+                occ_warp = diag.occluded_area
+            worst = max(worst, np.abs(dw.xpos.numpy() - np.array([d.xpos for d in datas])).max())
+    finally:
+        handle.detach()
+        cpu.detach()
+    return err, total, worst, occ_cpu, occ_warp
+
+
+KNEE_DEEP = 0.15
+"""Sand surface (m) at the quadruped's knees in ``home``: calves enter their thighs inside the sand."""
+
+
+@pytest.mark.parametrize("surface", [0.0, KNEE_DEEP], ids=["feet_in_sand", "knee_deep"])
+def test_trajectories_match_cpu_over_0p1_s(quadruped, surface):
+    """N worlds on warp against N MjData on the CPU path, every body attached, culling on: quadruped from
+    ``home`` 1-2 cm into the sand, joint targets and velocities perturbed per world, 50 steps (0.1 s). Knee
+    deep, the calves' and thighs' surface inside each other at the knees is culled at run time."""
     model, mjw_model = quadruped
     rng = np.random.default_rng(0)
     key = model.key("home")
@@ -287,28 +333,105 @@ def test_trajectories_match_cpu_over_0p1_s(quadruped):
         d.qvel[:] = 0.05 * rng.standard_normal(model.nv)
         d.ctrl[:] = key.ctrl + 0.05 * rng.standard_normal(model.nu)
         datas.append(d)
-    dw = mjw.put_data(model, datas[0], nworld=len(datas), nconmax=4, njmax=64)
-    for field, name in ((dw.qpos, "qpos"), (dw.qvel, "qvel"), (dw.ctrl, "ctrl")):
-        field.assign(np.array([getattr(d, name) for d in datas], dtype=np.float32))
-    cpu = rft_mujoco.attach(model, MEDIA, None, monitor=False)
-    handle = rw.attach(model, mjw_model, MEDIA, None, data=dw)
-    try:
-        worst = 0.0
-        for k in range(50):
+    err, total, worst, occ_cpu, occ_warp = _trajectory_parity(model, mjw_model, datas, None, surface_height=surface)
+    assert total.sum() > 10.0
+    assert err.max() < PARITY_FORCE_RTOL, err
+    assert worst < PARITY_TRAJECTORY_M, worst
+    assert np.allclose(occ_warp, occ_cpu, rtol=1e-3, atol=1e-7)
+    if surface == KNEE_DEEP:
+        assert np.all(occ_cpu.sum(axis=1) > 1e-3)                  # culling at work in every world
+
+
+HINGE_CHAIN = """
+<mujoco model="hinge_chain">
+  <option timestep="0.002" integrator="implicitfast"/>
+  <worldbody>
+    <body name="a" pos="0 0 0.002">
+      <freejoint/>
+      <geom type="capsule" size="0.025" fromto="0 0 0 0.2 0 0"/>
+      <body name="b" pos="0.2 0 0">
+        <joint name="hinge" type="hinge" axis="0 0 1" damping="0.02"/>
+        <geom type="capsule" size="0.018" fromto="0 0 0 0.2 0 0"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+"""Two capsules lying half in the sand, hinged at a's end inside a's end sphere (other radii: no shared surface)."""
+HINGE_ANGLES = (0.0, 0.6, 1.3, 2.1)
+
+
+@pytest.fixture(scope="module")
+def hinge_chain():
+    model = mujoco.MjModel.from_xml_string(HINGE_CHAIN)
+    return model, mjw.put_model(model)
+
+
+def _hinge_datas(model, angles=HINGE_ANGLES, speed=1.5):
+    datas = []
+    for angle in angles:
+        d = mujoco.MjData(model)
+        d.qpos[7] = angle
+        d.qvel[6] = -speed if angle > 1.0 else speed              # the joint sweeps: the overlap changes
+        datas.append(d)
+    return datas
+
+
+def test_hinge_chain_culling_matches_cpu(hinge_chain):
+    """Each capsule's surface inside the other's near the hinge is culled at run time, at several angles
+    (one per world), while the hinge turns: forces within 1% at the first step, positions within 2 mm over 0.1 s."""
+    model, mjw_model = hinge_chain
+    err, total, worst, occ_cpu, occ_warp = _trajectory_parity(model, mjw_model, _hinge_datas(model), None)
+    assert total.min() > 1.0
+    assert err.max() < PARITY_FORCE_RTOL, err
+    assert worst < PARITY_TRAJECTORY_M, worst
+    assert np.all(occ_cpu > 1e-5), occ_cpu                      # both capsules, every angle
+    assert np.allclose(occ_warp, occ_cpu, rtol=1e-3, atol=1e-7)
+
+
+def test_culling_matters_and_cull_false_matches_cpu(quadruped, hinge_chain):
+    """On the same states (knee-deep quadruped from the CPU run; the hinge chain): warp with culling matches the
+    CPU path with culling to round-off, without culling the CPU path without it, and the two settings differ."""
+    model, mjw_model = quadruped
+    snap = {}
+    for cull in (True, False):
+        states, forces, _, resting = _cpu_snapshots(model, None, steps=(5, 20, 60), surface_height=KNEE_DEEP,
+                                                    cull=cull)
+        diag = _evaluate_warp(model, mjw_model, states, None, surface_height=KNEE_DEEP, cull=cull)
+        for i in range(len(states)):
+            assert _rel(diag.force[i], forces[i]) < FORCE_RTOL, (cull, i)
+        assert np.array_equal(diag.resting, resting)
+        assert (diag.occluded_area.sum(axis=1) > 1e-3).all() if cull else not diag.occluded_area.any()
+        snap[cull] = states
+    other = _evaluate_warp(model, mjw_model, snap[True], None, surface_height=KNEE_DEEP, cull=False)
+    culled = _evaluate_warp(model, mjw_model, snap[True], None, surface_height=KNEE_DEEP)
+    assert _rel(other.force, culled.force) > 0.05
+    model, mjw_model = hinge_chain
+    datas = _hinge_datas(model)
+    states = [dict(qpos=d.qpos.copy(), qvel=d.qvel.copy(), qfrc_constraint=d.qfrc_constraint.copy(), time=0.0)
+              for d in datas]
+    for cull in (True, False):
+        expect = []
+        cpu = rft_mujoco.attach(model, MEDIA, None, monitor=False, cull=cull)
+        try:
             for d in datas:
-                mujoco.mj_step(model, d)
-            mjw.step(mjw_model, dw)
-            if k == 0:
-                fc = np.array([cpu.diagnostics(d).force for d in datas])
-                fw = handle.forces(dw)
-                assert np.abs(fc).sum() > 10.0
-                err = np.abs(fw - fc).sum(axis=(1, 2)) / np.abs(fc).sum(axis=(1, 2))
-                assert err.max() < PARITY_FORCE_RTOL, err
-            worst = max(worst, np.abs(dw.xpos.numpy() - np.array([d.xpos for d in datas])).max())
-        assert worst < PARITY_TRAJECTORY_M, worst
-    finally:
-        handle.detach()
-        cpu.detach()
+                mujoco.mj_forward(model, d)
+                expect.append(cpu.diagnostics(d).force.copy())
+        finally:
+            cpu.detach()
+        dw = mjw.put_data(model, datas[0], nworld=len(datas), nconmax=4, njmax=64)
+        for field, name in (("qpos", dw.qpos), ("qvel", dw.qvel)):
+            name.assign(np.array([s[field] for s in states], dtype=np.float32))
+        handle = rw.attach(model, mjw_model, MEDIA, None, data=dw, cull=cull)
+        try:
+            mjw.forward(mjw_model, dw)
+            f = handle.forces(dw)
+        finally:
+            handle.detach()
+        for i in range(len(datas)):
+            assert _rel(f[i], expect[i]) < FORCE_RTOL, (cull, i)
+        snap[cull] = f
+    assert _rel(snap[False], snap[True]) > 0.02
 
 
 # --- xfrc_applied is shared with the user ---------------------------------------------------------------
@@ -390,3 +513,27 @@ def test_core_library_does_not_import_warp():
     code = ("import sys, rft_mujoco, rft_mujoco.coupling.handle, rft_mujoco.studies.bench_warp, rft_mujoco.studies.cli; "
             "sys.exit(('warp' in sys.modules) + 2 * ('mujoco_warp' in sys.modules))")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+# --- the benchmark's command line -----------------------------------------------------------------------
+def test_bench_warp_parser_takes_worlds_and_the_nworld_alias():
+    from rft_mujoco.studies import bench_warp
+
+    parser = bench_warp.make_parser()
+    assert parser.parse_args(["--worlds", "1", "8"]).worlds == [1, 8]
+    assert parser.parse_args(["--nworld", "4"]).worlds == [4]
+    assert parser.parse_args([]).worlds is None
+
+
+def test_bench_warp_cli_runs(tmp_path, capsys):
+    """``python -m rft_mujoco bench --warp ...`` through the CLI dispatcher, as small as it goes."""
+    from rft_mujoco.studies import cli
+
+    rc = cli.main(["bench", "--warp", "--device", DEVICE, "--quick", "--worlds", "1", "2", "--budget", "0.01",
+                   "--parity-steps", "2", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "1. Parity" in out and "2. Throughput" in out and "world-steps/s" in out
+    for case in ("no sand", "sand: feet", "sand: every body", "cull=False", "CPU path"):
+        assert case in out, case
+    assert (tmp_path / "world_steps.png").stat().st_size > 10_000

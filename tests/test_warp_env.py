@@ -120,3 +120,35 @@ def test_sb3_vec_env_adapter():
         PPO("MlpPolicy", venv, n_steps=4, batch_size=8, n_epochs=1, seed=0, device="cpu").learn(8)
     finally:
         venv.close()
+
+
+def test_batched_env_is_registered_where_users_find_it():
+    """``rft_mujoco.envs.make_batched_sand_quadruped`` and gymnasium's vector entry point of SandQuadruped-v0
+    (the default ``make_vec`` mode of the id); ``vectorization_mode="sync"`` still gives CPU envs."""
+    env = rft_mujoco.envs.make_batched_sand_quadruped(2, device=DEVICE, seed=0)
+    try:
+        assert isinstance(env, SandQuadrupedVectorEnv) and env.num_envs == 2
+    finally:
+        env.close()
+    for mode in ("vector_entry_point", None):
+        env = gymnasium.make_vec("rft_mujoco/SandQuadruped-v0", num_envs=2, vectorization_mode=mode, device=DEVICE,
+                                 seed=0, max_episode_steps=2)
+        try:
+            assert isinstance(env, SandQuadrupedVectorEnv) and env.sim.max_episode_steps == 2
+            assert env.spec.id == "rft_mujoco/SandQuadruped-v0"
+            env.reset(seed=0)
+            for _ in range(2):
+                _, _, _, truncated, _ = env.step(np.zeros((2, 12)))
+            assert np.all(truncated)
+        finally:
+            env.close()
+    env = gymnasium.make_vec("rft_mujoco/SandQuadruped-v0", num_envs=2, device=DEVICE)   # the registered time limit
+    try:
+        assert isinstance(env, SandQuadrupedVectorEnv) and env.sim.max_episode_steps == 1000
+    finally:
+        env.close()
+    env = gymnasium.make_vec("rft_mujoco/SandQuadruped-v0", num_envs=2, vectorization_mode="sync")
+    try:
+        assert isinstance(env, gymnasium.vector.SyncVectorEnv)
+    finally:
+        env.close()

@@ -1,10 +1,13 @@
 """Batched 3D-RFT sand on MuJoCo Warp: :func:`attach` installs it in ``mjw_model.callback.control``.
 
 From then on every ``mujoco_warp.step(mjw_model, mjw_data)`` (and ``forward``, ``step1``) evaluates the sand in
-every world, as the CPU coupling (:func:`rft_mujoco.attach`) does for one MjData: the same elements (same-body
-culling included), law, terrain, weld groups and rest treatment (:mod:`rft_mujoco.physics.rest`), ported to
-warp kernels (:mod:`rft_mujoco.warp.kernels`); and the same ``xfrc_applied`` bookkeeping (the row ends as user
-wrench + sand wrench whether the user left it alone, zeroed or reassigned it).
+every world, as the CPU coupling (:func:`rft_mujoco.attach`) does for one MjData: the same elements (culled
+at attach inside the body's own geoms and inside geoms welded to it), the same run-time culling (an element
+inside a geom of another weld group -- a calf inside its thigh at the knee, a rock -- carries nothing while it
+is inside; ``cull=False`` turns both off), law, terrain, weld groups and rest treatment
+(:mod:`rft_mujoco.physics.rest`), ported to warp kernels (:mod:`rft_mujoco.warp.kernels`); and the same
+``xfrc_applied`` bookkeeping (the row ends as user wrench + sand wrench whether the user left it alone, zeroed
+or reassigned it).
 
 Per-world quantities live in device arrays the callback reads, so they change without recompiling or
 re-capturing: the medium (:meth:`WarpSandHandle.set_media`), the flat surface height
@@ -42,6 +45,7 @@ from rft_mujoco.physics.media import Media, get_media
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion, Terrain, as_terrain
 from rft_mujoco.warp import kernels as K
 from rft_mujoco.warp import layout as _layout
+from rft_mujoco.warp import occlusion as _occlusion
 
 
 PER_WORLD_BLOCK = 32
@@ -60,6 +64,8 @@ class WarpDiagnostics:
         rft_force: (W, B, 3) N, the RFT force at the motion direction. resting: (W, B) bool.
         status: (W,) int, 1 when a wrench was non-zero. errors: (W,) int, sticky bits
             (:data:`rft_mujoco.warp.kernels.NOT_FINITE`, ``BAD_ACCELERATION``).
+        occluded_area: (W, B) m^2, submerged surface inside a geom of another weld group (culled this
+            evaluation; 0 with ``cull=False``), as the CPU diagnostics' ``occluded_area``.
     """
 
     force: np.ndarray
@@ -71,6 +77,7 @@ class WarpDiagnostics:
     resting: np.ndarray
     status: np.ndarray
     errors: np.ndarray
+    occluded_area: np.ndarray
 
 
 class _State:
@@ -96,7 +103,8 @@ class _State:
         self.user, self.added, self.written, self.sand, self.rft = (z((w, b), sv) for _ in range(5))
         self.wrench = z((w, b), sv)
         self.cand, self.touch, self.count, self.resting = (z((w, b), int) for _ in range(4))
-        self.max_depth, self.scale = z((w, b)), z((w, b))
+        self.max_depth, self.scale, self.occluded = z((w, b)), z((w, b)), z((w, b))
+        self.near = z((w, max(handle.n_occluders, 1)), int)
         self.v_lin, self.v_ang = z((w, b), wp.vec3), z((w, b), wp.vec3)
         self.last_time = wp.array(np.full(w, -np.inf, dtype=np.float32), dtype=float, device=dev)
         self.errors, self.status, self.ngroups = z(w, int), z(w, int), z(w, int)
@@ -164,7 +172,10 @@ class WarpSandHandle:
     Attributes:
         body_ids: (B,) int, the attached bodies (MuJoCo ids); body_names: their names.
         n_elements: E, surface elements over those bodies. groups: the weld groups.
-        stabilize, passive, guards, terrain: as in :func:`rft_mujoco.attach`.
+        stabilize, passive, guards, terrain, cull: as in :func:`rft_mujoco.attach`.
+        culled_area: (B,) m^2 of each body's surface culled at attach.
+        occluders: the run-time occluders (:class:`rft_mujoco.compiled.elements.Occluders`, the CPU path's list);
+            n_occluders: their number (0 with ``cull=False``).
         device: the warp device of the model.
     """
 
@@ -179,6 +190,10 @@ class WarpSandHandle:
         self.n_bodies = int(layout.body_ids.size)
         self.n_groups = int(layout.groups.ref.size)
         self.n_elements = layout.n_elements
+        self.cull = layout.cull
+        self.culled_area = layout.culled_area
+        self.occluders = layout.occluders
+        self.n_occluders = int(layout.occluders.geom.size)
         self.nv = int(mj_model.nv)
         self.guards = guards
         self.stabilize = bool(stabilize)
@@ -210,6 +225,7 @@ class WarpSandHandle:
             body_dofadr=i4(m.body_dofadr), body_parentid=i4(m.body_parentid), dof_parentid=i4(m.dof_parentid),
             tp=wp.array(tp, dtype=float, device=dev), heights=wp.array(heights, dtype=float, device=dev),
             coef=wp.array(law.COEFFICIENTS.astype(np.float32), dtype=float, device=dev))
+        self._occ = _occlusion.device_arrays(layout.occluders, self.n_bodies, dev)
         self._states: dict[int, tuple[weakref.ref, _State]] = {}
         self._chained = None
         self.attached = False
@@ -298,13 +314,14 @@ class WarpSandHandle:
         return self._state(data).sand.numpy()[:, :, 3:].astype(np.float64)
 
     def diagnostics(self, data) -> WarpDiagnostics:
-        """Forces, torques, loaded element counts, depths and rest state of the latest evaluation (host copies)."""
+        """Forces, torques, loaded element counts, depths, rest state and occluded area of the latest evaluation
+        (host copies)."""
         st = self._state(data)
         sand, rft = st.sand.numpy().astype(np.float64), st.rft.numpy().astype(np.float64)
         return WarpDiagnostics(sand[:, :, :3], sand[:, :, 3:], st.count.numpy().astype(np.int64),
                                st.max_depth.numpy().astype(np.float64), st.scale.numpy().astype(np.float64),
                                rft[:, :, :3], st.resting.numpy().astype(bool), st.status.numpy(),
-                               st.errors.numpy())
+                               st.errors.numpy(), st.occluded.numpy().astype(np.float64))
 
     def check(self, data) -> None:
         """Raise FloatingPointError naming the worlds whose evaluation failed since the last check (and clear)."""
@@ -336,11 +353,16 @@ class WarpSandHandle:
         wp.launch(K.user_part, dim=wb, device=dev,
                   inputs=[a["body_id"], d.xfrc_applied, st.written, st.added, a["bound_center"], a["bound_radius"],
                           d.xpos, d.xmat, m.opt.gravity, self._kind, st.flat_height, a["tp"], st.user, st.cand,
-                          st.touch, st.wrench, st.count, st.max_depth])
+                          st.touch, st.wrench, st.count, st.max_depth, st.occluded])
         wp.launch(K.touch_pass, dim=we, device=dev,
                   inputs=[a["body_id"], a["elem_body"], a["centroid"], st.elem_mask, st.cand, d.xpos, d.xmat,
                           m.opt.gravity,
                           self._kind, st.flat_height, a["tp"], a["heights"], st.touch])
+        o = self._occ
+        if self.n_occluders:                    # static: the same launches every evaluation (graph-safe)
+            wp.launch(K.near_occluders, dim=(nw, self.n_occluders), device=dev,
+                      inputs=[a["body_id"], a["bound_center"], a["bound_radius"], o["occ_body"], o["occ_geom"],
+                              o["occ_rbound"], d.xpos, d.xmat, d.geom_xpos, st.touch, st.near])
         if self.stabilize:
             mjw.fwd_actuation(m, d)            # MuJoCo computes qfrc_actuator only after the control callback
             wp.launch(K.free_twist, dim=nw, device=dev, block_dim=PER_WORLD_BLOCK, inputs=[
@@ -357,7 +379,9 @@ class WarpSandHandle:
         wp.launch(K.force_pass, dim=we, device=dev, inputs=[
             a["body_id"], a["elem_body"], a["centroid"], a["normal"], a["area"], st.elem_mask, d.xpos, d.xmat,
             d.xipos, m.opt.gravity, self._kind, st.flat_height, a["tp"], a["heights"], a["coef"], st.xi_per_g,
-            st.mu_surf, *guards, st.touch, st.v_lin, st.v_ang, st.wrench, st.count, st.max_depth])
+            st.mu_surf, *guards, st.touch, st.v_lin, st.v_ang, st.wrench, st.count, st.max_depth, o["occ_start"],
+            o["occ_geom"], o["occ_kind"], o["occ_size"], o["occ_rbound"], o["occ_hs_start"], o["occ_hs"],
+            o["margin"], st.near, d.geom_xpos, d.geom_xmat, st.occluded])
         wp.launch(K.rest_solve, dim=nw, device=dev, block_dim=PER_WORLD_BLOCK, inputs=[
             int(self.stabilize), int(self.passive), a["body_group"], a["group_radius"], a["bound_radius"],
             st.ngroups, st.active, st.slot, st.touch, st.wrench, st.count, st.vs, st.a, st.u, st.arm, st.v_lin,
@@ -408,13 +432,14 @@ class WarpSandHandle:
 
     def __repr__(self) -> str:
         return (f"WarpSandHandle(media={self._media0.name!r}, bodies={self.body_names}, elements={self.n_elements}, "
-                f"element_size={self.layout.element_size} m, stabilize={self.stabilize}, device={self.device}, "
-                f"attached={self.attached})")
+                f"element_size={self.layout.element_size} m, stabilize={self.stabilize}, cull={self.cull}, "
+                f"device={self.device}, attached={self.attached})")
 
 
 def attach(mj_model, mjw_model, media: Media | str, bodies: Sequence[str | int] | None = None,
            surface_height: float | Terrain = 0.0, resolution: str | float = "default", *,
-           guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True, data=None) -> WarpSandHandle:
+           guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True, cull: bool = True,
+           data=None) -> WarpSandHandle:
     """Attach 3D-RFT sand to a MuJoCo Warp model: ``mujoco_warp.step(mjw_model, d)`` then includes it in every
     world of ``d``.
 
@@ -424,8 +449,10 @@ def attach(mj_model, mjw_model, media: Media | str, bodies: Sequence[str | int] 
         mjw_model: the ``mujoco_warp.Model``.
         media: a :class:`rft_mujoco.Media` or a preset name: the medium of every world (change per world with
             :meth:`WarpSandHandle.set_media`).
-        bodies, surface_height, resolution, guards, stabilize, passive: as in :func:`rft_mujoco.attach`
-            (``surface_height``: a height in m, or a FlatSurface, HeightfieldSurface or SandRegion).
+        bodies, surface_height, resolution, guards, stabilize, passive, cull: as in :func:`rft_mujoco.attach`
+            (``surface_height``: a height in m, or a FlatSurface, HeightfieldSurface or SandRegion; ``cull``:
+            True (default) culls elements inside the body's own and welded geoms at attach and, at each
+            evaluation in each world, elements inside a geom of another weld group; False: neither).
         data: optionally a ``mujoco_warp.Data`` to allocate buffers for now (:meth:`WarpSandHandle.bind`).
     Returns:
         a :class:`WarpSandHandle`; ``handle.detach()`` removes it.
@@ -444,7 +471,7 @@ def attach(mj_model, mjw_model, media: Media | str, bodies: Sequence[str | int] 
     media = get_media(media)
     terrain = as_terrain(surface_height)
     gravity_direction(mj_model.opt.gravity)              # raises on zero gravity
-    lay = _layout.build(mj_model, bodies, resolution)
+    lay = _layout.build(mj_model, bodies, resolution, cull)
     handle = WarpSandHandle(mj_model, mjw_model, media, lay, terrain, guards, stabilize, passive)
     handle._install()
     if data is not None:

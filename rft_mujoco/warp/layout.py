@@ -1,8 +1,11 @@
-"""The static part of a batched sand: which bodies, their surface elements, weld groups and radii (numpy).
+"""The static part of a batched sand: which bodies, their surface elements, weld groups, radii and run-time
+occluders (numpy).
 
-Built with the CPU coupling's own helpers (:mod:`rft_mujoco.coupling.setup`), so that the warp path cuts
-the same elements (culled at attach inside the body's other geoms and inside geoms welded to it), forms the
-same weld groups and uses the same radii as :class:`rft_mujoco.SandHandle` (tests/test_warp.py compares them).
+Built with the CPU coupling's own helpers (:mod:`rft_mujoco.coupling.setup`,
+:func:`rft_mujoco.compiled.elements.occluders`), so that the warp path cuts the same elements (culled at
+attach inside the body's other geoms and inside geoms welded to it), forms the same weld groups, uses the
+same radii and tests the same occluders at run time as :class:`rft_mujoco.SandHandle` (tests/test_warp.py
+compares them).
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
+from rft_mujoco.compiled.elements import Occluders, occluders
 from rft_mujoco.coupling import setup
 from rft_mujoco.coupling.handle import _body_id
 from rft_mujoco.coupling.setup import Groups
@@ -32,8 +36,12 @@ class Layout:
         elem_body: (E,) int, row of each element's body in ``body_ids``; elements of a body are contiguous.
         bound_center: (B, 3) m, body frame; bound_radius: (B,) m: the bodies' bounding spheres (the CPU
             broadphase's; here they only scale torques in the diagnostics).
-        groups: the weld groups (:class:`rft_mujoco.coupling.handle.Groups`).
+        groups: the weld groups (:class:`rft_mujoco.coupling.setup.Groups`).
         element_size: m.
+        cull: culling on (at attach and at run time), as ``rft_mujoco.attach(cull=...)``.
+        culled_area: (B,) m^2 of each body's surface culled at attach.
+        occluders: the run-time occluders of each body (:class:`rft_mujoco.compiled.elements.Occluders`; none
+            when ``cull`` is False).
     """
 
     body_ids: np.ndarray
@@ -46,6 +54,9 @@ class Layout:
     bound_radius: np.ndarray
     groups: Groups
     element_size: float
+    cull: bool = True
+    culled_area: np.ndarray | None = None
+    occluders: Occluders | None = None
 
     @property
     def n_elements(self) -> int:
@@ -58,8 +69,9 @@ def default_bodies(model) -> list[int]:
             if any(model.geom_bodyid[g] == b and model.geom_type[g] not in _TERRAIN_GEOMS for g in range(model.ngeom))]
 
 
-def build(model, bodies: Sequence[str | int] | None, resolution: str | float) -> Layout:
-    """The layout of ``bodies`` (names or ids; None: :func:`default_bodies`) at ``resolution``."""
+def build(model, bodies: Sequence[str | int] | None, resolution: str | float, cull: bool = True) -> Layout:
+    """The layout of ``bodies`` (names or ids; None: :func:`default_bodies`) at ``resolution``, culled as
+    ``rft_mujoco.attach(cull=cull)`` culls."""
     size = surface.element_size(resolution)
     if bodies is None:
         ids = default_bodies(model)
@@ -73,10 +85,12 @@ def build(model, bodies: Sequence[str | int] | None, resolution: str | float) ->
         raise ValueError("no bodies to attach sand to: the model has no body with surface geoms")
     names = [model.body(int(b)).name for b in ids]
     ids = np.asarray(ids, dtype=np.int64)
-    s = setup.surfaces(model, ids, names, size)
+    cull = bool(cull)
+    s = setup.surfaces(model, ids, names, size, cull)
     centroids = np.ascontiguousarray(s.centroids, dtype=float)
     bound_center, bound_radius = setup.bounding_spheres(centroids, s.elem_body, len(ids), size)
     bound_radius = np.where(np.isfinite(bound_radius), bound_radius, size)     # a body without elements
     return Layout(ids, names, centroids, np.ascontiguousarray(s.normals, dtype=float),
                   np.ascontiguousarray(s.areas, dtype=float), s.elem_body, bound_center, bound_radius,
-                  setup.groups(model, ids, centroids, s.elem_body, size), size)
+                  setup.groups(model, ids, centroids, s.elem_body, size), size, cull, s.culled_area,
+                  occluders(model, ids) if cull else Occluders.none(len(ids)))
