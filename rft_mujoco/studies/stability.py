@@ -30,43 +30,13 @@ for drag and rotate, the sand force against the published RFT force at the same 
   carries it deeper and the sand does not push it back up); well above it (ratio < 0.9) would mean the
   sand carried more than RFT allows.
 
-The low-speed treatment (``attach(stabilize=True)``, the default)
------------------------------------------------------------------
-RFT is rate-independent: its force depends on the direction of motion but not on the speed, so at zero
-speed it is undefined (any wrench of the "yield set" can hold a body). The coupling regularizes below a
-regularization speed of order ``v_reg = max(|a_free|, |F_rft| / m) dt`` per body (``a_free`` the
-acceleration without sand, ``F_rft / m`` the acceleration the full RFT force would cause, ``dt`` the
-timestep):
-
-1. Direction: each element moves along ``v + w a dt`` with ``w = (|a| dt)^2 / (|v|^2 + (|a| dt)^2)``:
-   the published direction ``v`` when ``|v| >> |a_free| dt`` (relative change ``(|a| dt / |v|)^3``), the
-   direction the element would move in this step without sand when at rest.
-2. Impulse limiter (passivity): a body is in the low-speed regime when its predicted speed is below the
-   speed change one full RFT impulse would cause (``|F_rft| dt / m``, as a twist speed). Its octant
-   wrenches are scaled by factors in [0, 1] that minimize the kinetic energy after the step: the sand
-   stops the body at most, never reverses or accelerates it. Bodies in flow get the published force
-   (factors 1), unless it would add kinetic energy to the step; then every body is limited. Either way
-   ``dE <= 0`` above holds (guaranteed by a final scaling).
-3. Rest columns: for a low-speed body whose factors bind, up to two more wrenches per octant are added
-   (``kernel.REST_COLUMNS``), the RFT resistance to the motion left after the step, sharing the octant's
-   capacity (convex combination). This is what stops a tilted capsule exactly: one motion direction
-   cannot cancel both its weight and its sideways push. Without them (the limiter alone, as before
-   issue 5) a 0.3 rad tilted capsule kept moving at 1-5 mm/s.
-
-The integrator stage does not matter: RK4 evaluates the sand four times per step with the full ``dt``
-in each stage; measured, RK4 comes to rest exactly like Euler, so no stage-aware step is used.
-The limiter's QP (``kernel.limit_impulses``) is solved by projected Gauss-Seidel with subspace steps to
-round-off for single bodies; for multi-body scenes it is capped at ``kernel.LIMITER_ITERATIONS`` sweeps
-(relative energy gap ~1e-6, passivity still exact).
-
-So the published force is recovered to ``(|a_free| dt / v)^3`` once ``v > |F_rft| dt / m``: in practice
-to better than 1% at speeds above about 3 to 10 ``v_reg`` (tested in tests/test_stability.py). Where the
-motion is nearly tangential to the surface (a rolling or spinning sphere) the leading-edge mask makes the
-published force itself discontinuous in the direction, and the regularization of the slow elements near
-the contact or the axis changes it by more (see ``F err flow`` of the drag and rotate rows). The
-naive coupling (``stabilize=False``) applies the published force at each element's current velocity
-(zero at zero speed) and ``passive=True`` zeroes a body's wrench when it would do positive work; bodies
-then chatter on the sand instead of resting.
+The treatment tested
+--------------------
+``attach(stabilize=True)`` (the default): the rest treatment of :mod:`rft_mujoco.physics.rest` (design and
+the alternatives measured: docs/rest.md). The naive coupling (``stabilize=False``) applies the published
+force at each element's current velocity (zero at zero speed); ``passive=True`` zeroes a body's wrench
+when it would do positive work; bodies then chatter on the sand instead of resting. The load-path subset
+(:mod:`rft_mujoco.studies.loadpaths`) passes loads to the sand body through MuJoCo's constraints.
 """
 
 from __future__ import annotations
