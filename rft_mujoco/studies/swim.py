@@ -233,7 +233,7 @@ def run(quick: bool = False, out: str | Path = "out/swim", plots: bool = True) -
         w.writeheader()
         w.writerows(rows + mass)
     files = [path]
-    (out / "swim.json").write_text(json.dumps(dict(rows=rows, mass=mass), indent=2))
+    (out / "swim.json").write_text(json.dumps(dict(rows=rows, mass=mass, frequency_spread=spread), indent=2))
     files.append(out / "swim.json")
     if plots:
         files.append(plot(rows, out))
