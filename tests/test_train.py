@@ -327,3 +327,29 @@ def test_quadruped_v1_smoke_train_save_load_evaluate(tmp_path):
     assert gap[0]["sinkage_m"] > 0.0 and gap[1]["sinkage_m"] == 0.0     # no sand on the rigid floor
     assert "trained on" in commands.format_gap(gap) and (tmp_path / "gap.json").is_file()
     print(f"SandQuadruped-v1 smoke: training {trained_s:.1f} s, evaluation {time.perf_counter() - start:.1f} s")
+
+
+PRETRAINED = Path(__file__).resolve().parent.parent / "train" / "pretrained" / "SandQuadruped-v1"
+
+
+def test_the_shipped_policy_loads_and_walks_forward_on_sand():
+    """train/pretrained/SandQuadruped-v1 (the README's policy): rebuilt from its config.yaml, it moves the
+    robot forward at a 0.4 m/s command (a short rollout; no speed asserted beyond "forward")."""
+    from rft_mujoco.train.environments import make_env
+    from rft_mujoco.train.evaluate import load_policy
+
+    config = cfg.load_config(PRETRAINED)
+    assert config.env_id == QUADRUPED_V1
+    for name in ("model.zip", "vecnormalize.pkl", "config.yaml"):
+        assert (PRETRAINED / name).stat().st_size < 5_000_000, name          # small files
+    env = make_env(config.env_id, config.env_kwargs)
+    try:
+        act, _ = load_policy(config, PRETRAINED, env)
+        obs, _ = env.reset(seed=123, options={"command": (0.4, 0.0, 0.0)})
+        x0 = env.unwrapped.data.qpos[0]
+        for _ in range(150):                                                  # 3 s
+            obs, _, terminated, truncated, _ = env.step(act(obs))
+            assert not terminated
+        assert env.unwrapped.data.qpos[0] - x0 > 0.1
+    finally:
+        env.close()

@@ -24,8 +24,7 @@ def plot(results: list[Result], path: Path) -> None:
     fig, axes = plt.subplots(len(SHAPES), len(INTEGRATORS), figsize=(12, 9), squeeze=False,
                              sharex=True, sharey=True)
     masses, dts = list(MASSES), list(TIMESTEPS)
-    cmap = matplotlib.colormaps["viridis"].copy()
-    cmap.set_bad("red")
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="red")
     for i, shape in enumerate(SHAPES):
         for j, integ in enumerate(INTEGRATORS):
             ax = axes[i][j]
