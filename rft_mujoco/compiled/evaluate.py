@@ -26,9 +26,10 @@ import math
 
 import numpy as np
 
-from rft_mujoco.compiled.elements import SCRATCH_ROWS, finish_naive, touching, wrenches
-from rft_mujoco.compiled.jit import JIT, njit
-from rft_mujoco.compiled.rest import jacobian, rest_wrenches, solve_m
+from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, wrenches
+from rft_mujoco.compiled.elements import finish_naive, touching
+from rft_mujoco.compiled.jit import INLINE, JIT, njit
+from rft_mujoco.compiled.rest import _chain_dof, jacobian, rest_wrenches, solve_m
 
 MJDATA_FIELDS = (
     ("xpos", "f2"), ("xmat", "f2"), ("xipos", "f2"), ("cvel", "f2"), ("subtree_com", "f2"), ("qpos", "f1"),
@@ -57,7 +58,7 @@ WORK_FIELDS = (
     ("u_lin", "f2"), ("u_ang", "f2"), ("arm", "f2"), ("applied", "f2"), ("size", "f1"), ("total", "f1"),
     ("force", "f2"), ("torque", "f2"), ("submerged", "i1"), ("max_depth", "f1"), ("scale", "f1"),
     ("rft_force", "f2"), ("resting", "b1"), ("occluded_area", "f1"), ("state", "f1"), ("lin", "f2"),
-    ("perm", "i1"), ("x", "f1"))
+    ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"))
 """(name, kind) of the arrays of ``ws``, in order."""
 
 PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
@@ -90,7 +91,7 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
         u=(g, 6), rft_g=(g, 6), w=(g, 6), cap=(g, 6), u_lin=(b, 3), u_ang=(b, 3), arm=(b, 3), applied=(b, 6),
         size=(b,), total=(g,), force=(b, 3), torque=(b, 3), submerged=(b,), max_depth=(b,), scale=(b,),
         rft_force=(b, 3), resting=(b,), occluded_area=(b,), state=(len(STATE),), lin=(3 * n6 + 5, max(n6, 1)),
-        perm=(2 * n6,), x=(n6,))
+        perm=(2 * n6,), x=(n6,), index=(2, n_rows), chain=(g, nv + 1))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
     out["scale"][:] = 1.0
@@ -126,7 +127,7 @@ def _gravity(gravity):
     return gravity[0] / mag, gravity[1] / mag, gravity[2] / mag, mag
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def broadphase(md, hc, ws, time, dt):
     """Phase 1: record the time, find the touching bodies (their count in ``state[2]``); without any, clear
     the diagnostics once. Returns the count, or NOT_FINITE_STATE."""
@@ -157,7 +158,7 @@ def broadphase(md, hc, ws, time, dt):
     return k
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def evaluate(md, hc, ws, user_xfrc, dt, sand_out):
     """Phase 2 (after ``mj_fwdActuation``), for the ``state[2] > 0`` touching bodies of :func:`broadphase`:
     the sand wrenches, the diagnostics, and the wrenches added to ``sand_out`` (nbody, 6) at their bodies'
@@ -180,12 +181,84 @@ def evaluate(md, hc, ws, user_xfrc, dt, sand_out):
     wrenches(ws[0], k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], ws[3], ws[4], ws[5],
              g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
              params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], occ_hs,
-             params[9], md[15], md[16], ws[6], ws[7], ws[8], ws[9], ws[10])
+             params[9], md[15], md[16], ws[6], ws[49], ws[7], ws[8], ws[9], ws[10])
     return finish_naive(ws[7], ws[8], ws[9], ws[4], ws[5], params[8] != 0.0, ws[0], k, hc[0], ws[37], ws[38],
                         ws[39], ws[40], ws[41], ws[42], ws[43], ws[44], ws[10], sand_out)
 
 
-@njit(**JIT)
+@njit(**INLINE)
+def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
+              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, chain, z,
+              twist, free, mob):
+    """For the reference bodies of the active groups 0..ng-1: twists (now, and free: after ``dt`` at ``qacc``)
+    and the mobility ``mob = J M^-1 J^T`` (6 ng, 6 ng), with the kinematic tree's sparsity.
+
+    A body's Jacobian is zero outside its chain of dofs (``chain[r, 1:1 + chain[r, 0]]``, from the body to
+    the root). With MuJoCo's factor ``M = L^T D L``, ``J M^-1 J^T = Z^T D^-1 Z`` where ``Z = L^-T J^T``:
+    the first half of ``solve_m``, which keeps every column of ``Z`` on its body's chain (rows ``6 r..6 r + 5``
+    of ``z`` (6 ng, nv), only their chain entries are written and read). A block (r, s) sums over the dofs
+    the two chains share: the part of both next to the root."""
+    for r in range(ng):
+        b = ids[group_ref[active[r]]]
+        rt = body_rootid[b]
+        dx = xipos[b, 0] - subtree_com[rt, 0]
+        dy = xipos[b, 1] - subtree_com[rt, 1]
+        dz = xipos[b, 2] - subtree_com[rt, 2]
+        n = 0
+        j = _chain_dof(b, body_dofnum, body_dofadr, body_parentid)
+        i0 = 6 * r
+        while j >= 0:                                # the Jacobian (as rest.jacobian), chain entries only
+            chain[r, 1 + n] = j
+            n += 1
+            wx, wy, wz = cdof[j, 0], cdof[j, 1], cdof[j, 2]
+            z[i0, j] = cdof[j, 3] + (wy * dz - wz * dy)
+            z[i0 + 1, j] = cdof[j, 4] + (wz * dx - wx * dz)
+            z[i0 + 2, j] = cdof[j, 5] + (wx * dy - wy * dx)
+            z[i0 + 3, j] = wx
+            z[i0 + 4, j] = wy
+            z[i0 + 5, j] = wz
+            j = dof_parentid[j]
+        chain[r, 0] = n
+        for c in range(6):
+            t = 0.0
+            sa = 0.0
+            for u in range(n):
+                j = chain[r, 1 + u]
+                t += z[i0 + c, j] * qvel[j]
+                sa += z[i0 + c, j] * qacc[j]
+            twist[r, c] = t
+            free[r, c] = t + dt * sa
+        for u in range(n):                           # Z = L^-T J^T, from the body towards the root
+            j = chain[r, 1 + u]
+            a0 = rowadr[j]
+            for a in range(a0, a0 + rownnz[j] - 1):
+                p = colind[a]
+                q = qld[a]
+                for c in range(6):
+                    z[i0 + c, p] -= q * z[i0 + c, j]
+    for r in range(ng):
+        nr = chain[r, 0]
+        for s_ in range(r + 1):
+            ns = chain[s_, 0]
+            i0, j0 = 6 * r, 6 * s_
+            for i in range(6):
+                for c in range(6):
+                    mob[i0 + i, j0 + c] = 0.0
+            t = 0
+            while t < nr and t < ns and chain[r, nr - t] == chain[s_, ns - t]:
+                j = chain[r, nr - t]
+                d = qld_diag_inv[j]
+                for i in range(6):
+                    y = z[i0 + i, j] * d
+                    for c in range(6 if s_ < r else i + 1):
+                        mob[i0 + i, j0 + c] += y * z[j0 + c, j]
+                t += 1
+            for i in range(6):
+                for c in range(6 if s_ < r else i):
+                    mob[j0 + c, i0 + i] = mob[i0 + i, j0 + c]
+
+
+@njit(**INLINE)
 def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     """The rest treatment of the ``k`` touching bodies: ``SandHandle._evaluate_rest``."""
     xipos, cdof, subtree_com, qvel = md[2], md[7], md[4], md[6]
@@ -242,29 +315,11 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     for i in range(nv):
         if not math.isfinite(qacc[i]):
             return BAD_ACCELERATION
-    # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T
-    for r in range(ng):
-        b = ids[group_ref[active[r]]]
-        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
-                 body_dofadr, body_parentid, dof_parentid, jac, 6 * r)
+    # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T (_mobility)
     n6 = 6 * ng
-    for i in range(n6):
-        t = 0.0
-        s = 0.0
-        for j in range(nv):
-            t += jac[i, j] * qvel[j]
-            s += jac[i, j] * qacc[j]
-            minv_jt[i, j] = jac[i, j]
-        twist[i // 6, i % 6] = t
-        free[i // 6, i % 6] = t + dt * s
-        solve_m(rownnz, rowadr, colind, qld, qld_diag_inv, minv_jt[i])
-    for i in range(n6):
-        for j in range(i + 1):
-            s = 0.0
-            for c in range(nv):
-                s += jac[i, c] * minv_jt[j, c]
-            mob[i, j] = s
-            mob[j, i] = s
+    _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
+              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[50],
+              minv_jt, twist, free, mob)
     # 4. blended twists (rest.blend), moved to each touching body's COM
     for r in range(ng):
         rad = group_radius[active[r]]
@@ -301,7 +356,7 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     wrenches(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com, u_lin, u_ang,
              g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
              params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
-             params[9], md[15], md[16], ws[6], wrench, count, depth_max, occluded)
+             params[9], md[15], md[16], ws[6], ws[49], wrench, count, depth_max, occluded)
     for r in range(ng):
         for c in range(6):
             rft_g[r, c] = 0.0

@@ -104,6 +104,11 @@ def _i1(t, s):
 
 
 @njit(**INLINE)
+def _i2(t, s):
+    return carray(_as_i8(t[s]), (t[s + 1], t[s + 2]))
+
+
+@njit(**INLINE)
 def _b1(t, s):
     return carray(_as_b1(t[s]), (t[s + 1],))
 
@@ -147,7 +152,8 @@ def _ws(t, base):
         _f2(t, base + 120), _f2(t, base + 124), _f2(t, base + 128), _f2(t, base + 132), _f2(t, base + 136),
         _f1(t, base + 140), _f1(t, base + 144), _f2(t, base + 148), _f2(t, base + 152), _i1(t, base + 156),
         _f1(t, base + 160), _f1(t, base + 164), _f2(t, base + 168), _b1(t, base + 172), _f1(t, base + 176),
-        _f1(t, base + 180), _f2(t, base + 184), _i1(t, base + 188), _f1(t, base + 192),
+        _f1(t, base + 180), _f2(t, base + 184), _i1(t, base + 188), _f1(t, base + 192), _i2(t, base + 196),
+        _i2(t, base + 200),
     )
 
 
