@@ -62,10 +62,10 @@ WORK_FIELDS = (
 """(name, kind) of the arrays of ``ws``, in order."""
 
 PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
-          "passive", "margin", "monitor_every")
+          "passive", "margin", "monitor_every", "rk4_first")
 """Entries of ``hc.params``: highest sand (m), ``xi_n / |g|`` (N/m^3 per m/s^2), surface friction, the
 three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
-validity checks (0: no monitor)."""
+validity checks (0: no monitor), ``rk4_stages="first"`` (0/1)."""
 STATE = ("last_time", "clean", "touching", "lagged", "evaluations")
 """Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
 the number of touching bodies found by the last broadphase, whether MuJoCo's previous constraint solve
@@ -450,11 +450,12 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
 
 
 def params_array(max_height: float, xi_per_g: float, mu_surf: float, guards, kind: int, stabilize: bool,
-                 passive: bool, margin: float, monitor_every: int = 0, out=None) -> np.ndarray:
+                 passive: bool, margin: float, monitor_every: int = 0, rk4_first: bool = False,
+                 out=None) -> np.ndarray:
     """``hc.params`` (:data:`PARAMS`), written into ``out`` when given (a live handle's array)."""
     values = (max_height, xi_per_g, mu_surf, float(guards.no_tension), float(guards.no_forward_tangential),
               float(guards.no_positive_power), float(kind), float(stabilize), float(passive), margin,
-              float(monitor_every))
+              float(monitor_every), float(rk4_first))
     if out is None:
         return np.array(values, dtype=np.float64)
     out[:] = values

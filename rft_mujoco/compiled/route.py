@@ -38,7 +38,7 @@ the due monitor checks in Python."""
 BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"), ("user", "f2"),
                ("sand", "f2"), ("state", "f1"))
 """The dispatcher's per-MjData book (:class:`rft_mujoco.coupling.dispatch._DataBook`); ``state`` =
-(nonzero, sand_dirty, rk4 stage, rk4 stage time)."""
+(nonzero, sand_dirty, rk4 stage, rk4 stage time, TIME_RTOL, what the native callback left to Python)."""
 _HEADER = 3
 """Table header: number of handles, base of the book, base of md; then one base per handle."""
 
@@ -165,6 +165,18 @@ def _book(t, base):
 
 
 _HC_SLOTS = len(ev.HANDLE_FIELDS) * SLOT
+_PARAMS = [name for name, _ in ev.HANDLE_FIELDS].index("params") * SLOT
+_RK4_FIRST = ev.PARAMS.index("rk4_first")
+
+
+@njit(**JIT)
+def all_first(t):
+    """Whether every handle of the route asks for ``rk4_stages="first"``."""
+    n = t[0]
+    for h in range(n):
+        if _f1(t, t[_HEADER + h] + _PARAMS)[_RK4_FIRST] == 0.0:
+            return False
+    return n > 0
 
 
 @njit(**JIT)
