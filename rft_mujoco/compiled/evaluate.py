@@ -52,7 +52,7 @@ HANDLE_FIELDS = (
 WORK_FIELDS = (
     ("touch", "i1"), ("body_pos", "f2"), ("body_mat", "f2"), ("body_com", "f2"), ("v_com", "f2"),
     ("omega", "f2"), ("scratch", "f2"), ("wrench", "f2"), ("count", "i1"), ("depth", "f1"), ("occluded", "f1"),
-    ("active", "i1"), ("slot", "i1"), ("idx", "i1"), ("rest", "b1"), ("flow", "b1"), ("jac", "f2"),
+    ("active", "i1"), ("slot", "i1"), ("idx", "i1"), ("rest", "b1"), ("flow", "b1"), ("zt", "f2"),
     ("minv_jt", "f2"), ("mob", "f2"), ("a", "f2"), ("block", "f2"), ("qacc", "f1"), ("v", "f1"), ("rhs", "f1"),
     ("weight", "f1"), ("twist", "f2"), ("free", "f2"), ("u", "f2"), ("rft_g", "f2"), ("w", "f2"), ("cap", "f2"),
     ("u_lin", "f2"), ("u_ang", "f2"), ("arm", "f2"), ("applied", "f2"), ("size", "f1"), ("total", "f1"),
@@ -86,7 +86,7 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
     shapes = dict(
         touch=(b,), body_pos=(b, 3), body_mat=(b, 9), body_com=(b, 3), v_com=(b, 3), omega=(b, 3),
         scratch=(SCRATCH_ROWS, n_rows), wrench=(b, 6), count=(b,), depth=(b,), occluded=(b,), active=(g,),
-        slot=(b,), idx=(n6,), rest=(g,), flow=(g,), jac=(n6, nv), minv_jt=(max(n6, 6), nv), mob=(n6, n6),
+        slot=(b,), idx=(n6,), rest=(g,), flow=(g,), zt=(max(nv, 1), max(n6, 1)), minv_jt=(max(n6, 6), nv), mob=(n6, n6),
         a=(n6, n6), block=(n6, n6), qacc=(nv,), v=(n6,), rhs=(n6,), weight=(n6,), twist=(g, 6), free=(g, 6),
         u=(g, 6), rft_g=(g, 6), w=(g, 6), cap=(g, 6), u_lin=(b, 3), u_ang=(b, 3), arm=(b, 3), applied=(b, 6),
         size=(b,), total=(g,), force=(b, 3), torque=(b, 3), submerged=(b,), max_depth=(b,), scale=(b,),
@@ -188,16 +188,17 @@ def evaluate(md, hc, ws, user_xfrc, dt, sand_out):
 
 @njit(**INLINE)
 def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
-              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, chain, z,
+              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, chain, zt,
               twist, free, mob):
     """For the reference bodies of the active groups 0..ng-1: twists (now, and free: after ``dt`` at ``qacc``)
     and the mobility ``mob = J M^-1 J^T`` (6 ng, 6 ng), with the kinematic tree's sparsity.
 
     A body's Jacobian is zero outside its chain of dofs (``chain[r, 1:1 + chain[r, 0]]``, from the body to
     the root). With MuJoCo's factor ``M = L^T D L``, ``J M^-1 J^T = Z^T D^-1 Z`` where ``Z = L^-T J^T``:
-    the first half of ``solve_m``, which keeps every column of ``Z`` on its body's chain (rows ``6 r..6 r + 5``
-    of ``z`` (6 ng, nv), only their chain entries are written and read). A block (r, s) sums over the dofs
-    the two chains share: the part of both next to the root."""
+    the first half of ``solve_m``, which keeps every column of ``Z`` on its body's chain (columns
+    ``6 r..6 r + 5`` of ``zt`` (nv, 6 ng); only their chain rows are written and read), scaled to
+    ``W = D^-1/2 Z`` so that every entry is a sum of products of two W entries (exactly symmetric). A block
+    (r, s) sums over the dofs the two chains share: the part of both next to the root."""
     for r in range(ng):
         b = ids[group_ref[active[r]]]
         rt = body_rootid[b]
@@ -207,55 +208,77 @@ def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, 
         n = 0
         j = _chain_dof(b, body_dofnum, body_dofadr, body_parentid)
         i0 = 6 * r
-        while j >= 0:                                # the Jacobian (as rest.jacobian), chain entries only
+        v0 = v1 = v2 = v3 = v4 = v5 = 0.0            # J qvel and J qacc, one accumulator per component
+        a0 = a1 = a2 = a3 = a4 = a5 = 0.0
+        while j >= 0:                                # the Jacobian (as rest.jacobian), chain rows only
             chain[r, 1 + n] = j
             n += 1
             wx, wy, wz = cdof[j, 0], cdof[j, 1], cdof[j, 2]
-            z[i0, j] = cdof[j, 3] + (wy * dz - wz * dy)
-            z[i0 + 1, j] = cdof[j, 4] + (wz * dx - wx * dz)
-            z[i0 + 2, j] = cdof[j, 5] + (wx * dy - wy * dx)
-            z[i0 + 3, j] = wx
-            z[i0 + 4, j] = wy
-            z[i0 + 5, j] = wz
+            j0 = cdof[j, 3] + (wy * dz - wz * dy)
+            j1 = cdof[j, 4] + (wz * dx - wx * dz)
+            j2 = cdof[j, 5] + (wx * dy - wy * dx)
+            zt[j, i0] = j0
+            zt[j, i0 + 1] = j1
+            zt[j, i0 + 2] = j2
+            zt[j, i0 + 3] = wx
+            zt[j, i0 + 4] = wy
+            zt[j, i0 + 5] = wz
+            qv, qa = qvel[j], qacc[j]
+            v0 += j0 * qv
+            v1 += j1 * qv
+            v2 += j2 * qv
+            v3 += wx * qv
+            v4 += wy * qv
+            v5 += wz * qv
+            a0 += j0 * qa
+            a1 += j1 * qa
+            a2 += j2 * qa
+            a3 += wx * qa
+            a4 += wy * qa
+            a5 += wz * qa
             j = dof_parentid[j]
         chain[r, 0] = n
-        for c in range(6):
-            t = 0.0
-            sa = 0.0
-            for u in range(n):
-                j = chain[r, 1 + u]
-                t += z[i0 + c, j] * qvel[j]
-                sa += z[i0 + c, j] * qacc[j]
-            twist[r, c] = t
-            free[r, c] = t + dt * sa
+        twist[r, 0], twist[r, 1], twist[r, 2], twist[r, 3], twist[r, 4], twist[r, 5] = v0, v1, v2, v3, v4, v5
+        free[r, 0] = v0 + dt * a0
+        free[r, 1] = v1 + dt * a1
+        free[r, 2] = v2 + dt * a2
+        free[r, 3] = v3 + dt * a3
+        free[r, 4] = v4 + dt * a4
+        free[r, 5] = v5 + dt * a5
         for u in range(n):                           # Z = L^-T J^T, from the body towards the root
             j = chain[r, 1 + u]
-            a0 = rowadr[j]
-            for a in range(a0, a0 + rownnz[j] - 1):
+            a0_ = rowadr[j]
+            for a in range(a0_, a0_ + rownnz[j] - 1):
                 p = colind[a]
                 q = qld[a]
                 for c in range(6):
-                    z[i0 + c, p] -= q * z[i0 + c, j]
+                    zt[p, i0 + c] -= q * zt[j, i0 + c]
+        for u in range(n):                           # W = D^-1/2 Z
+            j = chain[r, 1 + u]
+            d = math.sqrt(qld_diag_inv[j])
+            for c in range(6):
+                zt[j, i0 + c] *= d
     for r in range(ng):
         nr = chain[r, 0]
+        i0 = 6 * r
         for s_ in range(r + 1):
             ns = chain[s_, 0]
-            i0, j0 = 6 * r, 6 * s_
+            j0 = 6 * s_
             for i in range(6):
                 for c in range(6):
                     mob[i0 + i, j0 + c] = 0.0
             t = 0
             while t < nr and t < ns and chain[r, nr - t] == chain[s_, ns - t]:
                 j = chain[r, nr - t]
-                d = qld_diag_inv[j]
                 for i in range(6):
-                    y = z[i0 + i, j] * d
-                    for c in range(6 if s_ < r else i + 1):
-                        mob[i0 + i, j0 + c] += y * z[j0 + c, j]
+                    y = zt[j, i0 + i]
+                    for c in range(6):
+                        mob[i0 + i, j0 + c] += y * zt[j, j0 + c]
                 t += 1
-            for i in range(6):
-                for c in range(6 if s_ < r else i):
-                    mob[j0 + c, i0 + i] = mob[i0 + i, j0 + c]
+            if s_ < r:
+                for i in range(6):
+                    for c in range(6):
+                        mob[j0 + c, i0 + i] = mob[i0 + i, j0 + c]
 
 
 @njit(**INLINE)
@@ -271,7 +294,7 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     touch, body_com = ws[0], ws[3]
     count, depth_max, occluded = ws[8], ws[9], ws[10]
     active, slot, idx, rest, flow = ws[11], ws[12], ws[13], ws[14], ws[15]
-    jac, minv_jt, mob, a, block = ws[16], ws[17], ws[18], ws[19], ws[20]
+    zt, minv_jt, mob, a, block = ws[16], ws[17], ws[18], ws[19], ws[20]
     qacc, v, rhs, weight = ws[21], ws[22], ws[23], ws[24]
     twist, free, u, rft_g, w, cap = ws[25], ws[26], ws[27], ws[28], ws[29], ws[30]
     u_lin, u_ang, arm, applied, size, total = ws[31], ws[32], ws[33], ws[34], ws[35], ws[36]
@@ -318,8 +341,8 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T (_mobility)
     n6 = 6 * ng
     _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
-              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[50],
-              minv_jt, twist, free, mob)
+              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[50], zt,
+              twist, free, mob)
     # 4. blended twists (rest.blend), moved to each touching body's COM
     for r in range(ng):
         rad = group_radius[active[r]]
