@@ -1,20 +1,14 @@
-"""The compiled element pass: body poses and twists -> per-body RFT wrenches, and the broadphase before it.
-
-The same numbers as :func:`rft_mujoco.physics.elements.body_wrenches` (to round-off, tests/test_fastkernel.py),
-into buffers the caller owns. How it is fast:
+"""Packed elements, run-time occluders, the broadphase and the naive finish of the compiled backend.
 
 * Elements are stored once, at attach, in a packed layout (:func:`pack`): per body, cut into spatially
   compact *clusters* of at most :data:`CLUSTER_SIZE` elements, structure of arrays. A cluster whose
   bounding sphere lies above the highest sand is skipped whole (exact).
-* Inside a cluster a vectorized pass computes every element's position, depth, world normal and velocity;
-  a scalar pass packs the elements that carry stress (submerged, moving, leading, not inside another
-  body's geom) to the front of the scratch buffer; the law runs vectorized on the packed elements only
-  (about half the submerged ones: the trailing half never reaches it); a short scalar pass sums them.
 * Run-time culling (:class:`Occluders`): the geoms of other bodies that a body's surface can get inside of
   (capsules meeting at a joint) are tested only against clusters whose bounding sphere reaches theirs.
+* :func:`touching`: the broadphase (bodies with a submerged element).
 
-Everything works on a fixed (:data:`SCRATCH_ROWS`, cluster size) scratch buffer, never on per-element
-temporaries.
+The element pass itself is :func:`rft_mujoco.compiled.element_pass.wrenches` (:class:`ElementPass` runs it on
+its own, for tests and benchmarks).
 """
 
 from __future__ import annotations
@@ -26,7 +20,6 @@ import mujoco
 import numpy as np
 
 from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
-from rft_mujoco.compiled.law import _coef, _stress
 from rft_mujoco.compiled.terrain import FLAT, _depth
 from rft_mujoco.geometry import occlusion
 
@@ -38,11 +31,6 @@ twice) never run a scalar remainder; padding slots have NaN centroids and are ne
 LANES = 8
 """Interleaved lanes of the deepest-element maximum (one SIMD register of doubles)."""
 
-# Scratch rows: per element of the cluster (0-10), then per packed element (11-27).
-_ARM, _DEPTH, _NRM, _VEL, _KEEP = 0, 3, 4, 7, 10
-_P_ARM, _P_DEPTH, _P_NRM, _P_VEL, _P_AREA, _P_F, _P_T = 11, 14, 15, 18, 21, 22, 25
-SCRATCH_ROWS = 28
-"""Rows of the element pass's scratch buffer."""
 
 _MESH = int(mujoco.mjtGeom.mjGEOM_MESH)
 _SPHERE = int(mujoco.mjtGeom.mjGEOM_SPHERE)
@@ -229,7 +217,7 @@ def _inside(x, y, z, kind, s0, s1, s2, hs, h0, h1, margin):
 
 
 # --- the broadphase --------------------------------------------------------------------------------------
-@njit(**JIT)
+@njit(**JIT_LAW)
 def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_center, bound_radius,
              centroids, cluster_start, cluster_center, cluster_radius, body_clusters, g_hat, max_height, kind,
              tp, heights, touch, body_pos, body_mat, body_com, v_com, omega):
@@ -237,10 +225,11 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
 
     A body is a candidate when the lowest point of its bounding sphere (centre ``bound_center`` (B, 3)
     in the body frame, radius ``bound_radius`` (B,)) is below ``max_height``; it touches the sand when
-    one of its elements has depth > 0 (clusters above the sand are skipped). Touching bodies are written,
-    in order, to ``touch`` (handle indices) and row j of ``body_pos``, ``body_mat`` (9), ``body_com``
-    (``xipos``), ``v_com`` (``cvel``'s linear part moved from ``subtree_com[root]`` to ``xipos``) and
-    ``omega``. Returns their number, or -1 when some body is a candidate and qpos/qvel are not finite.
+    one of its elements has depth > 0 (clusters above the sand are skipped; on a flat surface the depth is
+    the element pass's own, affine in the body-frame centroid, counted over a cluster at a time). Touching
+    bodies are written, in order, to ``touch`` (handle indices) and row j of ``body_pos``, ``body_mat`` (9),
+    ``body_com`` (``xipos``), ``v_com`` (``cvel``'s linear part moved from ``subtree_com[root]`` to ``xipos``)
+    and ``omega``. Returns their number, or -1 when some body is a candidate and qpos/qvel are not finite.
     """
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     flat = kind == FLAT and tp[6] == 0.0
@@ -263,6 +252,10 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
             for q in range(qvel.shape[0]):
                 if not math.isfinite(qvel[q]):
                     return -1
+        gb0 = r[0] * g0 + r[3] * g1 + r[6] * g2           # as rft_mujoco.compiled.element_pass.wrenches
+        gb1 = r[1] * g0 + r[4] * g1 + r[7] * g2
+        gb2 = r[2] * g0 + r[5] * g1 + r[8] * g2
+        c0 = tp[0] + (px * g0 + py * g1 + pz * g2)
         hit = False
         for q in range(body_clusters[i], body_clusters[i + 1]):
             q0, q1, q2 = cluster_center[q, 0], cluster_center[q, 1], cluster_center[q, 2]
@@ -270,9 +263,17 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
                     * g1 + (pz + (r[6] * q0 + r[7] * q1 + r[8] * q2)) * g2) - cluster_radius[q]
             if low > max_height:
                 continue
-            if flat and tp[0] - (low + 2.0 * cluster_radius[q]) > 0.0:     # wholly below flat sand
-                hit = True
-                break
+            if flat:
+                if tp[0] - (low + 2.0 * cluster_radius[q]) > 0.0:     # wholly below flat sand
+                    hit = True
+                    break
+                under = 0
+                for k in range(cluster_start[q], cluster_start[q + 1]):
+                    under += c0 + (gb0 * centroids[0, k] + gb1 * centroids[1, k] + gb2 * centroids[2, k]) > 0.0
+                if under > 0:
+                    hit = True
+                    break
+                continue
             for k in range(cluster_start[q], cluster_start[q + 1]):
                 l0, l1, l2 = centroids[0, k], centroids[1, k], centroids[2, k]
                 ex = px + (r[0] * l0 + r[1] * l1 + r[2] * l2)
@@ -303,179 +304,6 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
         v_com[n, 2] = cvel[bid, 5] + (wx * dy - wy * dx)
         n_touch += 1
     return n_touch
-
-
-# --- the element pass -------------------------------------------------------------------------------------
-@njit(**INLINE)
-def _lane_max(row, n, lanes):
-    """The largest of ``row[:n]`` (>= 0): a running maximum over interleaved lanes (a select, which
-    vectorizes; one running variable compiles to a branch that mispredicts as elements get deeper)."""
-    for l in range(LANES):
-        lanes[l] = 0.0
-    full = n // LANES * LANES
-    for i0 in range(0, full, LANES):
-        for l in range(LANES):
-            x = row[i0 + l]
-            lanes[l] = x if x > lanes[l] else lanes[l]
-    for i in range(full, n):
-        x = row[i]
-        lanes[i - full] = x if x > lanes[i - full] else lanes[i - full]
-    top = 0.0
-    for l in range(LANES):
-        top = max(top, lanes[l])
-    return top
-
-
-@njit(**JIT_LAW)
-def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_center, cluster_radius, body_clusters,
-             body_pos, body_mat, body_com, lin, ang, g_hat, max_height, kind, tp, heights, xi_n, coef, mu_surf,
-             no_tension, no_forward, no_power, tol, occ_start, occ_geom, occ_kind, occ_size, occ_rbound,
-             occ_hs_start, occ_hs, margin, geom_xpos, geom_xmat, scratch, wrench, count, max_depth, occluded):
-    """The RFT wrench about each COM of the bodies ``bodies[:n_on]`` moving with twists (``lin``, ``ang``).
-
-    Row j < n_on of ``body_pos`` (3), ``body_mat`` (9), ``body_com`` (3), ``lin`` (3, m/s, linear velocity of
-    the COM), ``ang`` (3, rad/s) belongs to body ``b = bodies[j]`` (clusters ``body_clusters[b]:...[b + 1]``).
-    Elements inside an occluder of body b (rows ``occ_start[b]:occ_start[b + 1]``, posed by ``geom_xpos`` /
-    ``geom_xmat``) carry nothing. Outputs, rows 0..n_on-1: ``wrench`` (6: force N, torque N m about the COM),
-    ``count`` (loaded elements), ``max_depth`` (m, deepest loaded element), ``occluded`` (m^2, submerged area
-    inside occluders). ``scratch``: (SCRATCH_ROWS, >= cluster size) float.
-    """
-    g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
-    c = _coef(coef)
-    lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
-    flat = kind == FLAT and tp[6] == 0.0
-    h0 = tp[0]
-    lanes = np.empty(LANES)
-    for j in range(n_on):
-        b = bodies[j]
-        for k in range(6):
-            wrench[j, k] = 0.0
-        count[j] = 0
-        max_depth[j] = 0.0
-        occluded[j] = 0.0
-        ux, uy, uz = lin[j, 0], lin[j, 1], lin[j, 2]
-        wx, wy, wz = ang[j, 0], ang[j, 1], ang[j, 2]
-        if ux == 0.0 and uy == 0.0 and uz == 0.0 and wx == 0.0 and wy == 0.0 and wz == 0.0:
-            continue                         # a body at rest: no element moves, none is loaded
-        r = body_mat[j]
-        r0, r1, r2, r3, r4, r5, r6, r7, r8 = r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]
-        px, py, pz = body_pos[j, 0], body_pos[j, 1], body_pos[j, 2]
-        cx, cy, cz = body_com[j, 0], body_com[j, 1], body_com[j, 2]
-        a0 = a1 = a2 = a3 = a4 = a5 = 0.0
-        for q in range(body_clusters[b], body_clusters[b + 1]):
-            q0, q1, q2 = cluster_center[q, 0], cluster_center[q, 1], cluster_center[q, 2]
-            qx = px + (r0 * q0 + r1 * q1 + r2 * q2)
-            qy = py + (r3 * q0 + r4 * q1 + r5 * q2)
-            qz = pz + (r6 * q0 + r7 * q1 + r8 * q2)
-            low = -(qx * g0 + qy * g1 + qz * g2) - cluster_radius[q]
-            if low > max_height:                             # the whole cluster is above the sand
-                continue
-            s = cluster_start[q]
-            n = cluster_start[q + 1] - s
-            # 1. positions (as lever arms from the COM), depths, world normals, velocities, and whether the
-            # element carries stress (moving, leading; submerged is tested below): vectorized
-            for i in range(n):
-                l0, l1, l2 = centroids[0, s + i], centroids[1, s + i], centroids[2, s + i]
-                hx = px + (r0 * l0 + r1 * l1 + r2 * l2) - cx
-                hy = py + (r3 * l0 + r4 * l1 + r5 * l2) - cy
-                hz = pz + (r6 * l0 + r7 * l1 + r8 * l2) - cz
-                m0, m1, m2 = normals[0, s + i], normals[1, s + i], normals[2, s + i]
-                nx = r0 * m0 + r1 * m1 + r2 * m2
-                ny = r3 * m0 + r4 * m1 + r5 * m2
-                nz = r6 * m0 + r7 * m1 + r8 * m2
-                vx = ux + (wy * hz - wz * hy)
-                vy = uy + (wz * hx - wx * hz)
-                vz = uz + (wx * hy - wy * hx)
-                speed = math.sqrt(vx * vx + vy * vy + vz * vz)
-                scratch[_ARM, i] = hx
-                scratch[_ARM + 1, i] = hy
-                scratch[_ARM + 2, i] = hz
-                scratch[_DEPTH, i] = h0 + ((hx + cx) * g0 + (hy + cy) * g1 + (hz + cz) * g2)
-                scratch[_NRM, i] = nx
-                scratch[_NRM + 1, i] = ny
-                scratch[_NRM + 2, i] = nz
-                scratch[_VEL, i] = vx
-                scratch[_VEL + 1, i] = vy
-                scratch[_VEL + 2, i] = vz
-                lead = (speed > zero_speed) & (nx * vx + ny * vy + nz * vz >= -lead_tol * speed)
-                scratch[_KEEP, i] = speed if lead else 0.0
-            if not flat:                                     # heightfield / region: scalar depth
-                for i in range(n):
-                    scratch[_DEPTH, i] = _depth(scratch[_ARM, i] + cx, scratch[_ARM + 1, i] + cy,
-                                                scratch[_ARM + 2, i] + cz, g0, g1, g2, kind, tp, heights)
-            # 2. elements inside another body's geom: depth set to -inf (their submerged area is reported)
-            for o in range(occ_start[b], occ_start[b + 1]):
-                gid = occ_geom[o]
-                ox, oy, oz = geom_xpos[gid, 0], geom_xpos[gid, 1], geom_xpos[gid, 2]
-                reach = occ_rbound[o] + cluster_radius[q]
-                if (qx - ox) ** 2 + (qy - oy) ** 2 + (qz - oz) ** 2 >= reach * reach:
-                    continue
-                gm = geom_xmat[gid]
-                s0, s1, s2 = occ_size[o, 0], occ_size[o, 1], occ_size[o, 2]
-                hs0, hs1 = occ_hs_start[o], occ_hs_start[o + 1]
-                for i in range(n):
-                    if not scratch[_DEPTH, i] > 0.0:
-                        continue
-                    dx = scratch[_ARM, i] + cx - ox
-                    dy = scratch[_ARM + 1, i] + cy - oy
-                    dz = scratch[_ARM + 2, i] + cz - oz
-                    lx = gm[0] * dx + gm[3] * dy + gm[6] * dz          # R^T d: the point in the geom frame
-                    ly = gm[1] * dx + gm[4] * dy + gm[7] * dz
-                    lz = gm[2] * dx + gm[5] * dy + gm[8] * dz
-                    if _inside(lx, ly, lz, occ_kind[o], s0, s1, s2, occ_hs, hs0, hs1, margin):
-                        occluded[j] += areas[s + i]
-                        scratch[_DEPTH, i] = -np.inf
-            # 3. pack the elements that carry stress: submerged, moving, leading (speed in _KEEP, 0 if not)
-            m = 0
-            for i in range(n):
-                if not (scratch[_DEPTH, i] > 0.0 and scratch[_KEEP, i] > 0.0):
-                    continue
-                inv = 1.0 / scratch[_KEEP, i]
-                scratch[_P_ARM, m] = scratch[_ARM, i]
-                scratch[_P_ARM + 1, m] = scratch[_ARM + 1, i]
-                scratch[_P_ARM + 2, m] = scratch[_ARM + 2, i]
-                scratch[_P_DEPTH, m] = scratch[_DEPTH, i]
-                scratch[_P_NRM, m] = scratch[_NRM, i]
-                scratch[_P_NRM + 1, m] = scratch[_NRM + 1, i]
-                scratch[_P_NRM + 2, m] = scratch[_NRM + 2, i]
-                scratch[_P_VEL, m] = scratch[_VEL, i] * inv
-                scratch[_P_VEL + 1, m] = scratch[_VEL + 1, i] * inv
-                scratch[_P_VEL + 2, m] = scratch[_VEL + 2, i] * inv
-                scratch[_P_AREA, m] = areas[s + i]
-                m += 1
-            if m == 0:
-                continue
-            # 4. the law on the packed elements: vectorized, no branches
-            for i in range(m):
-                nx, ny, nz = scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i]
-                vx, vy, vz = scratch[_P_VEL, i], scratch[_P_VEL + 1, i], scratch[_P_VEL + 2, i]
-                rx, ry, rz = _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forward,
-                                     no_power, lead_tol, vert_tol)
-                sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i])
-                fx, fy, fz = rx * sa, ry * sa, rz * sa
-                hx, hy, hz = scratch[_P_ARM, i], scratch[_P_ARM + 1, i], scratch[_P_ARM + 2, i]
-                scratch[_P_F, i] = fx
-                scratch[_P_F + 1, i] = fy
-                scratch[_P_F + 2, i] = fz
-                scratch[_P_T, i] = hy * fz - hz * fy
-                scratch[_P_T + 1, i] = hz * fx - hx * fz
-                scratch[_P_T + 2, i] = hx * fy - hy * fx
-            # 5. sums
-            for i in range(m):
-                a0 += scratch[_P_F, i]
-                a1 += scratch[_P_F + 1, i]
-                a2 += scratch[_P_F + 2, i]
-                a3 += scratch[_P_T, i]
-                a4 += scratch[_P_T + 1, i]
-                a5 += scratch[_P_T + 2, i]
-            count[j] += m
-            max_depth[j] = max(max_depth[j], _lane_max(scratch[_P_DEPTH], m, lanes))
-        wrench[j, 0] = a0
-        wrench[j, 1] = a1
-        wrench[j, 2] = a2
-        wrench[j, 3] = a3
-        wrench[j, 4] = a4
-        wrench[j, 5] = a5
 
 
 @njit(**JIT)
@@ -541,6 +369,7 @@ class ElementPass:
 
     def __init__(self, local_centroids, local_normals, areas, elem_body, n_bodies, terrain, g_hat, gravity,
                  media, guards):
+        from rft_mujoco.compiled.element_pass import SCRATCH_ROWS
         from rft_mujoco.compiled.law import tolerances
         from rft_mujoco.compiled.terrain import check_gravity, terrain_spec
         from rft_mujoco.physics import law
@@ -560,7 +389,7 @@ class ElementPass:
         self._after = (self.g_hat, float(terrain.max_height), kind, tp, heights, media.xi_n_at(g_mag),
                        law.COEFFICIENTS, float(media.mu_surf), guards.no_tension, guards.no_forward_tangential,
                        guards.no_positive_power, tolerances(), *occ.arrays(), occ.margin, np.zeros((0, 3)),
-                       np.zeros((0, 9)), np.zeros((SCRATCH_ROWS, CLUSTER_SIZE)))
+                       np.zeros((0, 9)), np.zeros((SCRATCH_ROWS, CLUSTER_SIZE)), np.zeros((2, CLUSTER_SIZE), np.int64))
         self.wrench = np.zeros((self.n_bodies, 6))
         self.count = np.zeros(self.n_bodies, np.int64)
         self.max_depth = np.zeros(self.n_bodies)
@@ -570,6 +399,7 @@ class ElementPass:
         """(wrench (B, 6) [N, N m about the COM], loaded element count (B,), max depth (B,) m) of bodies at
         ``body_pos`` (B, 3) m, ``body_mat`` (B, 3, 3), COM ``body_com`` (B, 3) m moving with ``v_com``
         (B, 3) m/s and ``omega`` (B, 3) rad/s; the arrays are this object's buffers (overwritten per call)."""
+        from rft_mujoco.compiled.element_pass import wrenches
         b = self.n_bodies
         f = np.ascontiguousarray
         wrenches(*self._before, f(body_pos, float), f(np.reshape(body_mat, (b, 9)), float), f(body_com, float),

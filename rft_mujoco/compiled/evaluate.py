@@ -26,9 +26,10 @@ import math
 
 import numpy as np
 
-from rft_mujoco.compiled.elements import SCRATCH_ROWS, finish_naive, touching, wrenches
-from rft_mujoco.compiled.jit import JIT, njit
-from rft_mujoco.compiled.rest import jacobian, rest_wrenches, solve_m
+from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, wrenches
+from rft_mujoco.compiled.elements import finish_naive, touching
+from rft_mujoco.compiled.jit import INLINE, JIT, njit
+from rft_mujoco.compiled.rest import _chain_dof, jacobian, rest_wrenches, solve_m
 
 MJDATA_FIELDS = (
     ("xpos", "f2"), ("xmat", "f2"), ("xipos", "f2"), ("cvel", "f2"), ("subtree_com", "f2"), ("qpos", "f1"),
@@ -51,20 +52,20 @@ HANDLE_FIELDS = (
 WORK_FIELDS = (
     ("touch", "i1"), ("body_pos", "f2"), ("body_mat", "f2"), ("body_com", "f2"), ("v_com", "f2"),
     ("omega", "f2"), ("scratch", "f2"), ("wrench", "f2"), ("count", "i1"), ("depth", "f1"), ("occluded", "f1"),
-    ("active", "i1"), ("slot", "i1"), ("idx", "i1"), ("rest", "b1"), ("flow", "b1"), ("jac", "f2"),
+    ("active", "i1"), ("slot", "i1"), ("idx", "i1"), ("rest", "b1"), ("flow", "b1"), ("zt", "f2"),
     ("minv_jt", "f2"), ("mob", "f2"), ("a", "f2"), ("block", "f2"), ("qacc", "f1"), ("v", "f1"), ("rhs", "f1"),
     ("weight", "f1"), ("twist", "f2"), ("free", "f2"), ("u", "f2"), ("rft_g", "f2"), ("w", "f2"), ("cap", "f2"),
     ("u_lin", "f2"), ("u_ang", "f2"), ("arm", "f2"), ("applied", "f2"), ("size", "f1"), ("total", "f1"),
     ("force", "f2"), ("torque", "f2"), ("submerged", "i1"), ("max_depth", "f1"), ("scale", "f1"),
     ("rft_force", "f2"), ("resting", "b1"), ("occluded_area", "f1"), ("state", "f1"), ("lin", "f2"),
-    ("perm", "i1"), ("x", "f1"))
+    ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"))
 """(name, kind) of the arrays of ``ws``, in order."""
 
 PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
-          "passive", "margin", "monitor_every")
+          "passive", "margin", "monitor_every", "rk4_first")
 """Entries of ``hc.params``: highest sand (m), ``xi_n / |g|`` (N/m^3 per m/s^2), surface friction, the
 three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
-validity checks (0: no monitor)."""
+validity checks (0: no monitor), ``rk4_stages="first"`` (0/1)."""
 STATE = ("last_time", "clean", "touching", "lagged", "evaluations")
 """Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
 the number of touching bodies found by the last broadphase, whether MuJoCo's previous constraint solve
@@ -85,12 +86,12 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
     shapes = dict(
         touch=(b,), body_pos=(b, 3), body_mat=(b, 9), body_com=(b, 3), v_com=(b, 3), omega=(b, 3),
         scratch=(SCRATCH_ROWS, n_rows), wrench=(b, 6), count=(b,), depth=(b,), occluded=(b,), active=(g,),
-        slot=(b,), idx=(n6,), rest=(g,), flow=(g,), jac=(n6, nv), minv_jt=(max(n6, 6), nv), mob=(n6, n6),
+        slot=(b,), idx=(n6,), rest=(g,), flow=(g,), zt=(max(nv, 1), max(n6, 1)), minv_jt=(max(n6, 6), nv), mob=(n6, n6),
         a=(n6, n6), block=(n6, n6), qacc=(nv,), v=(n6,), rhs=(n6,), weight=(n6,), twist=(g, 6), free=(g, 6),
         u=(g, 6), rft_g=(g, 6), w=(g, 6), cap=(g, 6), u_lin=(b, 3), u_ang=(b, 3), arm=(b, 3), applied=(b, 6),
         size=(b,), total=(g,), force=(b, 3), torque=(b, 3), submerged=(b,), max_depth=(b,), scale=(b,),
         rft_force=(b, 3), resting=(b,), occluded_area=(b,), state=(len(STATE),), lin=(3 * n6 + 5, max(n6, 1)),
-        perm=(2 * n6,), x=(n6,))
+        perm=(2 * n6,), x=(n6,), index=(2, n_rows), chain=(g, nv + 1))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
     out["scale"][:] = 1.0
@@ -126,7 +127,7 @@ def _gravity(gravity):
     return gravity[0] / mag, gravity[1] / mag, gravity[2] / mag, mag
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def broadphase(md, hc, ws, time, dt):
     """Phase 1: record the time, find the touching bodies (their count in ``state[2]``); without any, clear
     the diagnostics once. Returns the count, or NOT_FINITE_STATE."""
@@ -157,7 +158,7 @@ def broadphase(md, hc, ws, time, dt):
     return k
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def evaluate(md, hc, ws, user_xfrc, dt, sand_out):
     """Phase 2 (after ``mj_fwdActuation``), for the ``state[2] > 0`` touching bodies of :func:`broadphase`:
     the sand wrenches, the diagnostics, and the wrenches added to ``sand_out`` (nbody, 6) at their bodies'
@@ -180,12 +181,107 @@ def evaluate(md, hc, ws, user_xfrc, dt, sand_out):
     wrenches(ws[0], k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], ws[3], ws[4], ws[5],
              g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
              params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], occ_hs,
-             params[9], md[15], md[16], ws[6], ws[7], ws[8], ws[9], ws[10])
+             params[9], md[15], md[16], ws[6], ws[49], ws[7], ws[8], ws[9], ws[10])
     return finish_naive(ws[7], ws[8], ws[9], ws[4], ws[5], params[8] != 0.0, ws[0], k, hc[0], ws[37], ws[38],
                         ws[39], ws[40], ws[41], ws[42], ws[43], ws[44], ws[10], sand_out)
 
 
-@njit(**JIT)
+@njit(**INLINE)
+def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
+              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, chain, zt,
+              twist, free, mob):
+    """For the reference bodies of the active groups 0..ng-1: twists (now, and free: after ``dt`` at ``qacc``)
+    and the mobility ``mob = J M^-1 J^T`` (6 ng, 6 ng), with the kinematic tree's sparsity.
+
+    A body's Jacobian is zero outside its chain of dofs (``chain[r, 1:1 + chain[r, 0]]``, from the body to
+    the root). With MuJoCo's factor ``M = L^T D L``, ``J M^-1 J^T = Z^T D^-1 Z`` where ``Z = L^-T J^T``:
+    the first half of ``solve_m``, which keeps every column of ``Z`` on its body's chain (columns
+    ``6 r..6 r + 5`` of ``zt`` (nv, 6 ng); only their chain rows are written and read), scaled to
+    ``W = D^-1/2 Z`` so that every entry is a sum of products of two W entries (exactly symmetric). A block
+    (r, s) sums over the dofs the two chains share: the part of both next to the root."""
+    for r in range(ng):
+        b = ids[group_ref[active[r]]]
+        rt = body_rootid[b]
+        dx = xipos[b, 0] - subtree_com[rt, 0]
+        dy = xipos[b, 1] - subtree_com[rt, 1]
+        dz = xipos[b, 2] - subtree_com[rt, 2]
+        n = 0
+        j = _chain_dof(b, body_dofnum, body_dofadr, body_parentid)
+        i0 = 6 * r
+        v0 = v1 = v2 = v3 = v4 = v5 = 0.0            # J qvel and J qacc, one accumulator per component
+        a0 = a1 = a2 = a3 = a4 = a5 = 0.0
+        while j >= 0:                                # the Jacobian (as rest.jacobian), chain rows only
+            chain[r, 1 + n] = j
+            n += 1
+            wx, wy, wz = cdof[j, 0], cdof[j, 1], cdof[j, 2]
+            j0 = cdof[j, 3] + (wy * dz - wz * dy)
+            j1 = cdof[j, 4] + (wz * dx - wx * dz)
+            j2 = cdof[j, 5] + (wx * dy - wy * dx)
+            zt[j, i0] = j0
+            zt[j, i0 + 1] = j1
+            zt[j, i0 + 2] = j2
+            zt[j, i0 + 3] = wx
+            zt[j, i0 + 4] = wy
+            zt[j, i0 + 5] = wz
+            qv, qa = qvel[j], qacc[j]
+            v0 += j0 * qv
+            v1 += j1 * qv
+            v2 += j2 * qv
+            v3 += wx * qv
+            v4 += wy * qv
+            v5 += wz * qv
+            a0 += j0 * qa
+            a1 += j1 * qa
+            a2 += j2 * qa
+            a3 += wx * qa
+            a4 += wy * qa
+            a5 += wz * qa
+            j = dof_parentid[j]
+        chain[r, 0] = n
+        twist[r, 0], twist[r, 1], twist[r, 2], twist[r, 3], twist[r, 4], twist[r, 5] = v0, v1, v2, v3, v4, v5
+        free[r, 0] = v0 + dt * a0
+        free[r, 1] = v1 + dt * a1
+        free[r, 2] = v2 + dt * a2
+        free[r, 3] = v3 + dt * a3
+        free[r, 4] = v4 + dt * a4
+        free[r, 5] = v5 + dt * a5
+        for u in range(n):                           # Z = L^-T J^T, from the body towards the root
+            j = chain[r, 1 + u]
+            a0_ = rowadr[j]
+            for a in range(a0_, a0_ + rownnz[j] - 1):
+                p = colind[a]
+                q = qld[a]
+                for c in range(6):
+                    zt[p, i0 + c] -= q * zt[j, i0 + c]
+        for u in range(n):                           # W = D^-1/2 Z
+            j = chain[r, 1 + u]
+            d = math.sqrt(qld_diag_inv[j])
+            for c in range(6):
+                zt[j, i0 + c] *= d
+    for r in range(ng):
+        nr = chain[r, 0]
+        i0 = 6 * r
+        for s_ in range(r + 1):
+            ns = chain[s_, 0]
+            j0 = 6 * s_
+            for i in range(6):
+                for c in range(6):
+                    mob[i0 + i, j0 + c] = 0.0
+            t = 0
+            while t < nr and t < ns and chain[r, nr - t] == chain[s_, ns - t]:
+                j = chain[r, nr - t]
+                for i in range(6):
+                    y = zt[j, i0 + i]
+                    for c in range(6):
+                        mob[i0 + i, j0 + c] += y * zt[j, j0 + c]
+                t += 1
+            if s_ < r:
+                for i in range(6):
+                    for c in range(6):
+                        mob[j0 + c, i0 + i] = mob[i0 + i, j0 + c]
+
+
+@njit(**INLINE)
 def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     """The rest treatment of the ``k`` touching bodies: ``SandHandle._evaluate_rest``."""
     xipos, cdof, subtree_com, qvel = md[2], md[7], md[4], md[6]
@@ -198,7 +294,7 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     touch, body_com = ws[0], ws[3]
     count, depth_max, occluded = ws[8], ws[9], ws[10]
     active, slot, idx, rest, flow = ws[11], ws[12], ws[13], ws[14], ws[15]
-    jac, minv_jt, mob, a, block = ws[16], ws[17], ws[18], ws[19], ws[20]
+    zt, minv_jt, mob, a, block = ws[16], ws[17], ws[18], ws[19], ws[20]
     qacc, v, rhs, weight = ws[21], ws[22], ws[23], ws[24]
     twist, free, u, rft_g, w, cap = ws[25], ws[26], ws[27], ws[28], ws[29], ws[30]
     u_lin, u_ang, arm, applied, size, total = ws[31], ws[32], ws[33], ws[34], ws[35], ws[36]
@@ -242,29 +338,11 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     for i in range(nv):
         if not math.isfinite(qacc[i]):
             return BAD_ACCELERATION
-    # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T
-    for r in range(ng):
-        b = ids[group_ref[active[r]]]
-        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
-                 body_dofadr, body_parentid, dof_parentid, jac, 6 * r)
+    # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T (_mobility)
     n6 = 6 * ng
-    for i in range(n6):
-        t = 0.0
-        s = 0.0
-        for j in range(nv):
-            t += jac[i, j] * qvel[j]
-            s += jac[i, j] * qacc[j]
-            minv_jt[i, j] = jac[i, j]
-        twist[i // 6, i % 6] = t
-        free[i // 6, i % 6] = t + dt * s
-        solve_m(rownnz, rowadr, colind, qld, qld_diag_inv, minv_jt[i])
-    for i in range(n6):
-        for j in range(i + 1):
-            s = 0.0
-            for c in range(nv):
-                s += jac[i, c] * minv_jt[j, c]
-            mob[i, j] = s
-            mob[j, i] = s
+    _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
+              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[50], zt,
+              twist, free, mob)
     # 4. blended twists (rest.blend), moved to each touching body's COM
     for r in range(ng):
         rad = group_radius[active[r]]
@@ -301,7 +379,7 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     wrenches(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com, u_lin, u_ang,
              g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
              params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
-             params[9], md[15], md[16], ws[6], wrench, count, depth_max, occluded)
+             params[9], md[15], md[16], ws[6], ws[49], wrench, count, depth_max, occluded)
     for r in range(ng):
         for c in range(6):
             rft_g[r, c] = 0.0
@@ -395,11 +473,12 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
 
 
 def params_array(max_height: float, xi_per_g: float, mu_surf: float, guards, kind: int, stabilize: bool,
-                 passive: bool, margin: float, monitor_every: int = 0, out=None) -> np.ndarray:
+                 passive: bool, margin: float, monitor_every: int = 0, rk4_first: bool = False,
+                 out=None) -> np.ndarray:
     """``hc.params`` (:data:`PARAMS`), written into ``out`` when given (a live handle's array)."""
     values = (max_height, xi_per_g, mu_surf, float(guards.no_tension), float(guards.no_forward_tangential),
               float(guards.no_positive_power), float(kind), float(stabilize), float(passive), margin,
-              float(monitor_every))
+              float(monitor_every), float(rk4_first))
     if out is None:
         return np.array(values, dtype=np.float64)
     out[:] = values

@@ -43,13 +43,16 @@ def _coef(C):
 
 
 @njit(**INLINE)
-def _cubic(c, o, x1, x2, x3, x11, x22, x33):
-    """sum_k C[k, j] T_k(x1, x2, x3) for the column starting at ``o`` of the 60-tuple (law.cubic_terms)."""
-    return (c[o] + c[o + 1] * x1 + c[o + 2] * x2 + c[o + 3] * x3 + c[o + 4] * x11 + c[o + 5] * x22
-            + c[o + 6] * x33 + c[o + 7] * (x1 * x2) + c[o + 8] * (x2 * x3) + c[o + 9] * (x3 * x1)
-            + c[o + 10] * (x11 * x1) + c[o + 11] * (x22 * x2) + c[o + 12] * (x33 * x3) + c[o + 13] * (x1 * x22)
-            + c[o + 14] * (x2 * x11) + c[o + 15] * (x2 * x33) + c[o + 16] * (x3 * x22) + c[o + 17] * (x3 * x11)
-            + c[o + 18] * (x1 * x33) + c[o + 19] * (x1 * x2 * x3))
+def _cubic(c, o, x1, x2, x3, x11, x22, x33, x12, x23, x31):
+    """sum_k C[k, j] T_k(x1, x2, x3) for the column starting at ``o`` of the 60-tuple (law.cubic_terms), as six
+    short partial sums (one chain of 20 multiply-adds would make every element wait on its latency)."""
+    p0 = c[o] + c[o + 1] * x1 + c[o + 2] * x2 + c[o + 3] * x3
+    p1 = c[o + 4] * x11 + c[o + 5] * x22 + c[o + 6] * x33
+    p2 = c[o + 7] * x12 + c[o + 8] * x23 + c[o + 9] * x31
+    p3 = c[o + 10] * (x11 * x1) + c[o + 11] * (x22 * x2) + c[o + 12] * (x33 * x3) + c[o + 19] * (x12 * x3)
+    p4 = c[o + 13] * (x1 * x22) + c[o + 14] * (x2 * x11) + c[o + 15] * (x2 * x33)
+    p5 = c[o + 16] * (x3 * x22) + c[o + 17] * (x3 * x11) + c[o + 18] * (x1 * x33)
+    return (p0 + p1) + (p2 + p3) + (p4 + p5)
 
 
 @njit(**INLINE)
@@ -67,9 +70,12 @@ def _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forwa
     x11 = x1 * x1
     x22 = x2 * x2
     x33 = x3 * x3
-    f0 = _cubic(c, 0, x1, x2, x3, x11, x22, x33)
-    f1 = _cubic(c, 20, x1, x2, x3, x11, x22, x33)
-    f2 = _cubic(c, 40, x1, x2, x3, x11, x22, x33)
+    x12 = x1 * x2
+    x23 = x2 * x3
+    x31 = x3 * x1
+    f0 = _cubic(c, 0, x1, x2, x3, x11, x22, x33, x12, x23, x31)
+    f1 = _cubic(c, 20, x1, x2, x3, x11, x22, x33, x12, x23, x31)
+    f2 = _cubic(c, 40, x1, x2, x3, x11, x22, x33, x12, x23, x31)
     ax = f0 * (nx * sign) + f1 * vx + f2 * g0
     ay = f0 * (ny * sign) + f1 * vy + f2 * g1
     az = f0 * (nz * sign) + f1 * vz + f2 * g2

@@ -109,7 +109,8 @@ def min_norm_solve(a, rhs, weight, m, dependent_tol, tiny, lin, perm, x):
     The reference's inner loops are dot products (a serial chain of additions: latency-bound); here each
     is an update of a whole contiguous row by one product per step (the same additions per entry, in
     the same order, independent across entries: vectorized), e.g. the factor's new column is
-    ``a[p] - sum_j low_j * low_j[p]`` accumulated over j as row updates rather than entry by entry."""
+    ``a[p] - sum_j low_j * low_j[p]`` accumulated over j as row updates rather than entry by entry, four
+    terms per pass (each entry still adds them one after the other)."""
     low = lin[0:m]                    # low[k, i]: column k of the pivoted factor, rows i in input order
     bt = lin[m:2 * m]                 # bt[j, r] = a[order[r], j]
     g = lin[2 * m:3 * m]
@@ -136,11 +137,19 @@ def min_norm_solve(a, rhs, weight, m, dependent_tol, tiny, lin, perm, x):
         col = low[k]
         for i in range(m):
             col[i] = a[i, p]
-        for j in range(k):
+        j = 0
+        while j + 4 <= k:                           # four updates per pass over the column, in order
+            l0, l1, l2, l3 = low[j], low[j + 1], low[j + 2], low[j + 3]
+            f0, f1, f2, f3 = l0[p], l1[p], l2[p], l3[p]
+            for i in range(m):
+                col[i] = (((col[i] - l0[i] * f0) - l1[i] * f1) - l2[i] * f2) - l3[i] * f3
+            j += 4
+        while j < k:
             lj = low[j]
             f = lj[p]
             for i in range(m):
                 col[i] -= lj[i] * f
+            j += 1
         for i in range(m):
             col[i] = col[i] / piv if (kept[i] == 0 or i == p) else 0.0
         for i in range(m):
@@ -155,7 +164,17 @@ def min_norm_solve(a, rhs, weight, m, dependent_tol, tiny, lin, perm, x):
     for r in range(k):
         for c in range(r + 1):
             g[r, c] = 0.0
-    for j in range(m):
+    j = 0
+    while j + 4 <= m:                               # four terms per pass over g, in order
+        b0, b1, b2, b3 = bt[j], bt[j + 1], bt[j + 2], bt[j + 3]
+        w0, w1, w2, w3 = weight[j], weight[j + 1], weight[j + 2], weight[j + 3]
+        for r in range(k):
+            s0, s1, s2, s3 = b0[r] * w0, b1[r] * w1, b2[r] * w2, b3[r] * w3
+            gr = g[r]
+            for c in range(r + 1):
+                gr[c] = (((gr[c] + s0 * b0[c]) + s1 * b1[c]) + s2 * b2[c]) + s3 * b3[c]
+        j += 4
+    while j < m:
         wj = weight[j]
         row = bt[j]
         for r in range(k):
@@ -163,6 +182,7 @@ def min_norm_solve(a, rhs, weight, m, dependent_tol, tiny, lin, perm, x):
             gr = g[r]
             for c in range(r + 1):
                 gr[c] += s * row[c]
+        j += 1
     for c in range(k):                              # Cholesky, in place (lower), as the reference
         t = g[c, c]
         for j in range(c):
@@ -214,14 +234,16 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
     ``flow`` (ng,) bool, ``idx`` (6 ng,) int, ``block`` (6 ng, 6 ng), and those of :func:`min_norm_solve`
     (``lin``, ``perm``, ``sol`` (6 ng,))."""
     n6 = 6 * ng
-    for i in range(n6):
-        gi = i // 6
-        si = radius[gi] if i % 6 >= 3 else 1.0
-        v[i] = free[gi, i % 6] * si
-        for j in range(n6):
-            gj = j // 6
-            sj = radius[gj] if j % 6 >= 3 else 1.0
-            a[i, j] = dt * (si * mob[i, j] * sj)
+    for gi in range(ng):                             # loops over (group, component): no i // 6, i % 6
+        for ci in range(6):
+            i = 6 * gi + ci
+            si = radius[gi] if ci >= 3 else 1.0
+            v[i] = free[gi, ci] * si
+            for gj in range(ng):
+                rj = radius[gj]
+                for cj in range(6):
+                    sj = rj if cj >= 3 else 1.0
+                    a[i, 6 * gj + cj] = dt * (si * mob[i, 6 * gj + cj] * sj)
     for g in range(ng):
         nonzero = False
         d = 0.0
@@ -258,8 +280,10 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
         if m > 0:
             for i in range(m):
                 s = v[idx[i]]
-                for j in range(n6):
-                    s += a[idx[i], j] * w[j // 6, j % 6]
+                row = a[idx[i]]
+                for gj in range(ng):
+                    for cj in range(6):
+                        s += row[6 * gj + cj] * w[gj, cj]
                 rhs[i] = s
                 for j in range(m):
                     block[i, j] = a[idx[i], idx[j]]
@@ -293,13 +317,17 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
     # passivity of the whole impulse (rest.passive_scale)
     h = 0.0
     q = 0.0
-    for i in range(n6):
-        wi = w[i // 6, i % 6]
-        h += wi * v[i]
-        t = 0.0
-        for j in range(n6):
-            t += a[i, j] * w[j // 6, j % 6]
-        q += wi * t
+    for gi in range(ng):
+        for ci in range(6):
+            i = 6 * gi + ci
+            wi = w[gi, ci]
+            h += wi * v[i]
+            t = 0.0
+            row = a[i]
+            for gj in range(ng):
+                for cj in range(6):
+                    t += row[6 * gj + cj] * w[gj, cj]
+            q += wi * t
     scale = 1.0
     if h + 0.5 * q > 0.0:
         scale = _flow_factor(h, q) if h < 0.0 else 0.0

@@ -38,7 +38,7 @@ the due monitor checks in Python."""
 BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"), ("user", "f2"),
                ("sand", "f2"), ("state", "f1"))
 """The dispatcher's per-MjData book (:class:`rft_mujoco.coupling.dispatch._DataBook`); ``state`` =
-(nonzero, sand_dirty, rk4 stage, rk4 stage time)."""
+(nonzero, sand_dirty, rk4 stage, rk4 stage time, TIME_RTOL, what the native callback left to Python)."""
 _HEADER = 3
 """Table header: number of handles, base of the book, base of md; then one base per handle."""
 
@@ -104,6 +104,11 @@ def _i1(t, s):
 
 
 @njit(**INLINE)
+def _i2(t, s):
+    return carray(_as_i8(t[s]), (t[s + 1], t[s + 2]))
+
+
+@njit(**INLINE)
 def _b1(t, s):
     return carray(_as_b1(t[s]), (t[s + 1],))
 
@@ -147,7 +152,8 @@ def _ws(t, base):
         _f2(t, base + 120), _f2(t, base + 124), _f2(t, base + 128), _f2(t, base + 132), _f2(t, base + 136),
         _f1(t, base + 140), _f1(t, base + 144), _f2(t, base + 148), _f2(t, base + 152), _i1(t, base + 156),
         _f1(t, base + 160), _f1(t, base + 164), _f2(t, base + 168), _b1(t, base + 172), _f1(t, base + 176),
-        _f1(t, base + 180), _f2(t, base + 184), _i1(t, base + 188), _f1(t, base + 192),
+        _f1(t, base + 180), _f2(t, base + 184), _i1(t, base + 188), _f1(t, base + 192), _i2(t, base + 196),
+        _i2(t, base + 200),
     )
 
 
@@ -159,6 +165,18 @@ def _book(t, base):
 
 
 _HC_SLOTS = len(ev.HANDLE_FIELDS) * SLOT
+_PARAMS = [name for name, _ in ev.HANDLE_FIELDS].index("params") * SLOT
+_RK4_FIRST = ev.PARAMS.index("rk4_first")
+
+
+@njit(**JIT)
+def all_first(t):
+    """Whether every handle of the route asks for ``rk4_stages="first"``."""
+    n = t[0]
+    for h in range(n):
+        if _f1(t, t[_HEADER + h] + _PARAMS)[_RK4_FIRST] == 0.0:
+            return False
+    return n > 0
 
 
 @njit(**JIT)

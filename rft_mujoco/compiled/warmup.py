@@ -61,3 +61,4 @@ def run() -> None:
                         np.array([0.0, 0.0, -1.0]), 1.0, plaw.COEFFICIENTS, 0.4, False, False, False,
                         law.tolerances(), np.zeros((9, law.CHUNK)), np.zeros(6))
     route.warm_up(model, data)
+    from rft_mujoco.compiled import native  # noqa: F401  (compiles the native callbacks)

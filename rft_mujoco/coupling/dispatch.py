@@ -15,11 +15,22 @@ one dispatcher installed with ``mujoco.set_mjcb_control``. It
   (``MjModel.from_xml_string / from_xml_path / from_binary_path``, ``MjSpec.compile / recompile``) are
   wrapped to suspend the callback for the duration of the call. The wrappers are removed when the last
   handle detaches.
+
+Where it can (:func:`rft_mujoco.compiled.native.support`), the dispatcher installs native callbacks
+(:mod:`rft_mujoco.compiled.native`) in MuJoCo's place of its Python ones: the bindings still hold the
+Python callbacks (``mujoco.get_mjcb_control()`` returns the dispatcher), MuJoCo calls compiled code that
+runs the native route of each (model, data) and hands everything else to the bindings' trampoline of
+the Python callback, so that behaviour and errors are those of the Python path. Only a callback the user
+had installed before keeps its slot Python (it is chained from Python). ``Dispatcher.native = False``
+before the first attach keeps both Python.
 """
 
 from __future__ import annotations
 
+import ctypes
 import functools
+import logging
+import sys
 import threading
 import weakref
 
@@ -63,8 +74,7 @@ def untouched_components(xfrc: np.ndarray, written: np.ndarray) -> np.ndarray:
 class _DataBook:
     """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
 
-    __slots__ = ("added", "written", "rows", "model", "sand", "user", "state", "stage", "stage_time",
-                 "native", "__weakref__")
+    __slots__ = ("added", "written", "rows", "model", "sand", "user", "state", "native", "__weakref__")
 
     def __init__(self, model, data) -> None:
         nbody = model.nbody
@@ -74,13 +84,11 @@ class _DataBook:
         self.rows = np.zeros(0, dtype=np.int64)
         self.sand = np.zeros((nbody, 6))     # the handles' sum of this evaluation (reused buffer)
         self.user = np.zeros((nbody, 6))      # the user's part of xfrc_applied (reused buffer)
-        # (nonzero: ``added`` has a non-zero entry, sand_dirty: ``sand`` needs zeroing, -, -): read and
-        # written by the native route too (rft_mujoco.compiled.route.BOOK_FIELDS)
-        self.state = np.zeros(4)
-        # For handles with rk4_stages="first": how many stages of the step have been seen (0: none
-        # pending) and the time of its first stage (s).
-        self.stage = 0
-        self.stage_time = 0.0
+        # (nonzero: ``added`` has a non-zero entry, sand_dirty: ``sand`` needs zeroing, rk4 stage, rk4
+        # stage time, TIME_RTOL, pending: what the native callback left to Python): read and written by
+        # the native route too (rft_mujoco.compiled.route.BOOK_FIELDS)
+        self.state = np.zeros(6)
+        self.state[4] = tol.TIME_RTOL
         self.native = None                    # (generation, Route) of this MjData's native route
 
     @property
@@ -90,6 +98,24 @@ class _DataBook:
     @nonzero.setter
     def nonzero(self, value: bool) -> None:
         self.state[0] = float(value)
+
+    @property
+    def stage(self) -> int:
+        """For handles with rk4_stages="first": how many stages of the step have been seen (0: none pending)."""
+        return int(self.state[2])
+
+    @stage.setter
+    def stage(self, value: int) -> None:
+        self.state[2] = float(value)
+
+    @property
+    def stage_time(self) -> float:
+        """The time of the first stage of the step (s)."""
+        return float(self.state[3])
+
+    @stage_time.setter
+    def stage_time(self, value: float) -> None:
+        self.state[3] = float(value)
 
     @property
     def sand_dirty(self) -> bool:
@@ -111,6 +137,9 @@ class Dispatcher:
         self._routes: dict = {}              # id(model) -> (model, handles, rows), rebuilt on (un)register
         self._lock = threading.RLock()
         self._generation = 0                 # bumped whenever a handle's setting changes (native routes)
+        self.native = True                   # install native callbacks where possible (read at install)
+        self._registry = None                # rft_mujoco.compiled.native.Registry while native callbacks are in
+        self._native_slots = (False, False)  # (control, passive) slots holding a native callback
 
     # --- registration ---------------------------------------------------------------------------
     def register(self, handle) -> None:
@@ -120,16 +149,23 @@ class Dispatcher:
             self._handles.append(handle)
             self._routes.clear()
             self._generation += 1
+            self._registry_models()
 
     def invalidate(self) -> None:
         """A handle's setting, terrain or workspace changed: rebuild the native routes before the next use."""
         self._generation += 1
+        if self._registry is not None:
+            self._registry.clear_routes()
 
     def unregister(self, handle) -> None:
         with self._lock:
             if handle in self._handles:
                 self._handles.remove(handle)
             self._routes.clear()
+            self._generation += 1
+            if self._registry is not None:
+                self._registry.clear_routes()
+            self._registry_models()
             if not self._handles:
                 self._uninstall()
 
@@ -150,6 +186,53 @@ class Dispatcher:
             func = original.__func__ if isinstance(original, staticmethod) else original
             wrapped = self._suspending(func)
             setattr(owner, name, staticmethod(wrapped) if static else wrapped)
+        self._install_native()
+
+    def _install_native(self) -> None:
+        """Put the native callbacks in MuJoCo's slots the dispatcher's Python callbacks hold (those not
+        chaining a user callback); the bindings keep the Python ones, whose trampolines the native code calls."""
+        self._native_slots = (False, False)
+        want = (self._chained is None, self._chained_passive is None)
+        if not self.native or not any(want) or not compiled.ready():
+            return
+        from rft_mujoco.compiled import native
+        ok, info = native.support()
+        if not ok:
+            _native_notice(info)
+            return
+        control = ctypes.c_void_p.from_address(info["control"])
+        passive = ctypes.c_void_p.from_address(info["passive"])
+        if self._registry is None:
+            self._registry = native.Registry(info)
+        self._registry.set_trampolines(control.value or 0, passive.value or 0)
+        self._registry_models()
+        if want[0]:
+            control.value = info["control_c"]
+        if want[1]:
+            passive.value = info["passive_c"]
+        self._native_slots = want
+
+    def _reinstall_native(self) -> None:
+        """After the bindings rewrote the slots (a compile wrapper restoring them): the native callbacks again."""
+        if any(self._native_slots):
+            info = self._registry.info
+            if self._native_slots[0] and mujoco.get_mjcb_control() is self:
+                ctypes.c_void_p.from_address(info["control"]).value = info["control_c"]
+            if self._native_slots[1] and mujoco.get_mjcb_passive() is self._passive:
+                ctypes.c_void_p.from_address(info["passive"]).value = info["passive_c"]
+
+    def _registry_models(self) -> None:
+        if self._registry is not None:
+            self._registry.models({id(h.model): h.model for h in self._handles}.values())
+
+    @property
+    def native_installed(self) -> tuple:
+        """(control, passive): whether MuJoCo's slot holds the native callback now."""
+        if self._registry is None:
+            return (False, False)
+        info = self._registry.info
+        return (self._native_slots[0] and ctypes.c_void_p.from_address(info["control"]).value == info["control_c"],
+                self._native_slots[1] and ctypes.c_void_p.from_address(info["passive"]).value == info["passive_c"])
 
     def _uninstall(self) -> None:
         if mujoco.get_mjcb_control() is self:
@@ -158,6 +241,9 @@ class Dispatcher:
             mujoco.set_mjcb_passive(self._chained_passive)
         self._chained = None
         self._chained_passive = None
+        self._native_slots = (False, False)
+        if self._registry is not None:
+            self._registry.models(())
         for (owner, name), original in self._originals.items():
             setattr(owner, name, original)
         self._originals.clear()
@@ -165,6 +251,8 @@ class Dispatcher:
     def _suspending(self, func):
         @functools.wraps(func)
         def call(*args, **kwargs):
+            if all(self.native_installed):
+                return func(*args, **kwargs)     # the native callbacks leave models without sand alone
             with self._lock:
                 current, passive = mujoco.get_mjcb_control(), mujoco.get_mjcb_passive()
                 mujoco.set_mjcb_control(None)
@@ -174,6 +262,7 @@ class Dispatcher:
                 finally:
                     mujoco.set_mjcb_control(current)
                     mujoco.set_mjcb_passive(passive)
+                    self._reinstall_native()
         return call
 
     # --- xfrc bookkeeping -------------------------------------------------------------------------
@@ -224,6 +313,12 @@ class Dispatcher:
         book = self._books.get(data)
         if book is None or book.added.shape[0] != model.nbody:
             book = self.book(model, data)
+        pending = book.state[5]
+        if pending:                          # left to Python by the native callback (this very evaluation)
+            book.state[5] = 0.0
+            if pending == _ROUTE.MONITOR:
+                self._monitor(book.native[1], data)
+                return
         if model.opt.integrator == _RK4 and all(h.rk4_stages == "first" for h in handles):
             if self._later_rk4_stage(book, data.time, model.opt.timestep):
                 return                       # xfrc_applied still holds the first stage's user + sand wrench
@@ -231,13 +326,16 @@ class Dispatcher:
             book.stage = 0
         native = book.native
         if native is not None and native[0] == self._generation:
-            if self._native_call(model, data, native[1]):
+            if not pending and self._native_call(model, data, native[1]):
                 return
         elif native is None or native[0] != self._generation:
             book.native = None
         self._evaluate(model, data, book, handles, rows)
         if book.native is None and all(h._fast is not None for h in handles) and compiled.ready():
             book.native = (self._generation, self._build_route(data, book, handles, rows))
+        if self._registry is not None and book.native is not None and book.native[0] == self._generation \
+                and not self._registry.routed(model, data):
+            self._registry.add(model, data, book.native[1])
 
     def _native_call(self, model, data, route) -> bool:
         """One evaluation through the native route; False when the Python path must run instead (nothing
@@ -251,13 +349,18 @@ class Dispatcher:
         if code == _ROUTE.DONE:
             return True
         if code == _ROUTE.MONITOR:
-            for h in route.handles:
-                work = h._work.get(data)
-                k = int(work.state[2])
-                if h.monitor is not None and k > 0 and int(work.state[4]) % h.monitor.every == 0:
-                    h._check_validity(data, work, work.arrays["touch"][:k], int(work.state[4]))
+            self._monitor(route, data)
             return True
         return False
+
+    @staticmethod
+    def _monitor(route, data) -> None:
+        """The validity checks that a native evaluation found due (it committed its wrenches)."""
+        for h in route.handles:
+            work = h._work.get(data)
+            k = int(work.state[2])
+            if h.monitor is not None and k > 0 and int(work.state[4]) % h.monitor.every == 0:
+                h._check_validity(data, work, work.arrays["touch"][:k], int(work.state[4]))
 
     def _build_route(self, data, book, handles, rows):
         """The native route of (model, data) (:class:`rft_mujoco.compiled.route.Route`)."""
@@ -334,6 +437,20 @@ class Dispatcher:
     def datas_of(self, model) -> list:
         """The MjData objects of ``model`` the dispatcher has written to (and that are still alive)."""
         return [d for d, b in list(self._books.items()) if b.model() is model]
+
+
+_log = logging.getLogger("rft_mujoco")
+_noticed = []
+
+
+def _native_notice(reason: str) -> None:
+    """Say once per process why the native callbacks are off."""
+    if not _noticed:
+        _noticed.append(reason)
+        msg = (f"rft_mujoco: native sand callbacks unavailable ({reason}); using the Python callback "
+               "(same forces, ~2 us more per evaluation)")
+        _log.warning(msg)
+        print(msg, file=sys.stderr, flush=True)
 
 
 DISPATCHER = Dispatcher()

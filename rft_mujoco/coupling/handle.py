@@ -176,7 +176,7 @@ class SandHandle:
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
         self._ready = False
-        self._params = np.zeros(11)
+        self._params = np.zeros(12)
         self.model = model
         self.element_size = size
         self.body_ids = np.asarray(body_ids, dtype=np.int64)
@@ -221,7 +221,8 @@ class SandHandle:
     # --- settings that the compiled code reads (hc.params): every setter refreshes them -------------------
     def __setattr__(self, name, value) -> None:
         object.__setattr__(self, name, value)
-        if name in ("_media", "guards", "stabilize", "passive", "monitor", "_terrain") and getattr(self, "_ready", False):
+        if name in ("_media", "guards", "stabilize", "passive", "monitor", "_terrain", "rk4_stages") \
+                and getattr(self, "_ready", False):
             self._refresh()
 
     def _refresh(self) -> None:
@@ -233,7 +234,7 @@ class SandHandle:
         every = self.monitor.every if self.monitor is not None else 0
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
                               self._fast[0], self.stabilize, self.passive, self._occluders.margin, every,
-                              out=self._params)            # read live by the native route: no rebuild
+                              self.rk4_stages == "first", out=self._params)   # read live by the native route
 
     # --- public -------------------------------------------------------------------------------------
     @property

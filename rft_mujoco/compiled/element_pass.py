@@ -1,0 +1,240 @@
+"""The compiled element pass: body poses and twists -> per-body RFT wrenches.
+
+The same numbers as :func:`rft_mujoco.physics.elements.body_wrenches` (to round-off, tests/test_fastkernel.py),
+into buffers the caller owns, on the packed layout of :mod:`rft_mujoco.compiled.elements`. How it is fast:
+
+* It works in each body's own frame. The law is invariant under rotation (every quantity it uses is a dot
+  product of the element normal, its velocity and gravity, and it returns a combination of those
+  vectors), so with gravity, the body's twist and its COM brought into the body frame once per body,
+  elements are never rotated: a world-frame sum is one rotation of the body-frame sum. On a flat surface
+  the depth of an element is affine in its body-frame centroid, ``c0 + (R^T g) . l``: three multiply-adds.
+* Per cluster (clusters above the sand are skipped whole): the depth of every element (vectorized); the
+  indices of the submerged ones (branchless); run-time culling of those inside another body's geom; the
+  elements that carry stress (submerged, moving, leading) packed to the front of the scratch buffer,
+  either by a vectorized test over the whole cluster or, when few are submerged, a scalar test over the
+  submerged ones only (both give the same elements in the same order, so the same numbers); the law
+  vectorized on the packed elements only; a short scalar sum.
+
+Everything works on a fixed (:data:`SCRATCH_ROWS`, cluster size) scratch buffer, never on per-element
+temporaries.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rft_mujoco.compiled.elements import LANES, _inside
+from rft_mujoco.compiled.jit import INLINE, JIT_LAW, njit
+from rft_mujoco.compiled.law import _coef, _stress
+from rft_mujoco.compiled.terrain import FLAT, _depth
+
+# Scratch rows: per element of the cluster (depth, loaded flag), then per packed (loaded) element: lever
+# arm in the body frame, normal, depth, area, force, torque. Index rows: submerged, loaded elements.
+_DEPTH, _KEEP = 0, 1
+_P_ARM, _P_NRM, _P_DEPTH, _P_AREA, _P_F, _P_T = 2, 5, 8, 9, 10, 13
+SCRATCH_ROWS = 16
+"""Rows of the element pass's scratch buffer."""
+SPARSE = 4
+"""A cluster with fewer than 1/SPARSE of its elements submerged is tested element by element (scalar, on
+the submerged ones); otherwise the test runs vectorized over the whole cluster."""
+
+
+@njit(**INLINE)
+def _lane_max(row, n, lanes):
+    """The largest of ``row[:n]`` (>= 0): a running maximum over interleaved lanes (a select, which
+    vectorizes; one running variable compiles to a branch that mispredicts as elements get deeper)."""
+    for l in range(LANES):
+        lanes[l] = 0.0
+    full = n // LANES * LANES
+    for i0 in range(0, full, LANES):
+        for l in range(LANES):
+            x = row[i0 + l]
+            lanes[l] = x if x > lanes[l] else lanes[l]
+    for i in range(full, n):
+        x = row[i]
+        lanes[i - full] = x if x > lanes[i - full] else lanes[i - full]
+    top = 0.0
+    for l in range(LANES):
+        top = max(top, lanes[l])
+    return top
+
+
+@njit(**INLINE)
+def _loaded(l0, l1, l2, n0, n1, n2, depth, ub0, ub1, ub2, wb0, wb1, wb2, zero_speed2, lead_tol2):
+    """Whether an element (body-frame lever arm ``l``, normal ``n``) carries stress: submerged, moving
+    (speed above ZERO_SPEED) and leading (``n.v >= -LEADING_TOL |v|``, squared: no square root)."""
+    vx = ub0 + (wb1 * l2 - wb2 * l1)
+    vy = ub1 + (wb2 * l0 - wb0 * l2)
+    vz = ub2 + (wb0 * l1 - wb1 * l0)
+    nv = n0 * vx + n1 * vy + n2 * vz
+    sp2 = vx * vx + vy * vy + vz * vz
+    return (depth > 0.0) & (sp2 > zero_speed2) & ((nv >= 0.0) | (nv * nv <= lead_tol2 * sp2))
+
+
+@njit(**JIT_LAW)
+def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_center, cluster_radius, body_clusters,
+             body_pos, body_mat, body_com, lin, ang, g_hat, max_height, kind, tp, heights, xi_n, coef, mu_surf,
+             no_tension, no_forward, no_power, tol, occ_start, occ_geom, occ_kind, occ_size, occ_rbound,
+             occ_hs_start, occ_hs, margin, geom_xpos, geom_xmat, scratch, index, wrench, count, max_depth,
+             occluded):
+    """The RFT wrench about each COM of the bodies ``bodies[:n_on]`` moving with twists (``lin``, ``ang``).
+
+    Row j < n_on of ``body_pos`` (3), ``body_mat`` (9), ``body_com`` (3), ``lin`` (3, m/s, linear velocity of
+    the COM), ``ang`` (3, rad/s) belongs to body ``b = bodies[j]`` (clusters ``body_clusters[b]:...[b + 1]``).
+    Elements inside an occluder of body b (rows ``occ_start[b]:occ_start[b + 1]``, posed by ``geom_xpos`` /
+    ``geom_xmat``) carry nothing. Outputs, rows 0..n_on-1: ``wrench`` (6: force N, torque N m about the COM,
+    world frame), ``count`` (loaded elements), ``max_depth`` (m, deepest loaded element), ``occluded`` (m^2,
+    submerged area inside occluders). ``scratch``: (SCRATCH_ROWS, >= cluster size) float, ``index``: (2, >= cluster
+    size) int.
+    """
+    g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
+    c = _coef(coef)
+    lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
+    zs2, lt2 = zero_speed * zero_speed, lead_tol * lead_tol
+    flat = kind == FLAT and tp[6] == 0.0
+    h0 = tp[0]
+    lanes = np.empty(LANES)
+    dep, keep = scratch[_DEPTH], scratch[_KEEP]
+    sub, load = index[0], index[1]
+    for j in range(n_on):
+        b = bodies[j]
+        for k in range(6):
+            wrench[j, k] = 0.0
+        count[j] = 0
+        max_depth[j] = 0.0
+        occluded[j] = 0.0
+        ux, uy, uz = lin[j, 0], lin[j, 1], lin[j, 2]
+        wx, wy, wz = ang[j, 0], ang[j, 1], ang[j, 2]
+        if ux == 0.0 and uy == 0.0 and uz == 0.0 and wx == 0.0 and wy == 0.0 and wz == 0.0:
+            continue                         # a body at rest: no element moves, none is loaded
+        r = body_mat[j]
+        r0, r1, r2, r3, r4, r5, r6, r7, r8 = r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]
+        px, py, pz = body_pos[j, 0], body_pos[j, 1], body_pos[j, 2]
+        # the body frame: gravity, the COM (lever arms are l - cb), the twist of the COM
+        gb0, gb1, gb2 = r0 * g0 + r3 * g1 + r6 * g2, r1 * g0 + r4 * g1 + r7 * g2, r2 * g0 + r5 * g1 + r8 * g2
+        dx, dy, dz = body_com[j, 0] - px, body_com[j, 1] - py, body_com[j, 2] - pz
+        cb0, cb1, cb2 = r0 * dx + r3 * dy + r6 * dz, r1 * dx + r4 * dy + r7 * dz, r2 * dx + r5 * dy + r8 * dz
+        ub0, ub1, ub2 = r0 * ux + r3 * uy + r6 * uz, r1 * ux + r4 * uy + r7 * uz, r2 * ux + r5 * uy + r8 * uz
+        wb0, wb1, wb2 = r0 * wx + r3 * wy + r6 * wz, r1 * wx + r4 * wy + r7 * wz, r2 * wx + r5 * wy + r8 * wz
+        c0 = h0 + (px * g0 + py * g1 + pz * g2)           # flat depth of the body origin
+        a0 = a1 = a2 = a3 = a4 = a5 = 0.0
+        deepest = 0.0
+        for q in range(body_clusters[b], body_clusters[b + 1]):
+            q0, q1, q2 = cluster_center[q, 0], cluster_center[q, 1], cluster_center[q, 2]
+            qx = px + (r0 * q0 + r1 * q1 + r2 * q2)
+            qy = py + (r3 * q0 + r4 * q1 + r5 * q2)
+            qz = pz + (r6 * q0 + r7 * q1 + r8 * q2)
+            low = -(qx * g0 + qy * g1 + qz * g2) - cluster_radius[q]
+            if low > max_height:                             # the whole cluster is above the sand
+                continue
+            s = cluster_start[q]
+            n = cluster_start[q + 1] - s
+            cl0, cl1, cl2 = centroids[0, s:s + n], centroids[1, s:s + n], centroids[2, s:s + n]
+            nr0, nr1, nr2 = normals[0, s:s + n], normals[1, s:s + n], normals[2, s:s + n]
+            # 1. depths (padding slots have NaN centroids: never submerged), the submerged indices
+            if flat:
+                for i in range(n):
+                    dep[i] = c0 + (gb0 * cl0[i] + gb1 * cl1[i] + gb2 * cl2[i])
+            else:
+                for i in range(n):
+                    l0, l1, l2 = cl0[i], cl1[i], cl2[i]
+                    dep[i] = _depth(px + (r0 * l0 + r1 * l1 + r2 * l2), py + (r3 * l0 + r4 * l1 + r5 * l2),
+                                    pz + (r6 * l0 + r7 * l1 + r8 * l2), g0, g1, g2, kind, tp, heights)
+            ms = 0
+            for i in range(n):
+                sub[ms] = i
+                ms += dep[i] > 0.0
+            if ms == 0:
+                continue
+            # 2. submerged elements inside another body's geom: depth set to -inf, their area reported
+            for o in range(occ_start[b], occ_start[b + 1]):
+                gid = occ_geom[o]
+                ox, oy, oz = geom_xpos[gid, 0], geom_xpos[gid, 1], geom_xpos[gid, 2]
+                reach = occ_rbound[o] + cluster_radius[q]
+                if (qx - ox) ** 2 + (qy - oy) ** 2 + (qz - oz) ** 2 >= reach * reach:
+                    continue
+                gm = geom_xmat[gid]                          # the element in the geom frame: M l + t
+                m00, m01, m02 = gm[0] * r0 + gm[3] * r3 + gm[6] * r6, gm[0] * r1 + gm[3] * r4 + gm[6] * r7, \
+                    gm[0] * r2 + gm[3] * r5 + gm[6] * r8
+                m10, m11, m12 = gm[1] * r0 + gm[4] * r3 + gm[7] * r6, gm[1] * r1 + gm[4] * r4 + gm[7] * r7, \
+                    gm[1] * r2 + gm[4] * r5 + gm[7] * r8
+                m20, m21, m22 = gm[2] * r0 + gm[5] * r3 + gm[8] * r6, gm[2] * r1 + gm[5] * r4 + gm[8] * r7, \
+                    gm[2] * r2 + gm[5] * r5 + gm[8] * r8
+                ex, ey, ez = px - ox, py - oy, pz - oz
+                t0, t1, t2 = gm[0] * ex + gm[3] * ey + gm[6] * ez, gm[1] * ex + gm[4] * ey + gm[7] * ez, \
+                    gm[2] * ex + gm[5] * ey + gm[8] * ez
+                s0, s1, s2 = occ_size[o, 0], occ_size[o, 1], occ_size[o, 2]
+                hs0, hs1, ok = occ_hs_start[o], occ_hs_start[o + 1], occ_kind[o]
+                for jj in range(ms):
+                    i = sub[jj]
+                    if not dep[i] > 0.0:
+                        continue
+                    l0, l1, l2 = cl0[i], cl1[i], cl2[i]
+                    if _inside(t0 + (m00 * l0 + m01 * l1 + m02 * l2), t1 + (m10 * l0 + m11 * l1 + m12 * l2),
+                               t2 + (m20 * l0 + m21 * l1 + m22 * l2), ok, s0, s1, s2, occ_hs, hs0, hs1, margin):
+                        occluded[j] += areas[s + i]
+                        dep[i] = -np.inf
+            # 3. the loaded elements (submerged, moving, leading), in increasing index
+            ml = 0
+            if SPARSE * ms < n:
+                for jj in range(ms):
+                    i = sub[jj]
+                    load[ml] = i
+                    ml += _loaded(cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2, nr0[i], nr1[i], nr2[i], dep[i], ub0,
+                                  ub1, ub2, wb0, wb1, wb2, zs2, lt2)
+            else:
+                for i in range(n):
+                    keep[i] = 1.0 if _loaded(cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2, nr0[i], nr1[i], nr2[i],
+                                             dep[i], ub0, ub1, ub2, wb0, wb1, wb2, zs2, lt2) else 0.0
+                for i in range(n):
+                    load[ml] = i
+                    ml += keep[i] != 0.0
+            if ml == 0:
+                continue
+            for jj in range(ml):                             # packed to the front
+                i = load[jj]
+                scratch[_P_ARM, jj] = cl0[i] - cb0
+                scratch[_P_ARM + 1, jj] = cl1[i] - cb1
+                scratch[_P_ARM + 2, jj] = cl2[i] - cb2
+                scratch[_P_NRM, jj] = nr0[i]
+                scratch[_P_NRM + 1, jj] = nr1[i]
+                scratch[_P_NRM + 2, jj] = nr2[i]
+                scratch[_P_DEPTH, jj] = dep[i]
+                scratch[_P_AREA, jj] = areas[s + i]
+            # 4. the law on the packed elements (body frame): vectorized, no branches
+            for i in range(ml):
+                l0, l1, l2 = scratch[_P_ARM, i], scratch[_P_ARM + 1, i], scratch[_P_ARM + 2, i]
+                vx = ub0 + (wb1 * l2 - wb2 * l1)
+                vy = ub1 + (wb2 * l0 - wb0 * l2)
+                vz = ub2 + (wb0 * l1 - wb1 * l0)
+                inv = 1.0 / math.sqrt(vx * vx + vy * vy + vz * vz)
+                rx, ry, rz = _stress(scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i], vx * inv,
+                                     vy * inv, vz * inv, gb0, gb1, gb2, c, mu_surf, no_tension, no_forward,
+                                     no_power, lead_tol, vert_tol)
+                sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i])
+                fx, fy, fz = rx * sa, ry * sa, rz * sa
+                scratch[_P_F, i] = fx
+                scratch[_P_F + 1, i] = fy
+                scratch[_P_F + 2, i] = fz
+                scratch[_P_T, i] = l1 * fz - l2 * fy
+                scratch[_P_T + 1, i] = l2 * fx - l0 * fz
+                scratch[_P_T + 2, i] = l0 * fy - l1 * fx
+            # 5. sums (body frame)
+            for i in range(ml):
+                a0 += scratch[_P_F, i]
+                a1 += scratch[_P_F + 1, i]
+                a2 += scratch[_P_F + 2, i]
+                a3 += scratch[_P_T, i]
+                a4 += scratch[_P_T + 1, i]
+                a5 += scratch[_P_T + 2, i]
+            count[j] += ml
+            deepest = max(deepest, _lane_max(scratch[_P_DEPTH], ml, lanes))
+        max_depth[j] = deepest
+        wrench[j, 0] = r0 * a0 + r1 * a1 + r2 * a2                # back to the world frame
+        wrench[j, 1] = r3 * a0 + r4 * a1 + r5 * a2
+        wrench[j, 2] = r6 * a0 + r7 * a1 + r8 * a2
+        wrench[j, 3] = r0 * a3 + r1 * a4 + r2 * a5
+        wrench[j, 4] = r3 * a3 + r4 * a4 + r5 * a5
+        wrench[j, 5] = r6 * a3 + r7 * a4 + r8 * a5

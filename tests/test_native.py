@@ -1,0 +1,235 @@
+"""The native callbacks (rft_mujoco.compiled.native) against the dispatcher's Python callback.
+
+Rollouts through the native callbacks equal the Python path bit for bit (every integrator, RK4 stages
+"all" and "first", the validity monitor, mjDSBL_ACTUATION, several models and datas); errors still raise
+from mj_step naming the bodies; what the native code must not do (call a user's actuator callback, touch a
+model being compiled) goes to Python; a MuJoCo it does not know falls back with one message; detach
+restores the user's callbacks.
+"""
+
+import ctypes
+import gc
+
+import mujoco
+import numpy as np
+import pytest
+
+import rft_mujoco
+from rft_mujoco import compiled
+from rft_mujoco.coupling import dispatch
+from rft_mujoco.coupling.dispatch import DISPATCHER
+
+pytestmark = [pytest.mark.skipif(not compiled.AVAILABLE, reason="numba not importable"),
+              pytest.mark.filterwarnings("ignore::rft_mujoco.RFTValidityWarning")]
+if compiled.AVAILABLE:
+    compiled.ensure_compiled()
+    from rft_mujoco.compiled import native
+    SUPPORTED = native.support()[0]
+else:
+    SUPPORTED = False
+needs_native = pytest.mark.skipif(not SUPPORTED, reason="native callbacks unsupported here")
+
+MEDIA = rft_mujoco.MPM_VALIDATION
+SCENE = """
+<mujoco>
+  <option timestep="0.002" integrator="{integrator}"/>
+  <worldbody>
+    <body name="ball" pos="0 0 0.0"><freejoint/><geom type="sphere" size="0.05" mass="1"/></body>
+    <body name="arm" pos="-0.3 0 0.05">
+      <joint name="hinge" type="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 0.1 0 -0.12" size="0.012" mass="0.2"/>
+      <body name="hand" pos="0.1 0 -0.12"><joint type="hinge" axis="1 0 0"/>
+        <geom type="cylinder" size="0.02 0.02" mass="0.1"/></body>
+    </body>
+  </worldbody>
+  <actuator><position joint="hinge" kp="5"/></actuator>
+</mujoco>
+"""
+SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+@pytest.fixture(autouse=True)
+def _clean():
+    yield
+    rft_mujoco.detach_all()
+    DISPATCHER.native = True
+
+
+def state(model, data):
+    out = np.empty(mujoco.mj_stateSize(model, SPEC))
+    mujoco.mj_getState(model, data, out, SPEC)
+    return out
+
+
+def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=True, disable_at=None, datas=1,
+            models=1):
+    """Final states and xfrc_applied of ``models`` models x ``datas`` datas stepped interleaved."""
+    DISPATCHER.native = native
+    runs = []
+    for k in range(models):
+        model = mujoco.MjModel.from_xml_string(SCENE.format(integrator=integrator))
+        handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=monitor, rk4_stages=rk4_stages)
+        ds = []
+        for j in range(datas):
+            data = mujoco.MjData(model)
+            data.qvel[:] = np.random.default_rng(10 * k + j).normal(size=model.nv) * 0.5
+            ds.append(data)
+        runs.append((model, handle, ds))
+    assert DISPATCHER.native_installed == ((native and SUPPORTED),) * 2
+    for i in range(steps):
+        for model, handle, ds in runs:
+            if i == disable_at:
+                model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+            for data in ds:
+                data.ctrl[:] = np.sin(0.05 * i)
+                mujoco.mj_step(model, data)
+    out = [(state(m, d), d.xfrc_applied.copy(), h.evaluations) for m, h, ds in runs for d in ds]
+    assert any(np.abs(x).max() > 0.1 for _, x, _ in out)                  # the sand acted
+    for _, h, _ in runs:
+        h.detach()
+    return out
+
+
+@needs_native
+@pytest.mark.parametrize("kwargs", [
+    dict(), dict(integrator="RK4"), dict(integrator="RK4", rk4_stages="first"), dict(integrator="implicitfast"),
+    dict(monitor=False, disable_at=60), dict(datas=2, models=2)])
+def test_native_equals_python_bit_for_bit(kwargs):
+    python = rollout(False, **kwargs)
+    native_ = rollout(True, **kwargs)
+    for (s0, x0, e0), (s1, x1, e1) in zip(python, native_):
+        assert np.array_equal(s0, s1) and np.array_equal(x0, x1) and e0 == e1
+
+
+@needs_native
+def test_rollouts_repeat_from_a_reset():
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="RK4"))
+    data = mujoco.MjData(model)
+    rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+    finals = []
+    for _ in range(2):
+        mujoco.mj_resetData(model, data)
+        data.qvel[:] = 0.3
+        for _ in range(100):
+            mujoco.mj_step(model, data)
+        finals.append(state(model, data))
+    assert np.array_equal(*finals)
+
+
+@needs_native
+def test_errors_raise_from_mj_step_naming_the_bodies():
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    data = mujoco.MjData(model)
+    rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+    for _ in range(5):
+        mujoco.mj_step(model, data)
+    assert DISPATCHER._registry.routed(model, data)                       # the native route is in use
+    data.qfrc_applied[0] = np.nan
+    with pytest.raises(FloatingPointError, match="ball"):
+        mujoco.mj_step(model, data)
+
+
+@needs_native
+def test_compiling_while_installed_keeps_the_native_callbacks():
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+    assert DISPATCHER.native_installed == (True, True)
+    other = mujoco.MjModel.from_xml_string(SCENE.format(integrator="RK4"))
+    mujoco.MjSpec.from_string(SCENE.format(integrator="Euler")).compile()
+    mujoco.mj_step(other, mujoco.MjData(other))                           # a model without sand: untouched
+    assert DISPATCHER.native_installed == (True, True)
+    data = mujoco.MjData(model)
+    mujoco.mj_step(model, data)
+    assert np.any(data.xfrc_applied != 0)
+
+
+@needs_native
+def test_a_user_callback_keeps_its_slot_python_and_detach_restores_both():
+    calls = []
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+
+    def control(m, d):
+        calls.append(1)
+    mujoco.set_mjcb_control(control)
+    try:
+        handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+        assert DISPATCHER.native_installed == (False, True)
+        data = mujoco.MjData(model)
+        for _ in range(3):
+            mujoco.mj_step(model, data)
+        assert len(calls) == 3 and np.any(data.xfrc_applied != 0)
+        handle.detach()
+        assert mujoco.get_mjcb_control() is control and mujoco.get_mjcb_passive() is None
+    finally:
+        mujoco.set_mjcb_control(None)
+
+
+@needs_native
+def test_user_actuator_callbacks_run_from_python():
+    """With a user mjcb_act_gain installed, mj_fwdActuation could run Python code: the evaluation goes
+    through the Python path, where the callback's exceptions raise from mj_step."""
+    xml = SCENE.format(integrator="Euler").replace('<position joint="hinge" kp="5"/>',
+                                                   '<general joint="hinge" gaintype="user" biastype="none"/>')
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+    for _ in range(3):
+        mujoco.mj_step(model, data)
+    gains = []
+
+    def gain(m, d, i):
+        gains.append(i)
+        if len(gains) > 20:
+            raise KeyError("user gain")
+        return 1.0
+    mujoco.set_mjcb_act_gain(gain)
+    try:
+        with pytest.raises(KeyError, match="user gain"):
+            for _ in range(20):
+                mujoco.mj_step(model, data)
+    finally:
+        mujoco.set_mjcb_act_gain(None)
+    mujoco.mj_step(model, data)
+
+
+@needs_native
+def test_a_collected_data_leaves_the_registry():
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+    data = mujoco.MjData(model)
+    for _ in range(3):
+        mujoco.mj_step(model, data)
+    key = (model._address, data._address)
+    assert key in DISPATCHER._registry._routes
+    del data
+    gc.collect()
+    assert key not in DISPATCHER._registry._routes
+
+
+def test_unsupported_mujoco_falls_back_with_one_message(monkeypatch, capsys):
+    if compiled.AVAILABLE:
+        monkeypatch.setattr(native, "support", lambda: (False, "written for mujoco 9.9.9, found 4.0.0"))
+    monkeypatch.setattr(dispatch, "_noticed", [])
+    for _ in range(2):
+        model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+        handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+        assert DISPATCHER.native_installed == (False, False)
+        data = mujoco.MjData(model)
+        mujoco.mj_step(model, data)
+        assert np.any(data.xfrc_applied != 0)
+        handle.detach()
+    err = capsys.readouterr().err
+    if compiled.AVAILABLE:
+        assert err.count("native sand callbacks unavailable (written for mujoco 9.9.9") == 1
+
+
+@needs_native
+def test_support_found_the_bindings_library_and_the_struct_offsets():
+    ok, info = native.support()
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="RK4"))
+    data = mujoco.MjData(model)
+    data.time = 0.75
+    off = info["offsets"]
+    assert ctypes.c_double.from_address(model._address + off["timestep"]).value == model.opt.timestep
+    assert ctypes.c_int32.from_address(model._address + off["integrator"]).value == model.opt.integrator
+    assert ctypes.c_double.from_address(data._address + off["time"]).value == 0.75
