@@ -278,15 +278,22 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
                     idx[m] = 6 * g + c
                     m += 1
         if m > 0:
+            any_flow = False
+            for g in range(ng):
+                any_flow = any_flow or flow[g]
             for i in range(m):
                 s = v[idx[i]]
-                row = a[idx[i]]
-                for gj in range(ng):
-                    for cj in range(6):
-                        s += row[6 * gj + cj] * w[gj, cj]
+                if any_flow:                          # w is zero without a group in flow: rhs = v exactly
+                    row = a[idx[i]]
+                    for gj in range(ng):
+                        for cj in range(6):
+                            s += row[6 * gj + cj] * w[gj, cj]
                 rhs[i] = s
-                for j in range(m):
-                    block[i, j] = a[idx[i], idx[j]]
+            every = m == n6                           # every group at rest: the block is ``a`` itself
+            if not every:
+                for i in range(m):
+                    for j in range(m):
+                        block[i, j] = a[idx[i], idx[j]]
             top = 0.0
             for i in range(m):                        # the groups' squared capacities (rest.rest_wrenches)
                 gi = idx[i] // 6
@@ -297,7 +304,7 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
                 top = max(top, t)
             for i in range(m):
                 v_w[i] = max(v_w[i], weight_floor * top)
-            min_norm_solve(block, rhs, v_w, m, dependent_tol, tiny, lin, perm, sol)
+            min_norm_solve(a if every else block, rhs, v_w, m, dependent_tol, tiny, lin, perm, sol)
             for i in range(m):
                 w[idx[i] // 6, idx[i] % 6] = -sol[i]
             over = False
