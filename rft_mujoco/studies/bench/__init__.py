@@ -36,6 +36,16 @@ SETTINGS = {"rest": dict(), "naive": dict(stabilize=False), "no culling": dict(c
 ``stabilize=False``, ``cull=False``, the numpy reference."""
 
 
+QUADRUPED_TARGET, STANDING_TARGET, ANT_TARGET = 5.0, 0.8, 0.7
+"""The speed targets of the rest design (docs/performance.md): the quadruped standing at <= 5x its bare
+step; zero-action env steps/s >= 0.8x random-action ones; SandAnt-v0 >= 0.7x Ant-v5 (random actions)."""
+
+
+def _verdict(what: str, value: float, target: float, sense: str, unit: str = "") -> str:
+    ok = value <= target if sense == "<=" else value >= target
+    return f"target: {what} = {value:.2f}{unit} ({sense} {target:g}{unit}): {'met' if ok else 'NOT met'}"
+
+
 def _print_quadruped(quad) -> None:
     print(table(["resolution", "setting", "motion", "elements", "touching el.", "bare us", "sand us", "ratio"],
                 [[f"{r['resolution']} ({r['element_size'] * 1000:g} mm)", r["setting"], r["motion"],
@@ -46,13 +56,23 @@ def _print_quadruped(quad) -> None:
         base = by.get((res, "rest", motion))
         if setting == "no culling" and base:
             print(f"culling costs {100 * (base['sand_us'] / r['sand_us'] - 1):+.1f}% ({res}, {motion})")
+    stand = by.get(("default", "rest", "standing"))
+    if stand:
+        print(_verdict("quadruped standing, default settings, sand step / bare step", stand["ratio"],
+                       QUADRUPED_TARGET, "<=", "x"))
 
 
 def _print_rates(rates) -> None:
+    print(f"medians of {rates[0]['rounds']} interleaved rounds" if rates else "")
     print(table(["env", "elements", "zero action", "random actions", "zero / random", "random / Ant-v5"],
                 [[r["env"], r["elements"], f"{r['zero_sps']:.0f}", f"{r['random_sps']:.0f}",
                   f"{r['zero_over_random']:.2f}", "" if r["over_ant"] is None else f"{r['over_ant']:.2f}"]
                  for r in rates]))
+    for r in rates:
+        if r["env"] in ("rft_mujoco/SandAnt-v0", "rft_mujoco/SandQuadruped-v0"):
+            print(_verdict(f"{r['env']} zero / random", r["zero_over_random"], STANDING_TARGET, ">="))
+        if r["env"] == "rft_mujoco/SandAnt-v0" and r["over_ant"] is not None:
+            print(_verdict("rft_mujoco/SandAnt-v0 random / Ant-v5 random", r["over_ant"], ANT_TARGET, ">="))
 
 
 def _print_accuracy(acc, quick: bool) -> None:

@@ -80,48 +80,59 @@ ENV_IDS = ("Ant-v5", "rft_mujoco/SandAnt-v0", "rft_mujoco/SandQuadruped-v0", "rf
 """Envs whose steps per second :func:`env_rates` measures (those registered in this installation)."""
 
 
-def _env_rate(env, actions) -> float:
-    """Median env steps/s over 3 runs of ``actions`` (resets on termination, not timed apart)."""
-    samples = []
-    for rep in range(3):
-        env.reset(seed=rep)
-        t0 = time.perf_counter()
-        for a in actions:
-            _, _, term, trunc, _ = env.step(a)
-            if term or trunc:
-                env.reset()
-        samples.append(len(actions) / (time.perf_counter() - t0))
-    return float(np.median(samples))
+def _env_run(env, actions, seed: int) -> float:
+    """Env steps/s of one run of ``actions`` from a reset (resets on termination, not timed apart)."""
+    env.reset(seed=seed)
+    t0 = time.perf_counter()
+    for a in actions:
+        _, _, term, trunc, _ = env.step(a)
+        if term or trunc:
+            env.reset()
+    return len(actions) / (time.perf_counter() - t0)
 
 
-def env_rates(steps: int) -> list[dict] | None:
+def env_rates(steps: int, rounds: int = 5) -> list[dict] | None:
     """Env steps per second of :data:`ENV_IDS` with zero actions (a robot standing still) and uniform
-    random actions; None without gymnasium."""
+    random actions; None without gymnasium.
+
+    This machine's speed drifts by 10% within a minute, so every ratio is measured side by side: each of
+    ``rounds`` rounds runs every env with both action sets once (``steps`` steps from a reset with seed =
+    the round), and a ratio (zero / random, SandAnt / Ant) is the median of its per-round ratios; the
+    rates are the medians of the rounds."""
     try:
         import gymnasium as gym
 
         from rft_mujoco import envs  # noqa: F401  (registers the sand ids)
     except ImportError:
         return None
-    rows = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        made = {}
         for env_id in ENV_IDS:
             if env_id not in gym.registry:
                 continue
             env = gym.make(env_id)
             n = env.action_space.shape[0]
             rng = np.random.default_rng(0)
-            zero = _env_rate(env, np.zeros((steps, n)))
-            rand = _env_rate(env, rng.uniform(env.action_space.low, env.action_space.high, (steps, n)))
+            made[env_id] = (env, np.zeros((steps, n)),
+                            rng.uniform(env.action_space.low, env.action_space.high, (steps, n)))
+        runs = {env_id: {"zero": [], "random": []} for env_id in made}
+        for rnd in range(rounds):
+            for env_id, (env, zero, rand) in made.items():
+                runs[env_id]["zero"].append(_env_run(env, zero, rnd))
+                runs[env_id]["random"].append(_env_run(env, rand, rnd))
+        rows = []
+        bare = runs.get("Ant-v5")
+        for env_id, (env, _, _) in made.items():
+            z, r = np.array(runs[env_id]["zero"]), np.array(runs[env_id]["random"])
             sand = getattr(env.unwrapped, "sand", None)
             handle = getattr(sand, "handle", sand)
-            rows.append(dict(env=env_id, zero_sps=zero, random_sps=rand, zero_over_random=zero / rand,
-                             elements=getattr(handle, "n_elements", 0)))
+            over = (float(np.median(r / np.array(bare["random"]))) if bare is not None and "Ant" in env_id
+                    else None)
+            rows.append(dict(env=env_id, zero_sps=float(np.median(z)), random_sps=float(np.median(r)),
+                             zero_over_random=float(np.median(z / r)), over_ant=over,
+                             elements=getattr(handle, "n_elements", 0), rounds=rounds))
             env.close()
-    bare = next((r for r in rows if r["env"] == "Ant-v5"), None)
-    for r in rows:
-        r["over_ant"] = (r["random_sps"] / bare["random_sps"]) if bare and "Ant" in r["env"] else None
     return rows
 
 
