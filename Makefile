@@ -32,8 +32,8 @@ bench: $(STAMP)         ## speed and speed-accuracy tables and plots in out/benc
 stability: $(STAMP)     ## drop/drag/rotate stability study: table and map in out/stability
 	$(BIN)/python -m rft_mujoco stability
 
-train: $(STAMP)         ## PPO on SandSwimmer-v0, the README's learning run (runs/swimmer_ppo_1m)
-	$(BIN)/python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandSwimmer-v0 --timesteps 1000000 --seed 0 --run-name swimmer_ppo_1m
+train: $(STAMP)         ## PPO on SandQuadruped-v1 for 60 min, the README's training run
+	$(BIN)/python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandQuadruped-v1 --max-minutes 60
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

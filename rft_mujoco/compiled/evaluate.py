@@ -26,10 +26,14 @@ import math
 
 import numpy as np
 
+from rft_mujoco import tol
 from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, wrenches
 from rft_mujoco.compiled.elements import finish_naive, touching
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled.rest import _chain_dof, jacobian, rest_wrenches, solve_m
+
+_TIME_SLACK = 1.0 + tol.TIME_RTOL
+"""A step of dt (1 + TIME_RTOL) still follows the previous evaluation (frozen into the compiled code)."""
 
 MJDATA_FIELDS = (
     ("xpos", "f2"), ("xmat", "f2"), ("xipos", "f2"), ("cvel", "f2"), ("subtree_com", "f2"), ("qpos", "f1"),
@@ -139,7 +143,7 @@ def broadphase(md, hc, ws, time, dt):
     state = ws[45]
     state[4] += 1.0
     step = time - state[0]
-    state[3] = 1.0 if 0.0 <= step <= dt * (1.0 + 1e-9) else 0.0        # coupling._Workspace.follow_time
+    state[3] = 1.0 if 0.0 <= step <= dt * _TIME_SLACK else 0.0         # coupling._Workspace.follow_time
     state[0] = time
     g0, g1, g2, _ = _gravity(gravity)
     g_hat = np.empty(3)

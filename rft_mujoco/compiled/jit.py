@@ -44,7 +44,7 @@ COMPILE_SECONDS = 30
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/evaluate.py", "compiled/route.py",
-                  "compiled/native.py", "physics/rest.py")
+                  "compiled/native.py", "physics/rest.py", "tol.py")
 """Every source file (relative to the package) whose code ends up in compiled machine code."""
 
 
