@@ -57,4 +57,7 @@ def test_quick_bench_runs_every_section(tmp_path, capsys):
     if rates is not None:
         assert {"Ant-v5", "rft_mujoco/SandAnt-v0", "rft_mujoco/SandQuadruped-v0"} <= {r["env"] for r in rates}
         assert all(r["zero_sps"] > 0 and r["random_sps"] > 0 for r in rates)
+        from rft_mujoco.compiled import native
+        if native.support()[0]:                  # the phase timings need the native route
+            assert "SandAnt-v0 standing, one evaluation's compiled phases" in text
     assert np.isfinite(res["above"]["per_body_ns"]) and res["above"]["fixed_us"] > 0.0

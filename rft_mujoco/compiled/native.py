@@ -19,7 +19,15 @@ float64, the symbols of the bindings' own MuJoCo library (proved by setting a ca
 bindings and reading it back), and the offsets of ``opt.timestep``, ``opt.integrator``,
 ``opt.disableflags`` in ``mjModel`` and of ``time`` in ``mjData`` (found next to fields the bindings
 expose as arrays, and verified by writing marker values on a private model). Otherwise the dispatcher
-keeps its Python callback and says why once.
+keeps its Python callback and says why once. The cached machine code is keyed by the kernel sources and
+the numba, mujoco, numpy and Python versions (:func:`rft_mujoco.compiled.jit.drop_stale_cache`).
+
+The one MuJoCo function called natively is ``mj_fwdActuation``, and only while no ``mjcb_act_*`` callback
+is installed. Without user callbacks its one error path is the arena allocation of ``nu`` numbers for
+the clamped controls (bad controls are MuJoCo *warnings*, which return), which fails only when the arena
+is already exhausted, where MuJoCo's own ``mj_fwdActuation`` of the same step, right after the callback,
+would fail too. Every path that can raise (a user callback, the sand's own checks, a non-finite state)
+runs in Python, through the bindings, where errors become Python exceptions.
 """
 
 from __future__ import annotations
@@ -82,17 +90,8 @@ if AVAILABLE:
             return context.get_dummy_value()
         return types.void(types.int64, types.int64, types.int64), codegen
 
-    def _cast(target):
-        @intrinsic
-        def cast(typingctx, addr):
-            def codegen(context, builder, signature, args):
-                return builder.inttoptr(args[0], context.get_value_type(target))
-            return target(types.int64), codegen
-        return cast
-
-    _as_i4 = _cast(types.CPointer(types.int32))
-    _as_i8 = _cast(types.CPointer(types.int64))
-    _as_f8 = _cast(types.CPointer(types.float64))
+    _as_i4 = rt._cast(types.CPointer(types.int32))
+    _as_i8, _as_f8 = rt._as_i8, rt._as_f8
 
 
 @njit(**INLINE)

@@ -24,7 +24,8 @@ import argparse
 from pathlib import Path
 
 from rft_mujoco.studies.bench import plots
-from rft_mujoco.studies.bench.coupling import above_sand, env_rates, quadruped_overhead, rk4_stages_accuracy
+from rft_mujoco.studies.bench.coupling import (above_sand, env_rates, quadruped_overhead, rk4_stages_accuracy,
+                                                sand_phases)
 from rft_mujoco.studies.bench.kernels import DIRECTIONS_DEG, TARGET_ERROR, speed_accuracy, throughput
 from rft_mujoco.studies.bench.timing import machine, table
 
@@ -135,6 +136,11 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = Tru
         print("gymnasium not installed: skipped")
     else:
         _print_rates(rates)
+        phases = sand_phases()
+        if phases:
+            print("SandAnt-v0 standing, one evaluation's compiled phases (native route, one fixed state):")
+            print(table(["setting", "phase 1 us (broadphase)", "phase 2 us (the sand)"],
+                        [[r["setting"], f"{r['phase1_us']:.2f}", f"{r['phase2_us']:.2f}"] for r in phases]))
 
     print("\n2c. RK4 stages on SandAnt-v0: sand at every stage ('all', default) or at the first only, held "
           "('first');\n    errors against 'all' at 1 ms (mean over seeds): torso height after 2 s of "

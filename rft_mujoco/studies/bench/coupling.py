@@ -136,6 +136,53 @@ def env_rates(steps: int, rounds: int = 5) -> list[dict] | None:
     return rows
 
 
+def sand_phases(env_id: str = "rft_mujoco/SandAnt-v0", settle_steps: int = 100, calls: int = 5000) -> list[dict] | None:
+    """us per call of the two compiled phases of one evaluation (native route, called in a compiled loop at
+    one fixed state: the robot standing after ``settle_steps`` zero-action env steps), with the rest
+    treatment and with the naive coupling; None without gymnasium or without a native route."""
+    try:
+        import gymnasium as gym
+
+        from rft_mujoco import envs  # noqa: F401  (registers the sand ids)
+    except ImportError:
+        return None
+    from rft_mujoco.compiled.jit import njit
+    from rft_mujoco.coupling.dispatch import DISPATCHER
+
+    @njit
+    def loop(f1, f2, both, n, addr, t, dt):
+        s = 0
+        for _ in range(n):
+            s += f1(addr, t, dt)
+            if both:
+                s += f2(addr, t, dt)
+        return s
+
+    rows = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for name, kwargs in (("rest", {}), ("naive", dict(stabilize=False))):
+            env = gym.make(env_id, **kwargs)
+            env.reset(seed=0)
+            for _ in range(settle_steps):
+                env.step(np.zeros(env.action_space.shape))
+            model, data = env.unwrapped.model, env.unwrapped.data
+            book = DISPATCHER._books.get(data)
+            if book is None or book.native is None:
+                env.close()
+                return None
+            route = book.native[1]
+            mujoco.mj_forward(model, data)
+            args = (route.address, data.time, model.opt.timestep)
+            timed = {}
+            for both in (False, True):
+                loop(route.phase1, route.phase2, both, 10, *args)
+                timed[both] = median_time(lambda: loop(route.phase1, route.phase2, both, calls, *args)) / calls
+            rows.append(dict(setting=name, phase1_us=timed[False] * 1e6, phase2_us=(timed[True] - timed[False]) * 1e6))
+            env.close()
+    return rows
+
+
 def _ant_gait(mode: str, dt: float, seed: int, settle_s: float = 2.0, gait_s: float = 4.0):
     """SandAnt-v0 with step ``dt`` (env dt kept at 0.05 s) and ``rk4_stages=mode``: settle 2 s with zero
     action, then 4 s of a fixed sinusoidal gait (amplitude 0.3, 1 Hz, diagonal legs in phase). Returns
