@@ -148,7 +148,7 @@ def _video(out: Path, seconds: float, fps: int = 30) -> Path | None:
         import imageio.v2 as imageio
 
         demo = Demo()
-        renderer = mujoco.Renderer(demo.model, 360, 640)
+        renderer = mujoco.Renderer(demo.model, 368, 640)   # height and width multiples of 16 (H.264 blocks)
     except Exception as exc:  # no GL context, no imageio: say so and go on
         print(f"video skipped: offscreen rendering unavailable ({type(exc).__name__}: {exc}); "
               "set MUJOCO_GL=egl, or MUJOCO_GL=osmesa with Debian's libosmesa6")
