@@ -343,7 +343,6 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
         if not math.isfinite(qacc[i]):
             return BAD_ACCELERATION
     # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T (_mobility)
-    n6 = 6 * ng
     _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
               body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[50], zt,
               twist, free, mob)

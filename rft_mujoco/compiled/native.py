@@ -40,7 +40,6 @@ import threading
 import mujoco
 import numpy as np
 
-from rft_mujoco import tol
 from rft_mujoco.compiled import route as rt
 from rft_mujoco.compiled.jit import AVAILABLE, INLINE, JIT, carray, cfunc, njit, types
 

@@ -11,7 +11,6 @@ Nothing here calls MuJoCo. The evaluation that uses them is :mod:`rft_mujoco.com
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 

@@ -34,7 +34,6 @@ the design and its alternatives are measured in docs/rest.md).
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 import weakref
 from collections.abc import Sequence
@@ -46,7 +45,7 @@ from rft_mujoco import compiled, tol
 from rft_mujoco.coupling import checks, reference, setup
 from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.monitor import ValidityMonitor
-from rft_mujoco.geometry import occlusion, surface
+from rft_mujoco.geometry import surface
 from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
 from rft_mujoco.physics.media import Media, f_hat, get_media
@@ -136,20 +135,6 @@ class _Workspace:
         s[0] = t
         s[3] = float(continuous)
         return continuous
-
-
-def _body_id(model, name) -> int:
-    if isinstance(name, (int, np.integer)):
-        if not 0 < int(name) < model.nbody:
-            raise ValueError(f"body id {name} out of range 1..{model.nbody - 1} (0 is the world)")
-        return int(name)
-    bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
-    if bid < 0:
-        names = [model.body(i).name for i in range(1, model.nbody)]
-        raise ValueError(f"no body named {name!r} in the model; bodies are {names}")
-    if bid == 0:
-        raise ValueError("the world body cannot be a sand intruder")
-    return bid
 
 
 class SandHandle:
@@ -507,19 +492,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     media = get_media(media)
     terrain = as_terrain(surface_height)
     size = surface.element_size(resolution)
-    if bodies is None:
-        ids = [b for b in range(1, model.nbody)
-               if any(model.geom_bodyid[g] == b and model.geom_type[g] not in
-                      (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
-                      for g in range(model.ngeom))]
-    else:
-        if isinstance(bodies, (str, int)):
-            bodies = [bodies]
-        ids = [_body_id(model, b) for b in bodies]
-        if len(set(ids)) != len(ids):
-            raise ValueError(f"bodies lists a body twice: {list(bodies)}")
-    if not ids:
-        raise ValueError("no bodies to attach sand to: the model has no body with surface geoms")
+    ids = setup.body_ids(model, bodies)
     gravity_direction(model.opt.gravity)  # raises on zero gravity
     checks.check_not_attached(model, ids, DISPATCHER.handles, terrain=terrain)
     checks.check_timestep(model)

@@ -23,6 +23,42 @@ MAX_ELEMENTS_PER_BODY = 1_000_000
 """Most surface elements one body may be cut into (memory and time guard against absurd resolutions)."""
 
 
+def body_id(model, name) -> int:
+    if isinstance(name, (int, np.integer)):
+        if not 0 < int(name) < model.nbody:
+            raise ValueError(f"body id {name} out of range 1..{model.nbody - 1} (0 is the world)")
+        return int(name)
+    bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+    if bid < 0:
+        names = [model.body(i).name for i in range(1, model.nbody)]
+        raise ValueError(f"no body named {name!r} in the model; bodies are {names}")
+    if bid == 0:
+        raise ValueError("the world body cannot be a sand intruder")
+    return bid
+
+
+_TERRAIN_GEOMS = (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
+
+
+def body_ids(model, bodies) -> list[int]:
+    """The bodies to attach: ``bodies`` (a name, an id, or a sequence of them) as MuJoCo ids, or, for None,
+    every body but the world that has a geom other than a plane or heightfield. Raises ValueError on an
+    unknown name, an id out of range, the world, a body listed twice, or nothing to attach."""
+    if bodies is None:
+        ids = [b for b in range(1, model.nbody)
+               if any(model.geom_bodyid[g] == b and model.geom_type[g] not in _TERRAIN_GEOMS
+                      for g in range(model.ngeom))]
+    else:
+        if isinstance(bodies, (str, int, np.integer)):
+            bodies = [bodies]
+        ids = [body_id(model, b) for b in bodies]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"bodies lists a body twice: {list(bodies)}")
+    if not ids:
+        raise ValueError("no bodies to attach sand to: the model has no body with surface geoms")
+    return ids
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Groups:
     """The attached bodies of one handle grouped by MuJoCo weld group (bodies welded together move as one).

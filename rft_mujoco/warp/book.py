@@ -10,6 +10,21 @@ from rft_mujoco.warp.common import F64, FLAT, gravity_of
 
 
 # --- the user's part of xfrc_applied (rft_mujoco.coupling.dispatch) --------------------------------
+@wp.func
+def _untouched_minus_added(x: wp.spatial_vector, wr: wp.spatial_vector, ad: wp.spatial_vector):
+    """``x - ad`` on the components the user left as written (dispatch.untouched_components): every
+    component when the whole row is as written, else those equal to a non-zero written value."""
+    row_same = int(1)
+    for c in range(6):
+        if x[c] != wr[c]:
+            row_same = 0
+    out = x
+    for c in range(6):
+        if x[c] == wr[c] and (row_same == 1 or wr[c] != 0.0):
+            out[c] = x[c] - ad[c]
+    return out
+
+
 @wp.kernel
 def user_part(body_id: wp.array(dtype=int), xfrc: wp.array2d(dtype=wp.spatial_vector),
               written: wp.array2d(dtype=wp.spatial_vector), added: wp.array2d(dtype=wp.spatial_vector),
@@ -35,14 +50,7 @@ def user_part(body_id: wp.array(dtype=int), xfrc: wp.array2d(dtype=wp.spatial_ve
     x = xfrc[w, body_id[b]]
     wr = written[w, b]
     ad = added[w, b]
-    row_same = int(1)
-    for c in range(6):
-        if x[c] != wr[c]:
-            row_same = 0
-    out = x
-    for c in range(6):
-        if x[c] == wr[c] and (row_same == 1 or wr[c] != 0.0):
-            out[c] = x[c] - ad[c]
+    out = _untouched_minus_added(x, wr, ad)
     user[w, b] = out
     touch[w, b] = 0
     wrench[w, b] = wp.spatial_vector()
@@ -73,14 +81,7 @@ def remove_sand(body_id: wp.array(dtype=int), xfrc: wp.array2d(dtype=wp.spatial_
     x = xfrc[w, body_id[b]]
     wr = written[w, b]
     ad = added[w, b]
-    row_same = int(1)
-    for c in range(6):
-        if x[c] != wr[c]:
-            row_same = 0
-    out = x
-    for c in range(6):
-        if x[c] == wr[c] and (row_same == 1 or wr[c] != 0.0):
-            out[c] = x[c] - ad[c]
+    out = _untouched_minus_added(x, wr, ad)
     xfrc[w, body_id[b]] = out
     added[w, b] = wp.spatial_vector()
     written[w, b] = out

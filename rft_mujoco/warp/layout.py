@@ -13,16 +13,13 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
-import mujoco
 import numpy as np
 
 from rft_mujoco.compiled.elements import Occluders, occluders
 from rft_mujoco.coupling import setup
-from rft_mujoco.coupling.handle import _body_id
 from rft_mujoco.coupling.setup import Groups
 from rft_mujoco.geometry import surface
 
-_TERRAIN_GEOMS = (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -63,26 +60,11 @@ class Layout:
         return int(self.areas.size)
 
 
-def default_bodies(model) -> list[int]:
-    """Every body but the world that has a non-terrain geom (``rft_mujoco.attach(bodies=None)``)."""
-    return [b for b in range(1, model.nbody)
-            if any(model.geom_bodyid[g] == b and model.geom_type[g] not in _TERRAIN_GEOMS for g in range(model.ngeom))]
-
-
 def build(model, bodies: Sequence[str | int] | None, resolution: str | float, cull: bool = True) -> Layout:
-    """The layout of ``bodies`` (names or ids; None: :func:`default_bodies`) at ``resolution``, culled as
+    """The layout of ``bodies`` (names or ids; None: :func:`rft_mujoco.coupling.setup.body_ids`) at ``resolution``, culled as
     ``rft_mujoco.attach(cull=cull)`` culls."""
     size = surface.element_size(resolution)
-    if bodies is None:
-        ids = default_bodies(model)
-    else:
-        if isinstance(bodies, (str, int, np.integer)):
-            bodies = [bodies]
-        ids = [_body_id(model, b) for b in bodies]
-        if len(set(ids)) != len(ids):
-            raise ValueError(f"bodies lists a body twice: {list(bodies)}")
-    if not ids:
-        raise ValueError("no bodies to attach sand to: the model has no body with surface geoms")
+    ids = setup.body_ids(model, bodies)
     names = [model.body(int(b)).name for b in ids]
     ids = np.asarray(ids, dtype=np.int64)
     cull = bool(cull)

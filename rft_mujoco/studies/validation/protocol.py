@@ -2,14 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
-import csv
 import dataclasses
-import json
 import math
 import sys
-import time
-import warnings
 from pathlib import Path
 
 import mujoco
