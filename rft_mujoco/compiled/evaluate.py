@@ -30,7 +30,7 @@ from rft_mujoco import tol
 from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, wrenches
 from rft_mujoco.compiled.elements import finish_naive, touching
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
-from rft_mujoco.compiled.rest import _chain_dof, jacobian, rest_wrenches, solve_m
+from rft_mujoco.compiled.rest import KEPT_GROUPS, KEPT_RANK, _chain_dof, jacobian, rest_wrenches, solve_m
 
 _TIME_SLACK = 1.0 + tol.TIME_RTOL
 """A step of dt (1 + TIME_RTOL) still follows the previous evaluation (frozen into the compiled code)."""
@@ -62,7 +62,7 @@ WORK_FIELDS = (
     ("u_lin", "f2"), ("u_ang", "f2"), ("arm", "f2"), ("applied", "f2"), ("size", "f1"), ("total", "f1"),
     ("force", "f2"), ("torque", "f2"), ("submerged", "i1"), ("max_depth", "f1"), ("scale", "f1"),
     ("rft_force", "f2"), ("resting", "b1"), ("occluded_area", "f1"), ("state", "f1"), ("lin", "f2"),
-    ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"))
+    ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"), ("keep_active", "i1"), ("keep_rest", "b1"))
 """(name, kind) of the arrays of ``ws``, in order."""
 
 PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
@@ -70,10 +70,15 @@ PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_p
 """Entries of ``hc.params``: highest sand (m), ``xi_n / |g|`` (N/m^3 per m/s^2), surface friction, the
 three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
 validity checks (0: no monitor), ``rk4_stages="first"`` (0/1)."""
-STATE = ("last_time", "clean", "touching", "lagged", "evaluations")
+STATE = ("last_time", "clean", "touching", "lagged", "evaluations", "rk4_stage", "kept_groups", "kept_rank",
+         "kept_evaluations")
 """Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
 the number of touching bodies found by the last broadphase, whether MuJoCo's previous constraint solve
-belongs to this motion, and evaluations so far."""
+belongs to this motion, evaluations so far; the RK4 stage of this evaluation (written by the caller
+before the broadphase: 1-4, 0 for other integrators), the number of groups whose mobility is kept for
+the later stages of this step (0: none), the kept rest factor's rank (-1: none, see
+:func:`rft_mujoco.compiled.rest.rest_wrenches`), and the evaluations that used a kept mobility."""
+assert STATE.index("kept_groups") == KEPT_GROUPS and STATE.index("kept_rank") == KEPT_RANK
 
 # Status codes (besides 0: no wrench, 1: a non-zero wrench).
 NOT_FINITE = -1
@@ -95,12 +100,13 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
         u=(g, 6), rft_g=(g, 6), w=(g, 6), cap=(g, 6), u_lin=(b, 3), u_ang=(b, 3), arm=(b, 3), applied=(b, 6),
         size=(b,), total=(g,), force=(b, 3), torque=(b, 3), submerged=(b,), max_depth=(b,), scale=(b,),
         rft_force=(b, 3), resting=(b,), occluded_area=(b,), state=(len(STATE),), lin=(3 * n6 + 5, max(n6, 1)),
-        perm=(2 * n6,), x=(n6,), index=(2, n_rows), chain=(g, nv + 1))
+        perm=(2 * n6,), x=(n6,), index=(2, n_rows), chain=(g, nv + 1), keep_active=(g,), keep_rest=(g,))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
     out["scale"][:] = 1.0
     out["state"][0] = -math.inf
     out["state"][1] = 1.0
+    out["state"][KEPT_RANK] = -1.0
     return out
 
 
@@ -142,6 +148,9 @@ def broadphase(md, hc, ws, time, dt):
     touch, body_pos, body_mat, body_com, v_com, omega = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]
     state = ws[45]
     state[4] += 1.0
+    if state[5] < 2.0:                    # not a later RK4 stage: nothing kept from an earlier evaluation
+        state[KEPT_GROUPS] = 0.0
+        state[KEPT_RANK] = -1.0
     step = time - state[0]
     state[3] = 1.0 if 0.0 <= step <= dt * _TIME_SLACK else 0.0         # coupling._Workspace.follow_time
     state[0] = time
@@ -193,7 +202,7 @@ def evaluate(md, hc, ws, user_xfrc, dt, sand_out):
 @njit(**INLINE)
 def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
               body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, chain, zt,
-              twist, free, mob):
+              twist, free, mob, blocks):
     """For the reference bodies of the active groups 0..ng-1: twists (now, and free: after ``dt`` at ``qacc``)
     and the mobility ``mob = J M^-1 J^T`` (6 ng, 6 ng), with the kinematic tree's sparsity.
 
@@ -202,7 +211,8 @@ def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, 
     the first half of ``solve_m``, which keeps every column of ``Z`` on its body's chain (columns
     ``6 r..6 r + 5`` of ``zt`` (nv, 6 ng); only their chain rows are written and read), scaled to
     ``W = D^-1/2 Z`` so that every entry is a sum of products of two W entries (exactly symmetric). A block
-    (r, s) sums over the dofs the two chains share: the part of both next to the root."""
+    (r, s) sums over the dofs the two chains share: the part of both next to the root. Without ``blocks``
+    only the twists are computed (``mob`` is kept)."""
     for r in range(ng):
         b = ids[group_ref[active[r]]]
         rt = body_rootid[b]
@@ -249,6 +259,8 @@ def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, 
         free[r, 3] = v3 + dt * a3
         free[r, 4] = v4 + dt * a4
         free[r, 5] = v5 + dt * a5
+        if not blocks:
+            continue
         for u in range(n):                           # Z = L^-T J^T, from the body towards the root
             j = chain[r, 1 + u]
             a0_ = rowadr[j]
@@ -262,6 +274,8 @@ def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, 
             d = math.sqrt(qld_diag_inv[j])
             for c in range(6):
                 zt[j, i0 + c] *= d
+    if not blocks:
+        return
     for r in range(ng):
         nr = chain[r, 0]
         i0 = 6 * r
@@ -342,10 +356,23 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     for i in range(nv):
         if not math.isfinite(qacc[i]):
             return BAD_ACCELERATION
-    # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T (_mobility)
+    # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T (_mobility): at a
+    #    later RK4 stage with the same touching groups, the first stage's mobility (reference.keep_mobility)
+    state = ws[45]
+    keep_active, keep_rest = ws[51], ws[52]
+    frozen = state[5] >= 2.0 and state[KEPT_GROUPS] == ng
+    for r in range(ng):
+        frozen = frozen and keep_active[r] == active[r]
+    if frozen:
+        state[8] += 1.0
+    else:
+        state[KEPT_GROUPS] = ng if state[5] >= 1.0 else 0.0
+        state[KEPT_RANK] = -1.0
+        for r in range(ng):
+            keep_active[r] = active[r]
     _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
               body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[50], zt,
-              twist, free, mob)
+              twist, free, mob, not frozen)
     # 4. blended twists (rest.blend), moved to each touching body's COM
     for r in range(ng):
         rad = group_radius[active[r]]
@@ -401,7 +428,7 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
     rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v, cap,
-                  w, rest, flow, idx, block, rhs, size, weight, ws[46], ws[47], ws[48])
+                  w, rest, flow, idx, block, rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state, frozen)
     # 7. each body's part (coupling._share)
     for j in range(k):
         size[j] = _norm6(wrench[j], rad_g[slot[j]])

@@ -150,8 +150,8 @@ def run(reg, m, d, passive):
     state = rt._book(t, t[1])[6]
     time = _f8(reg[entry + 3])
     dt = _f8(reg[entry + 4])
-    if _i4(reg[entry + 5]) == _RK4 and rt.all_first(t):
-        if _later_rk4_stage(state, time, dt):
+    if _i4(reg[entry + 5]) == _RK4:
+        if _later_rk4_stage(state, time, dt) and rt.all_first(t):
             return                                   # xfrc_applied holds the first stage's user + sand wrench
     else:
         state[2] = 0.0

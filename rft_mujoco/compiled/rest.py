@@ -95,15 +95,35 @@ def jacobian(b, px, py, pz, cdof, subtree_com, body_rootid, body_dofnum, body_do
         j = dof_parentid[j]
 
 
-pivoted_solve = njit(**JIT)(_rest.pivoted_solve)
-""":func:`rft_mujoco.physics.rest.pivoted_solve` compiled as it is (the oracle of :func:`min_norm_solve`)."""
+KEPT_GROUPS, KEPT_RANK = 6, 7
+"""Entries of the evaluation's ``state`` (:data:`rft_mujoco.compiled.evaluate.STATE`) that the rest solve
+reads and writes: the groups whose mobility is kept for this RK4 step (0: none), the kept factor's rank."""
+
+pivoted_factor = njit(**JIT)(_rest.pivoted_factor)
+pivoted_apply = njit(**JIT)(_rest.pivoted_apply)
+
+
+@njit(**JIT)
+def pivoted_solve(a, rhs, weight, dependent_tol, tiny):
+    """:func:`rft_mujoco.physics.rest.pivoted_solve` compiled as it is (the oracle of :func:`min_norm_solve`)."""
+    order, g, w = pivoted_factor(a, weight, dependent_tol, tiny)
+    return pivoted_apply(a, rhs, order, g, w)
 
 
 @njit(**JIT)
 def min_norm_solve(a, rhs, weight, m, dependent_tol, tiny, lin, perm, x):
     """:func:`rft_mujoco.physics.rest.pivoted_solve` of ``a[:m, :m]`` (a symmetric buffer, rows of any
     width >= m), ``rhs[:m]``, ``weight[:m]`` into ``x[:m]``, with the same arithmetic in the same order
-    (bit for bit), on work buffers: ``lin`` (>= 3 m + 5, >= m) float, ``perm`` (>= 2 m,) int.
+    (bit for bit), on work buffers: ``lin`` (>= 3 m + 5, >= m) float, ``perm`` (>= 2 m,) int:
+    :func:`min_norm_factor` then :func:`min_norm_apply`."""
+    k = min_norm_factor(a, weight, m, dependent_tol, tiny, lin, perm)
+    min_norm_apply(a, rhs, weight, m, k, lin, perm, x)
+
+
+@njit(**JIT)
+def min_norm_factor(a, weight, m, dependent_tol, tiny, lin, perm):
+    """:func:`rft_mujoco.physics.rest.pivoted_factor` of ``a[:m, :m]`` and ``weight[:m]`` into ``lin`` (the
+    factor ``g`` in rows 2 m..3 m) and ``perm`` (the kept rows first); returns their number k.
 
     The reference's inner loops are dot products (a serial chain of additions: latency-bound); here each
     is an update of a whole contiguous row by one product per step (the same additions per entry, in
@@ -113,13 +133,12 @@ def min_norm_solve(a, rhs, weight, m, dependent_tol, tiny, lin, perm, x):
     low = lin[0:m]                    # low[k, i]: column k of the pivoted factor, rows i in input order
     bt = lin[m:2 * m]                 # bt[j, r] = a[order[r], j]
     g = lin[2 * m:3 * m]
-    diag0, rem, y, acc = lin[3 * m], lin[3 * m + 1], lin[3 * m + 2], lin[3 * m + 3]
+    diag0, rem = lin[3 * m], lin[3 * m + 1]
     order, kept = perm[0:m], perm[m:2 * m]
     for i in range(m):
         diag0[i] = a[i, i]
         rem[i] = a[i, i]
         kept[i] = 0
-        x[i] = 0.0
     k = 0
     while k < m:
         p = -1
@@ -156,7 +175,7 @@ def min_norm_solve(a, rhs, weight, m, dependent_tol, tiny, lin, perm, x):
                 rem[i] -= col[i] * col[i]
         k += 1
     if k == 0:
-        return
+        return 0
     for j in range(m):
         for r in range(k):
             bt[j, r] = a[order[r], j]
@@ -193,6 +212,20 @@ def min_norm_solve(a, rhs, weight, m, dependent_tol, tiny, lin, perm, x):
             for j in range(c):
                 t -= g[r, j] * g[c, j]
             g[r, c] = t / d
+    return k
+
+
+@njit(**JIT)
+def min_norm_apply(a, rhs, weight, m, k, lin, perm, x):
+    """:func:`rft_mujoco.physics.rest.pivoted_apply`: ``x[:m]`` from :func:`min_norm_factor`'s ``k``, ``lin``
+    and ``perm`` (made with these ``a[:m, :m]`` and ``weight[:m]``) and ``rhs[:m]``."""
+    if k == 0:
+        for i in range(m):
+            x[i] = 0.0
+        return
+    g = lin[2 * m:3 * m]
+    y, acc = lin[3 * m + 2], lin[3 * m + 3]
+    order = perm[0:m]
     for r in range(k):
         t = rhs[order[r]]
         for c in range(r):
@@ -226,12 +259,15 @@ def _flow_factor(h, q):
 
 @njit(**JIT)
 def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weight_floor, capacity_tol, tiny, a, v,
-                  cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol):
+                  cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest, state, reuse):
     """:func:`rft_mujoco.physics.rest.rest_wrenches` for groups 0..ng-1 (rows of ``free``, ``rft``, ``displacement``:
     (>= ng, 6), ``mob`` (>= 6 ng, >= 6 ng)); the wrenches go to ``w`` (>= ng, 6), the rest flags to ``rest``.
     The other arguments are work buffers: ``a`` (6 ng, 6 ng), ``v``/``rhs`` (6 ng,), ``cap`` (ng, 6),
     ``flow`` (ng,) bool, ``idx`` (6 ng,) int, ``block`` (6 ng, 6 ng), and those of :func:`min_norm_solve`
-    (``lin``, ``perm``, ``sol`` (6 ng,))."""
+    (``lin``, ``perm``, ``sol`` (6 ng,)). The kept factor (``keep`` and ``reuse`` of the reference): its
+    resting groups in ``keep_rest`` (G,), its rank in ``state[KEPT_RANK]`` (-1: none), made only while
+    ``state[KEPT_GROUPS] > 0`` (the caller keeps the mobility of this step); ``lin``, ``perm`` and
+    ``v_w`` hold it until the next factor."""
     n6 = 6 * ng
     for gi in range(ng):                             # loops over (group, component): no i // 6, i % 6
         for ci in range(6):
@@ -293,17 +329,27 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
                 for i in range(m):
                     for j in range(m):
                         block[i, j] = a[idx[i], idx[j]]
-            top = 0.0
-            for i in range(m):                        # the groups' squared capacities (rest.rest_wrenches)
-                gi = idx[i] // 6
-                t = 0.0
-                for c in range(6):
-                    t += cap[gi, c] * cap[gi, c]
-                v_w[i] = t
-                top = max(top, t)
-            for i in range(m):
-                v_w[i] = max(v_w[i], weight_floor * top)
-            min_norm_solve(a if every else block, rhs, v_w, m, dependent_tol, tiny, lin, perm, sol)
+            same = reuse and state[KEPT_RANK] >= 0.0
+            for g in range(ng):
+                same = same and rest[g] == keep_rest[g]
+            if same:
+                k = int(state[KEPT_RANK])
+            else:
+                top = 0.0
+                for i in range(m):                    # the groups' squared capacities (rest.rest_wrenches)
+                    gi = idx[i] // 6
+                    t = 0.0
+                    for c in range(6):
+                        t += cap[gi, c] * cap[gi, c]
+                    v_w[i] = t
+                    top = max(top, t)
+                for i in range(m):
+                    v_w[i] = max(v_w[i], weight_floor * top)
+                k = min_norm_factor(a if every else block, v_w, m, dependent_tol, tiny, lin, perm)
+                state[KEPT_RANK] = k if state[KEPT_GROUPS] > 0.0 else -1.0
+                for g in range(ng):
+                    keep_rest[g] = rest[g]
+            min_norm_apply(a if every else block, rhs, v_w, m, k, lin, perm, sol)
             for i in range(m):
                 w[idx[i] // 6, idx[i] % 6] = -sol[i]
             over = False

@@ -38,7 +38,8 @@ the due monitor checks in Python."""
 BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"), ("user", "f2"),
                ("sand", "f2"), ("state", "f1"))
 """The dispatcher's per-MjData book (:class:`rft_mujoco.coupling.dispatch._DataBook`); ``state`` =
-(nonzero, sand_dirty, rk4 stage, rk4 stage time, TIME_RTOL, what the native callback left to Python)."""
+(nonzero, sand_dirty, rk4 stage (1-4; 0: another integrator), rk4 stage time, TIME_RTOL, what the native
+callback left to Python)."""
 _HEADER = 3
 """Table header: number of handles, base of the book, base of md; then one base per handle."""
 
@@ -153,7 +154,7 @@ def _ws(t, base):
         _f1(t, base + 140), _f1(t, base + 144), _f2(t, base + 148), _f2(t, base + 152), _i1(t, base + 156),
         _f1(t, base + 160), _f1(t, base + 164), _f2(t, base + 168), _b1(t, base + 172), _f1(t, base + 176),
         _f1(t, base + 180), _f2(t, base + 184), _i1(t, base + 188), _f1(t, base + 192), _i2(t, base + 196),
-        _i2(t, base + 200),
+        _i2(t, base + 200), _i1(t, base + 204), _b1(t, base + 208),
     )
 
 
@@ -193,6 +194,7 @@ def phase1(t, time, dt):
         base = t[_HEADER + h]
         hc = _hc(t, base)
         ws = _ws(t, base + _HC_SLOTS)
+        ws[45][5] = state[2]                         # the RK4 stage (0: another integrator)
         k = ev.broadphase(md, hc, ws, time, dt)
         if k < 0:
             return PYTHON

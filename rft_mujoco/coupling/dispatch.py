@@ -101,7 +101,7 @@ class _DataBook:
 
     @property
     def stage(self) -> int:
-        """For handles with rk4_stages="first": how many stages of the step have been seen (0: none pending)."""
+        """With integrator="RK4": the stage of the last evaluation (1-4; 0: another integrator)."""
         return int(self.state[2])
 
     @stage.setter
@@ -319,11 +319,12 @@ class Dispatcher:
             if pending == _ROUTE.MONITOR:
                 self._monitor(book.native[1], data)
                 return
-        if model.opt.integrator == _RK4 and all(h.rk4_stages == "first" for h in handles):
-            if self._later_rk4_stage(book, data.time, model.opt.timestep):
-                return                       # xfrc_applied still holds the first stage's user + sand wrench
-        else:
+        if model.opt.integrator != _RK4:
             book.stage = 0
+        elif not pending:                    # (a pending evaluation's stage is recorded already)
+            later = self._later_rk4_stage(book, data.time, model.opt.timestep)
+            if later and all(h.rk4_stages == "first" for h in handles):
+                return                       # xfrc_applied still holds the first stage's user + sand wrench
         native = book.native
         if native is not None and native[0] == self._generation:
             if not pending and self._native_call(model, data, native[1]):
@@ -391,7 +392,7 @@ class Dispatcher:
         book.sand_dirty = True
         any_sand = False
         for h in handles:
-            if h._evaluate(data, user, sand):
+            if h._evaluate(data, user, sand, book.stage):
                 any_sand = True
         if not any_sand and not book.nonzero:
             # Every body above the sand, as before: xfrc_applied already is the user's.

@@ -110,7 +110,7 @@ class _Workspace:
     :data:`rft_mujoco.compiled.evaluate.WORK_FIELDS` (the diagnostics are views of them), their tuple for the
     compiled calls, and the tuple of the MjData's arrays."""
 
-    __slots__ = ("arrays", "tuple", "md", "diag")
+    __slots__ = ("arrays", "tuple", "md", "diag", "keep")
 
     def __init__(self, handle, data) -> None:
         from rft_mujoco.compiled import evaluate
@@ -121,10 +121,12 @@ class _Workspace:
         self.md = evaluate.mjdata_arrays(data) if handle._fast is not None else None
         self.diag = Diagnostics(a["force"], a["torque"], a["submerged"], a["max_depth"], a["scale"],
                                 a["rft_force"], a["resting"], a["occluded_area"])
+        self.keep = reference.StepKeep()
 
     @property
     def state(self) -> np.ndarray:
-        """(last time s, clean, touching, lagged, evaluations): :data:`rft_mujoco.compiled.evaluate.STATE`."""
+        """(last time s, clean, touching, lagged, evaluations, RK4 stage, ...):
+        :data:`rft_mujoco.compiled.evaluate.STATE`."""
         return self.arrays["state"]
 
     def follow_time(self, t: float, dt: float) -> bool:
@@ -370,10 +372,12 @@ class SandHandle:
             work = self._work[data] = _Workspace(self, data)
         return work
 
-    def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray) -> bool:
+    def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, stage: int = 0) -> bool:
         """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero (the
-        dispatcher's Python path; its native route runs the compiled phases of every handle at once)."""
+        dispatcher's Python path; its native route runs the compiled phases of every handle at once).
+        ``stage``: the RK4 stage of this evaluation (1-4), 0 with another integrator."""
         work = self._workspace(data)
+        work.state[5] = stage
         dt = self._opt.timestep
         if not self._floor_checked:                      # after replace_rigid had its chance
             self._floor_checked = True
@@ -383,6 +387,8 @@ class SandHandle:
         self._evaluations += 1
         g_hat = self._gravity()
         lagged = work.follow_time(data.time, dt)
+        if stage < 2:
+            work.keep.clear()
         touch = reference.touching(self, data, g_hat, work)
         if touch.size == 0:
             if work.state[1] == 0.0:

@@ -124,13 +124,45 @@ def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_
     # The groups' RFT wrenches at their reference points, their mobility, the rest wrenches.
     rft_g = np.zeros((active.size, 6))
     np.add.at(rft_g, slot, np.hstack([wrench[:, :3], wrench[:, 3:] + np.cross(arm, wrench[:, :3])]))
-    flat = jac.reshape(-1, m.nv)
-    minv_jt = np.empty_like(flat)
-    mujoco.mj_solveM(m, data, minv_jt, flat)
-    applied_g, resting_g = rest.rest_wrenches(free, flat @ minv_jt.T, rft_g, u, radius, dt)
+    keep = work.keep
+    frozen = work.state[5] >= 2 and keep.groups is not None and np.array_equal(keep.groups, active)
+    if frozen:
+        work.state[8] += 1
+    else:
+        flat = jac.reshape(-1, m.nv)
+        minv_jt = np.empty_like(flat)
+        mujoco.mj_solveM(m, data, minv_jt, flat)
+        keep.factor.clear()
+        keep.groups, keep.mobility = (active, flat @ minv_jt.T) if work.state[5] >= 1 else (None, flat @ minv_jt.T)
+    applied_g, resting_g = rest.rest_wrenches(free, keep.mobility, rft_g, u, radius, dt,
+                                              keep.factor if keep.groups is not None else None, frozen)
     applied = share(applied_g, rft_g, resting_g, wrench, slot, arm, radius)
     return commit(handle, work.diag, touch, applied, wrench, count, max_depth, occluded, resting_g[slot],
                   sand_out)
+
+
+class StepKeep:
+    """What the rest treatment keeps from the first stage of an RK4 step for its later stages, per
+    (handle, MjData): the touching groups (None: nothing kept), their mobility ``J M^-1 J^T`` and the
+    rest solve's factor (:class:`rft_mujoco.physics.rest.StepFactor`).
+
+    Stages 2-4 of a step evaluate the sand at states within one step of the first; while the same groups
+    touch, they use its mobility and its rest factor (the weights of the load sharing included) with
+    their own free twists, RFT wrenches and capacities: the rest wrenches still stop the resting groups
+    at the end of the step as that mobility predicts it. The compiled path keeps the same in its
+    workspace (``keep_active``, ``keep_rest``, ``mob``, ``lin``, ``perm``; :data:`rft_mujoco.compiled.evaluate.STATE`)."""
+
+    __slots__ = ("groups", "mobility", "factor")
+
+    def __init__(self) -> None:
+        self.groups = None
+        self.mobility = None
+        self.factor = rest.StepFactor()
+
+    def clear(self) -> None:
+        self.groups = None
+        self.mobility = None
+        self.factor.clear()
 
 
 def free_twists(handle, data, user_xfrc, ref, dt, lagged):

@@ -100,8 +100,26 @@ def _flow_factor(h: float, q: float) -> float:
     return min(1.0, -h / q)
 
 
+class StepFactor:
+    """The factor of a rest solve kept for the later stages of one RK4 step (see :func:`rest_wrenches`).
+
+    ``rest``: (G,) the resting groups it was made for (None: none kept); ``factor``: what
+    :func:`pivoted_factor` returned, with the weights it was made with."""
+
+    __slots__ = ("rest", "factor")
+
+    def __init__(self) -> None:
+        self.rest = None
+        self.factor = None
+
+    def clear(self) -> None:
+        self.rest = None
+        self.factor = None
+
+
 def rest_wrenches(free_twist: np.ndarray, mobility: np.ndarray, rft: np.ndarray, direction: np.ndarray,
-                  radius: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+                  radius: np.ndarray, dt: float, keep: StepFactor | None = None,
+                  reuse: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Sand wrenches of G touching groups: rest where the sand can hold them, RFT flow elsewhere.
 
     Args:
@@ -113,6 +131,10 @@ def rest_wrenches(free_twist: np.ndarray, mobility: np.ndarray, rft: np.ndarray,
             matter).
         radius: (G,) m, each group's radius (> 0).
         dt: the time step in s (> 0).
+        keep: where the factor of each solve is kept (None: nowhere).
+        reuse: solve with ``keep``'s factor (and its weights) when it was made for the same resting groups
+            (the later stages of an RK4 step, whose ``mobility`` is the first stage's: the factor depends
+            on the mobility and the weights only; the free twists and capacities are this evaluation's).
     Returns:
         wrenches (G, 6) (N, N m), resting (G,) bool: the groups held at rest.
     """
@@ -140,9 +162,16 @@ def rest_wrenches(free_twist: np.ndarray, mobility: np.ndarray, rft: np.ndarray,
         idx = np.flatnonzero(np.repeat(rest, 6))
         if idx.size:
             rhs = target[idx] + a[idx] @ w.reshape(-1)
-            weight = np.repeat(np.einsum("ij,ij->i", cap, cap), 6)[idx]
-            weight = np.maximum(weight, WEIGHT_FLOOR * weight.max())
-            w.reshape(-1)[idx] = -pivoted_solve(a[np.ix_(idx, idx)], rhs, weight, DEPENDENT_TOL, tol.TINY)
+            block = a[np.ix_(idx, idx)]
+            if reuse and keep is not None and keep.rest is not None and np.array_equal(keep.rest, rest):
+                factor = keep.factor
+            else:
+                weight = np.repeat(np.einsum("ij,ij->i", cap, cap), 6)[idx]
+                weight = np.maximum(weight, WEIGHT_FLOOR * weight.max())
+                factor = pivoted_factor(block, weight, DEPENDENT_TOL, tol.TINY)
+                if keep is not None:
+                    keep.rest, keep.factor = rest.copy(), factor
+            w.reshape(-1)[idx] = -pivoted_apply(block, rhs, *factor)
             demand = -np.einsum("ij,ij->i", w, u)
             over = rest & (demand > np.maximum(capacity, 0.0) * (1.0 + CAPACITY_TOL))
             if over.any():
@@ -176,10 +205,18 @@ def pivoted_solve(a: np.ndarray, rhs: np.ndarray, weight: np.ndarray, dependent_
     it). Then ``x = D B^T (B D B^T)^-1 rhs[K]`` with ``B = a[K, :]``, ``D = diag(weight)``: among all
     wrenches that hold the kept rows, the smallest in that norm (with the groups' squared capacities as
     weights, two groups tied to one rigid body share its load in proportion to their capacities). Plain
-    loops: the compiled rest evaluation runs this very function (:mod:`rft_mujoco.compiled.rest`).
+    loops (:func:`pivoted_factor` then :func:`pivoted_apply`): the compiled rest evaluation runs the same
+    arithmetic (:mod:`rft_mujoco.compiled.rest`).
     """
-    m = rhs.shape[0]
-    x = np.zeros(m)
+    order, g, w = pivoted_factor(a, weight, dependent_tol, tiny)
+    return pivoted_apply(a, rhs, order, g, w)
+
+
+def pivoted_factor(a: np.ndarray, weight: np.ndarray, dependent_tol: float,
+                   tiny: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The part of :func:`pivoted_solve` that does not depend on ``rhs``: the kept rows ``order`` (k,) in
+    pivot order, the lower Cholesky factor ``g`` (k, k) of ``B D B^T``, and ``weight``."""
+    m = a.shape[0]
     diag0 = np.empty(m)
     rem = np.empty(m)
     for i in range(m):
@@ -213,7 +250,7 @@ def pivoted_solve(a: np.ndarray, rhs: np.ndarray, weight: np.ndarray, dependent_
                 rem[i] -= low[i, k] * low[i, k]
         k += 1
     if k == 0:
-        return x
+        return order[:0], np.zeros((0, 0)), weight
     g = np.empty((k, k))                            # B D B^T, B = a[order[:k], :]
     for r in range(k):
         for c in range(r + 1):
@@ -232,6 +269,17 @@ def pivoted_solve(a: np.ndarray, rhs: np.ndarray, weight: np.ndarray, dependent_
             for j in range(c):
                 t -= g[r, j] * g[c, j]
             g[r, c] = t / d
+    return order[:k], g, weight
+
+
+def pivoted_apply(a: np.ndarray, rhs: np.ndarray, order: np.ndarray, g: np.ndarray,
+                  weight: np.ndarray) -> np.ndarray:
+    """``x`` of :func:`pivoted_solve` from :func:`pivoted_factor`'s ``(order, g, weight)``."""
+    m = rhs.shape[0]
+    k = order.shape[0]
+    x = np.zeros(m)
+    if k == 0:
+        return x
     y = np.empty(k)
     for r in range(k):
         t = rhs[order[r]]
