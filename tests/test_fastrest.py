@@ -139,6 +139,30 @@ def test_compiled_rest_equals_the_numpy_reference(integrator, terrain_kind):
     assert loaded > 50 and resting > 5            # many loaded bodies, some of them held at rest
 
 
+def test_rk4_later_stages_agree_with_the_reference_and_keep_the_first_stage_mobility():
+    """mj_step with RK4: stages 2-4 of every step use the first stage's mobility and rest factor while the
+    same groups touch (3 of 4 evaluations here); the compiled path and the numpy reference keep the same
+    and step the same rollout."""
+    runs = {}
+    for backend in ("numpy", "numba"):
+        model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="RK4"))
+        data = mujoco.MjData(model)
+        data.qvel[:] = np.random.default_rng(0).normal(size=model.nv) * 0.3
+        with rft_mujoco.attach(model, MEDIA, BODIES, FlatSurface(0.0), 0.01, monitor=False,
+                               backend=backend) as handle:
+            path = []
+            for _ in range(300):
+                mujoco.mj_step(model, data)
+                path.append(np.concatenate([data.qpos, data.qvel]))
+            kept = handle._work[data].state[8]
+            runs[backend] = np.array(path), kept, handle.evaluations, int(handle.diagnostics(data).resting.sum())
+    (ref, kept_ref, n_ref, resting), (got, kept_got, n_got, _) = runs["numpy"], runs["numba"]
+    assert n_ref == n_got == 1200 and kept_ref == kept_got
+    assert 0.7 * n_got <= kept_got <= 0.75 * n_got                   # stages 2-4 of (nearly) every step
+    assert resting >= 5
+    np.testing.assert_allclose(got, ref, rtol=0.0, atol=1e-10)
+
+
 def test_weld_groups_and_their_shares():
     """Bodies welded together form one group: their wrenches add up to the group's, about its reference
     point, whatever the split (the split only changes the diagnostics)."""

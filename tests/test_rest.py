@@ -186,3 +186,63 @@ def test_a_barely_touching_group_beside_a_loaded_one_stays_finite():
     rft = np.vstack([rng.normal(size=6) * 1e-4, rng.normal(size=6) * 10.0])
     w, _ = rest.rest_wrenches(free, a, rft, free, np.array([0.03, 0.03]), 0.002)
     assert np.all(np.isfinite(w))
+
+
+# --- the factor kept for the later stages of an RK4 step --------------------------------------------------
+def test_pivoted_factor_then_apply_is_pivoted_solve_bit_for_bit():
+    rng = np.random.default_rng(7)
+    a = random_mobility(rng, 4, rank=14)
+    rhs, weight = a @ rng.normal(size=24), rng.uniform(0.5, 2.0, 24)
+    order, g, w = rest.pivoted_factor(a, weight, rest.DEPENDENT_TOL, 1e-300)
+    assert 0 < order.size <= 14
+    assert np.array_equal(rest.pivoted_apply(a, rhs, order, g, w),
+                          rest.pivoted_solve(a, rhs, weight, rest.DEPENDENT_TOL, 1e-300))
+
+
+def coupled_feet(rng, n_groups=3):
+    """Feet on one trunk: a rank-deficient mobility, free twists in its range, capacities far above the
+    load (every group rests)."""
+    j = rng.normal(size=(6 * n_groups, 6 + 2 * n_groups)) * 0.3
+    a = j @ j.T
+    free = (j @ rng.normal(size=j.shape[1])).reshape(n_groups, 6) * 0.01
+    rft = -free * 1e4
+    return a, free, rft
+
+
+def test_a_kept_factor_stops_the_resting_groups_with_new_free_twists():
+    """Stages 2-4: the kept factor (made with other capacities) and new free twists still give wrenches
+    that hold every kept rest row of the kept mobility; with the inputs it was made from, the very same
+    wrenches as without keeping."""
+    rng = np.random.default_rng(3)
+    a, free, rft = coupled_feet(rng)
+    dt, radius = 0.002, np.full(3, 0.05)
+    keep = rest.StepFactor()
+    w1, resting1 = rest.rest_wrenches(free, a, rft, free, radius, dt, keep)
+    assert resting1.all() and keep.rest is not None
+    w0, _ = rest.rest_wrenches(free, a, rft, free, radius, dt)
+    assert np.array_equal(w1, w0)
+    again, _ = rest.rest_wrenches(free, a, rft, free, radius, dt, keep, reuse=True)
+    assert np.array_equal(again, w0)
+    free2 = free * 1.3 + (a @ rng.normal(size=a.shape[0])).reshape(free.shape) * 1e-3   # in the range of a
+    rft2 = rft * rng.uniform(0.5, 2.0, size=(3, 1))                                      # other capacities
+    factor = keep.factor
+    w2, resting2 = rest.rest_wrenches(free2, a, rft2, free2, radius, dt, keep, reuse=True)
+    assert resting2.all() and keep.factor is factor                  # reused, not made again
+    end = free2.reshape(-1) + dt * a @ w2.reshape(-1)                # the groups' twists after the step
+    assert np.abs(end).max() < 2e-3 * np.abs(free2).max()            # held to the factor's row tolerance
+    fresh, _ = rest.rest_wrenches(free2, a, rft2, free2, radius, dt)
+    assert not np.array_equal(w2, fresh)                             # the weights are the kept ones
+
+
+def test_a_kept_factor_is_not_used_for_other_resting_groups():
+    rng = np.random.default_rng(4)
+    a, free, rft = coupled_feet(rng)
+    dt, radius = 0.002, np.full(3, 0.05)
+    keep = rest.StepFactor()
+    rest.rest_wrenches(free, a, rft, free, radius, dt, keep)
+    rft_one_off = rft.copy()
+    rft_one_off[1] = 0.0                                             # group 1 no longer loaded: other rows
+    w, resting = rest.rest_wrenches(free, a, rft_one_off, free, radius, dt, keep, reuse=True)
+    fresh, fresh_resting = rest.rest_wrenches(free, a, rft_one_off, free, radius, dt)
+    assert np.array_equal(resting, fresh_resting) and not resting[1]
+    assert np.array_equal(w, fresh)

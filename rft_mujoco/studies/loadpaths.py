@@ -231,9 +231,9 @@ class _Recorder:
         evaluate = handle._evaluate
         ids = handle.body_ids
 
-        def wrapped(data, user, sand_out):
+        def wrapped(data, user, sand_out, stage=0):
             before = sand_out[ids].copy()
-            loaded = evaluate(data, user, sand_out)
+            loaded = evaluate(data, user, sand_out, stage)
             q = np.zeros(model.nv)
             for b, w in zip(ids, sand_out[ids] - before):
                 if np.any(w != 0.0):

@@ -219,9 +219,9 @@ class _StageRecorder:
         self.q = []
         evaluate = handle._evaluate
 
-        def wrapped(data, user, sand_out):
+        def wrapped(data, user, sand_out, stage=0):
             before = sand_out[body].copy()
-            loaded = evaluate(data, user, sand_out)
+            loaded = evaluate(data, user, sand_out, stage)
             w = sand_out[body] - before
             q = np.zeros(model.nv)
             mujoco.mj_applyFT(model, data, w[:3].copy(), w[3:].copy(), data.xipos[body].copy(), body, q)
