@@ -481,8 +481,10 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             reference), or "auto" (default: numba when it imports and supports the terrain, else numpy).
             Both give the same forces to round-off.
         rk4_stages: with ``integrator="RK4"``, "all" (default) evaluates the sand at each of the four
-            stages of a step; "first" evaluates it at the first stage (the state at the start of the step)
-            and holds that wrench through stages 2-4, a quarter of the cost. It applies only while every
+            stages of a step (at stages 2-4 the rest treatment keeps the first stage's mobility and rest
+            factor while the same bodies touch: :class:`rft_mujoco.coupling.reference.StepKeep`); "first"
+            evaluates it at the first stage (the state at the start of the step) and holds that wrench
+            through stages 2-4, a quarter of the cost. It applies only while every
             handle of the model asks for it; other integrators evaluate once per step anyway.
         cull: True (default): only the surface that sand can reach feels it; elements inside another geom
             of the same body or weld group are dropped at attach, and elements inside a geom of another

@@ -31,6 +31,11 @@ change of one step). Neither regime adds kinetic energy in the step: the rest wr
 motion, the flow wrench never overshoots it, and a final check (:func:`passive_scale`) scales every
 wrench back should the combination do so.
 
+With RK4, stages 2-4 of a step (states within one step of the first) may reuse the first stage's
+mobility and the factor of its rest solve, weights included (:class:`StepFactor`, the ``keep`` and
+``reuse`` arguments of :func:`rest_wrenches`): the free twists, RFT wrenches and capacities are still
+each stage's own, and the rest wrenches still stop the resting groups as that mobility predicts.
+
 Units: SI. Twists are (linear m/s, angular rad/s), wrenches (force N, torque N m), both world frame, at
 each group's reference point; ``A`` maps a wrench to a twist change per second, per unit time step, in
 (m/s per N s, rad/s per N m s). Radii (m) make the two parts comparable: a twist counts

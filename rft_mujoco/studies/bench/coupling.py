@@ -139,7 +139,8 @@ def env_rates(steps: int, rounds: int = 5) -> list[dict] | None:
 def sand_phases(env_id: str = "rft_mujoco/SandAnt-v0", settle_steps: int = 100, calls: int = 5000) -> list[dict] | None:
     """us per call of the two compiled phases of one evaluation (native route, called in a compiled loop at
     one fixed state: the robot standing after ``settle_steps`` zero-action env steps), with the rest
-    treatment and with the naive coupling; None without gymnasium or without a native route."""
+    treatment at a first RK4 stage and at a later one (the first stage's mobility and rest factor kept),
+    and with the naive coupling; None without gymnasium or without a native route."""
     try:
         import gymnasium as gym
 
@@ -172,13 +173,17 @@ def sand_phases(env_id: str = "rft_mujoco/SandAnt-v0", settle_steps: int = 100, 
                 env.close()
                 return None
             route = book.native[1]
-            mujoco.mj_forward(model, data)
+            mujoco.mj_forward(model, data)                # a first stage: the mobility of this state is kept
             args = (route.address, data.time, model.opt.timestep)
-            timed = {}
-            for both in (False, True):
-                loop(route.phase1, route.phase2, both, 10, *args)
-                timed[both] = median_time(lambda: loop(route.phase1, route.phase2, both, calls, *args)) / calls
-            rows.append(dict(setting=name, phase1_us=timed[False] * 1e6, phase2_us=(timed[True] - timed[False]) * 1e6))
+            stages = ((name, 1.0), (f"{name}, RK4 stages 2-4", 2.0)) if name == "rest" else ((name, 1.0),)
+            for setting, stage in stages:
+                book.state[2] = stage                     # the stage the callback would record
+                timed = {}
+                for both in (False, True):
+                    loop(route.phase1, route.phase2, both, 10, *args)
+                    timed[both] = median_time(lambda: loop(route.phase1, route.phase2, both, calls, *args)) / calls
+                rows.append(dict(setting=setting, phase1_us=timed[False] * 1e6,
+                                 phase2_us=(timed[True] - timed[False]) * 1e6))
             env.close()
     return rows
 
