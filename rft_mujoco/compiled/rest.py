@@ -267,13 +267,16 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
     (``lin``, ``perm``, ``sol`` (6 ng,)). The kept factor (``keep`` and ``reuse`` of the reference): its
     resting groups in ``keep_rest`` (G,), its rank in ``state[KEPT_RANK]`` (-1: none), made only while
     ``state[KEPT_GROUPS] > 0`` (the caller keeps the mobility of this step); ``lin``, ``perm`` and
-    ``v_w`` hold it until the next factor."""
+    ``v_w`` hold it until the next factor, and with ``reuse`` ``a`` still holds the scaled mobility the
+    factor was made from (the same ``mob``, radii and dt), so it is not rebuilt."""
     n6 = 6 * ng
     for gi in range(ng):                             # loops over (group, component): no i // 6, i % 6
         for ci in range(6):
             i = 6 * gi + ci
             si = radius[gi] if ci >= 3 else 1.0
             v[i] = free[gi, ci] * si
+            if reuse:                                # ``a`` is still the first stage's (same mob, radii, dt)
+                continue
             for gj in range(ng):
                 rj = radius[gj]
                 for cj in range(6):
