@@ -3,7 +3,8 @@ trunk's heading-frame velocity, the health test, the reset, and the reward terms
 
 A task class lists this mixin before :class:`~rft_mujoco.envs.sand_task.SandTaskEnv` and sets
 ``_command_ranges`` (3, 2), ``_reset_noise_scale``, ``_min_height``, ``_min_upright``, ``_surface_z`` and
-``_home_ctrl``."""
+``_home_ctrl`` (and ``_action_scale``, ``_ctrl_low``, ``_ctrl_high``, ``_terminate_when_unhealthy``), and
+implements ``_get_rew(action)``; :meth:`CommandedQuadruped.step` is the step of both."""
 
 from __future__ import annotations
 
@@ -14,6 +15,23 @@ from gymnasium.spaces import Box
 
 class CommandedQuadruped:
     """Mixin of the commanded quadruped tasks (see the module docstring)."""
+
+    def step(self, action):
+        """Servo targets ``home + action_scale * action`` (action clipped to [-1, 1]), ``frame_skip`` physics
+        steps, then the task's reward (its ``_get_rew(action)`` -> (reward, named terms, heading-frame
+        velocity (2,) m/s, yaw rate rad/s))."""
+        action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        target = np.clip(self._home_ctrl + self._action_scale * action, self._ctrl_low, self._ctrl_high)
+        self.do_simulation(target, self.frame_skip)
+        reward, rewards, v_xy, yaw_rate = self._get_rew(action)
+        self._last_action = action
+        terminated = self._terminate_when_unhealthy and not self.is_healthy
+        info = {"x_position": self.data.qpos[0], "y_position": self.data.qpos[1], "x_velocity": v_xy[0],
+                "y_velocity": v_xy[1], "yaw_rate": yaw_rate, "command": self.command, **rewards,
+                **self.sand.info(self.data)}
+        if self.render_mode == "human":
+            self.render()
+        return self._get_obs(), reward, terminated, False, info
 
     def _set_action_space(self):
         self.action_space = Box(low=-1.0, high=1.0, shape=(self.model.nu,), dtype=np.float32)

@@ -196,11 +196,8 @@ class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
     def sinkage(self) -> float:
         return -float(np.sum(self.sand.handle.diagnostics(self.data).max_depth))
 
-    # --- gymnasium API ---------------------------------------------------------------------------
-    def step(self, action):
-        action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        target = np.clip(self._home_ctrl + self._action_scale * action, self._ctrl_low, self._ctrl_high)
-        self.do_simulation(target, self.frame_skip)
+    def _get_rew(self, action):
+        """(reward, named weighted terms, heading-frame velocity (2,) m/s, yaw rate rad/s) of this step."""
         v_xy, yaw_rate = self._heading_velocity()
         terms = {
             "tracking_lin_vel": self.tracking_lin_vel(v_xy),
@@ -214,15 +211,9 @@ class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
             "sinkage": self.sinkage(),
         }
         rewards = {f"reward_{k}": self._weights[k] * v for k, v in terms.items()}
-        reward = float(sum(rewards.values()))
-        self._last_action = action
-        terminated = self._terminate_when_unhealthy and not self.is_healthy
-        info = {"x_position": self.data.qpos[0], "y_position": self.data.qpos[1], "x_velocity": v_xy[0],
-                "y_velocity": v_xy[1], "yaw_rate": yaw_rate, "command": self.command, **rewards,
-                **self.sand.info(self.data)}
-        if self.render_mode == "human":
-            self.render()
-        return self._get_obs(), reward, terminated, False, info
+        return float(sum(rewards.values())), rewards, v_xy, yaw_rate
+
+    # --- gymnasium API ---------------------------------------------------------------------------
 
     def _get_obs(self):
         rot = self._trunk_rotation()

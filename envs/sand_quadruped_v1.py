@@ -304,21 +304,6 @@ class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
             reward = max(reward, 0.0)
         return reward, rewards, v_xy, yaw_rate
 
-    # --- gymnasium API ---------------------------------------------------------------------------
-    def step(self, action):
-        action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        target = np.clip(self._home_ctrl + self._action_scale * action, self._ctrl_low, self._ctrl_high)
-        self.do_simulation(target, self.frame_skip)
-        reward, rewards, v_xy, yaw_rate = self._get_rew(action)
-        self._last_action = action
-        terminated = self._terminate_when_unhealthy and not self.is_healthy
-        info = {"x_position": self.data.qpos[0], "y_position": self.data.qpos[1], "x_velocity": v_xy[0],
-                "y_velocity": v_xy[1], "yaw_rate": yaw_rate, "command": self.command, **rewards,
-                **self.sand.info(self.data)}
-        if self.render_mode == "human":
-            self.render()
-        return self._get_obs(), reward, terminated, False, info
-
     def _sand_obs(self) -> np.ndarray:
         """(16,) per leg: sand force summed over its bodies (world x, y, z, N) and its sinkage (m)."""
         if not self._include_sand_in_observation:
