@@ -30,8 +30,8 @@ class Elements:
     areas: np.ndarray
 
     def __post_init__(self) -> None:
-        c = _as_points(self.centroids, "centroids")
-        n = _as_points(self.normals, "normals")
+        c = as_points(self.centroids, "centroids")
+        n = as_points(self.normals, "normals")
         a = np.array(self.areas, dtype=float)
         if a.ndim != 1 or a.shape[0] != c.shape[0] or n.shape[0] != c.shape[0]:
             raise ValueError(f"centroids (N, 3), normals (N, 3) and areas (N,) must agree in N, got shapes "
@@ -97,7 +97,8 @@ class Elements:
 
 
 # --- argument checks -------------------------------------------------------------------------------
-def _as_points(x, name: str) -> np.ndarray:
+def as_points(x, name: str) -> np.ndarray:
+    """``x`` as a new finite (n, 3) float array; ValueError naming ``name`` otherwise."""
     arr = np.array(x, dtype=float)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must be an (n, 3) float array, got shape {arr.shape}")

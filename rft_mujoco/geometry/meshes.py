@@ -13,7 +13,7 @@ import numpy as np
 
 from rft_mujoco import tol
 
-from rft_mujoco.geometry.elements import Elements, _as_points, _check_length
+from rft_mujoco.geometry.elements import Elements, _check_length, as_points
 
 DEGENERATE_TOL = 1e-9
 """A mesh triangle with ``area <= DEGENERATE_TOL * (longest edge)^2`` is degenerate and dropped."""
@@ -70,7 +70,7 @@ def mesh(vertices, faces, size=None, *, name: str = "mesh") -> Elements:
 
 def _mesh(vertices, faces, size, label: str) -> Elements:
     """:func:`mesh`, with ``label`` naming the mesh in errors and warnings."""
-    v = _as_points(vertices, "vertices")
+    v = as_points(vertices, "vertices")
     f = np.asarray(faces)
     if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
         raise ValueError(f"faces of {label} must be a non-empty (m, 3) int array, got shape {f.shape}")

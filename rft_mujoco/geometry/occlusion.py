@@ -31,6 +31,8 @@ import math
 import mujoco
 import numpy as np
 
+from rft_mujoco.geometry.elements import as_points
+
 # --- tolerances: one place -------------------------------------------------------------------------
 OCCLUSION_TOL = 1e-6
 """Default margin (m): a point is inside a geom only if it is deeper than this below its surface.
@@ -56,16 +58,6 @@ TERRAIN_TYPES = (int(_GEOM.mjGEOM_PLANE), int(_GEOM.mjGEOM_HFIELD))
 _SIZE_ENTRIES = {int(_GEOM.mjGEOM_SPHERE): 1, int(_GEOM.mjGEOM_CAPSULE): 2, int(_GEOM.mjGEOM_CYLINDER): 2,
                  int(_GEOM.mjGEOM_BOX): 3, int(_GEOM.mjGEOM_ELLIPSOID): 3, int(_GEOM.mjGEOM_MESH): 0}
 _OCCLUDING = "sphere, capsule, cylinder, box, ellipsoid, mesh (and plane, hfield: never inside)"
-
-
-# --- argument checks -------------------------------------------------------------------------------
-def _as_points(x, name: str) -> np.ndarray:
-    arr = np.asarray(x, dtype=float)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name} must be an (n, 3) float array, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got non-finite values")
-    return arr
 
 
 def _type_name(t: int) -> str:
@@ -147,7 +139,7 @@ def inside_geom(points, geom_type, size, *, mesh_halfspaces=None, margin=OCCLUSI
     and no point on or outside the surface does; a point less than ``margin`` deep may pass only where
     the surface curves more tightly than ``margin`` (never at :data:`OCCLUSION_TOL` on real geoms).
     """
-    p = _as_points(points, "points")
+    p = as_points(points, "points")
     t = _check_type(geom_type)
     m = _check_margin(margin)
     if t in TERRAIN_TYPES:
@@ -197,7 +189,7 @@ def mesh_halfspaces(vertices) -> np.ndarray:
         (k, 4) float, rows ``[n, offset]``: unit outward normal ``n``, ``n . x <= offset`` inside;
         coplanar hull triangles give one row (within :data:`COPLANAR_TOL`).
     """
-    v = _as_points(vertices, "vertices")
+    v = as_points(vertices, "vertices")
     if v.shape[0] < 4:
         raise ValueError(f"vertices must hold at least 4 points spanning a volume, got {v.shape[0]}")
     try:
@@ -302,7 +294,7 @@ class Occluder:
         """(n,) bool: which ``points`` ((n, 3) float, m, in this occluder's frame) are deeper than
         ``margin`` inside it. A mesh is its convex hull unless ``exact_mesh`` is set, which tests a
         non-convex mesh itself (winding number, then no face within ``margin``)."""
-        p = _as_points(points, "points")
+        p = as_points(points, "points")
         local = (p - self.pos) @ self.mat          # rows: mat^T (x - pos)
         inside = inside_geom(local, self.geom_type, self.size, mesh_halfspaces=self.halfspaces,
                              margin=margin)
@@ -388,7 +380,7 @@ def occluded(points, occluders, *, owner=None, margin=OCCLUSION_TOL, exact_mesh=
     Returns:
         (n,) bool.
     """
-    p = _as_points(points, "points")
+    p = as_points(points, "points")
     if owner is None:
         own = np.full(p.shape[0], -1, dtype=np.int64)
     else:
