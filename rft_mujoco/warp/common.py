@@ -59,3 +59,22 @@ def sv64(x: wp.spatial_vector):
 @wp.func
 def sv32(x: wp.spatial_vectord):
     return wp.spatial_vector(float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), float(x[5]))
+
+
+@wp.func
+def cholesky(w: int, a: wp.array3d(dtype=F64), n: int):
+    """a[:n, :n, w] := its lower Cholesky factor, in place (lower triangle read and written); a pivot at
+    most TINY becomes sqrt(TINY) (the rest solve's rule; never reached by a mass matrix)."""
+    for c in range(n):
+        t = a[c, c, w]
+        for k in range(c):
+            t -= a[c, k, w] * a[c, k, w]
+        d = wp.sqrt(TINY)
+        if t > TINY:
+            d = wp.sqrt(t)
+        a[c, c, w] = d
+        for r in range(c + 1, n):
+            s = a[r, c, w]
+            for k in range(c):
+                s -= a[r, k, w] * a[c, k, w]
+            a[r, c, w] = s / d

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from rft_mujoco.warp.common import CAPACITY_TOL, DEPENDENT_TOL, F64, NOT_FINITE, TINY, WEIGHT_FLOOR, norm6, sv32, sv64
+from rft_mujoco.warp.common import (CAPACITY_TOL, DEPENDENT_TOL, F64, NOT_FINITE, TINY, WEIGHT_FLOOR, cholesky, norm6,
+                                    sv32, sv64)
 
 
 @wp.func
@@ -67,19 +68,7 @@ def _pivoted_solve(w: int, a: wp.array3d(dtype=F64), idx: wp.array2d(dtype=int),
                 ij = idx[j, w]
                 t += a[ir, ij, w] * weight[j, w] * a[ic, ij, w]
             gram[r, c, w] = t
-    for c in range(k):                              # Cholesky, in place (lower)
-        t = gram[c, c, w]
-        for j in range(c):
-            t -= gram[c, j, w] * gram[c, j, w]
-        d = wp.sqrt(TINY)
-        if t > TINY:
-            d = wp.sqrt(t)
-        gram[c, c, w] = d
-        for r in range(c + 1, k):
-            s = gram[r, c, w]
-            for j in range(c):
-                s -= gram[r, j, w] * gram[c, j, w]
-            gram[r, c, w] = s / d
+    cholesky(w, gram, k)
     for r in range(k):
         t = rhs[order[r, w], w]
         for c in range(r):

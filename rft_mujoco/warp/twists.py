@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from rft_mujoco.warp.common import BAD_ACCELERATION, F64, TIME_F32_RTOL, TIME_RTOL, v3d
+from rft_mujoco.warp.common import BAD_ACCELERATION, F64, TIME_F32_RTOL, TIME_RTOL, cholesky, v3d
 
 
 @wp.func
@@ -66,22 +66,6 @@ def _add_jt_f(w: int, b: int, p: wp.vec3d, f: wp.spatial_vector, cdof: wp.array2
         lin = wp.vec3d(F64(cd[3]), F64(cd[4]), F64(cd[5])) + wp.cross(ang, d)
         qfrc[0, j, w] = qfrc[0, j, w] + wp.dot(lin, force) + wp.dot(ang, torque)
         j = dof_parentid[j]
-
-
-@wp.func
-def _cholesky(w: int, mf: wp.array3d(dtype=F64), n: int):
-    """mf[:, :, w] := its lower Cholesky factor, in place (lower triangle read and written)."""
-    for c in range(n):
-        t = mf[c, c, w]
-        for k in range(c):
-            t -= mf[c, k, w] * mf[c, k, w]
-        d = wp.sqrt(t)
-        mf[c, c, w] = d
-        for r in range(c + 1, n):
-            s = mf[r, c, w]
-            for k in range(c):
-                s -= mf[r, k, w] * mf[c, k, w]
-            mf[r, c, w] = s / d
 
 
 @wp.func
@@ -183,7 +167,7 @@ def free_twist(
             mf[i, j, w] = F64(0.0)
         for adr in range(M_rowadr[i], M_rowadr[i] + M_rownnz[i]):
             mf[i, M_colind[adr], w] = F64(M[w, adr])
-    _cholesky(w, mf, nv)
+    cholesky(w, mf, nv)
     _cholesky_solve(w, mf, nv, qacc, 0)
     finite = int(1)
     for i in range(nv):
