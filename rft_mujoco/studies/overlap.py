@@ -163,6 +163,18 @@ def library(model, data, body_ids, dofs, speeds, *, cull: bool, surface_z: float
         handle.detach()
 
 
+def spin(model, data, body: int, dofs, speeds) -> np.ndarray:
+    """(3,) rad/s, world frame: the angular velocity of ``body`` at ``data``'s pose with ``speeds`` on
+    ``dofs`` (the motion of a case, whose bodies turn rigidly together)."""
+    d = mujoco.MjData(model)
+    d.qpos[:] = data.qpos
+    d.qvel[list(dofs)] = speeds
+    mujoco.mj_forward(model, d)
+    vel = np.zeros(6)
+    mujoco.mj_objectVelocity(model, d, mujoco.mjtObj.mjOBJ_BODY, body, vel, 0)
+    return vel[3:]
+
+
 def run_case(case: Case, size: float = REFERENCE_SIZE) -> list[dict]:
     """One row per motion of ``case``: library forces with and without culling against the reference."""
     model = _model(case)
@@ -173,13 +185,7 @@ def run_case(case: Case, size: float = REFERENCE_SIZE) -> list[dict]:
     z = top + DEPTH
     rows = []
     for motion, (dofs, speeds) in case.motions.items():
-        d = mujoco.MjData(model)
-        d.qpos[:] = data.qpos
-        d.qvel[list(dofs)] = speeds
-        mujoco.mj_forward(model, d)
-        vel = np.zeros(6)
-        mujoco.mj_objectVelocity(model, d, mujoco.mjtObj.mjOBJ_BODY, ids[0], vel, 0)
-        f_ref, exposed_ref, whole = reference(model, data, ids, vel[3:], size, z)
+        f_ref, exposed_ref, whole = reference(model, data, ids, spin(model, data, ids[0], dofs, speeds), size, z)
         f_cull, exposed = library(model, data, ids, dofs, speeds, cull=True, surface_z=z)
         f_all, _ = library(model, data, ids, dofs, speeds, cull=False, surface_z=z)
         scale = float(np.linalg.norm(f_ref))
