@@ -195,3 +195,50 @@ def test_min_norm_solve_equals_the_reference_bit_for_bit(m, rank, width):
         fastrest.min_norm_solve(a, rhs, weight, m, rest.DEPENDENT_TOL, 1e-300, lin, perm, x)
         assert np.array_equal(x[:m], ref)
         assert np.abs(ref).max() > 0.0
+
+
+FRICTION_SCENE = (SCENE.replace('range="-1 1"/>', 'range="-1 1" frictionloss="0.4"/>')
+                  .replace('range="-0.02 0.02"/>', 'range="-0.02 0.02" frictionloss="1.5"/>')
+                  .replace('<joint type="hinge" axis="0 1 0"/>', '<joint type="hinge" axis="0 1 0" frictionloss="0.2"/>'))
+
+
+def test_mujoco_friction_rows_in_their_unsaturated_zone_give_the_estimated_force():
+    """What the lock test relies on: a frictionloss row's force is -D (qacc - aref) while it is inside its
+    bounds (MuJoCo's efc_D, efc_aref, qacc of the same step), and its type code is the compiled one's."""
+    assert int(mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF) == fastrest.FRICTION_DOF
+    model = mujoco.MjModel.from_xml_string(FRICTION_SCENE.format(integrator="Euler"))
+    data = mujoco.MjData(model)
+    inside = 0
+    for _ in range(200):
+        mujoco.mj_step(model, data)
+        rows = np.flatnonzero(data.efc_type == fastrest.FRICTION_DOF)
+        assert rows.size == 3
+        est = rest.friction_estimate(data.efc_D[rows], data.efc_aref[rows], data.qacc[data.efc_id[rows]])
+        free = np.abs(data.efc_force[rows]) < data.efc_frictionloss[rows] * (1 - 1e-6)
+        np.testing.assert_allclose(est[free], data.efc_force[rows][free], rtol=1e-9, atol=1e-12)
+        inside += int(free.sum())
+    assert inside > 100
+
+
+@pytest.mark.parametrize("integrator,steps", [("Euler", 250), ("RK4", 100)])
+def test_dofs_held_by_dry_friction_are_locked_alike_by_both_paths(integrator, steps):
+    """Rollouts with frictionloss on every joint: the compiled path locks the same dofs in the same
+    evaluations as the numpy reference and steps the same motion (round-off grows to 1e-10 by step 100
+    of RK4, and to 1e-7 at a transient near step 110, with the same locks: the test stops before it)."""
+    runs = {}
+    for backend in ("numpy", "numba"):
+        model = mujoco.MjModel.from_xml_string(FRICTION_SCENE.format(integrator=integrator))
+        data = mujoco.MjData(model)
+        data.qvel[:] = np.random.default_rng(1).normal(size=model.nv) * 0.3
+        with rft_mujoco.attach(model, MEDIA, BODIES, FlatSurface(0.0), 0.01, monitor=False,
+                               backend=backend) as handle:
+            path = []
+            for _ in range(steps):
+                mujoco.mj_step(model, data)
+                path.append(np.concatenate([data.qpos, data.qvel]))
+            st = handle._work[data].state
+            runs[backend] = np.array(path), st[10], st[8]
+    (ref, locked_ref, kept_ref), (got, locked_got, kept_got) = runs["numpy"], runs["numba"]
+    assert locked_ref == locked_got and locked_got >= 50
+    assert kept_ref == kept_got
+    np.testing.assert_allclose(got, ref, rtol=0.0, atol=1e-8)

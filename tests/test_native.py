@@ -23,7 +23,7 @@ pytestmark = [pytest.mark.skipif(not compiled.AVAILABLE, reason="numba not impor
               pytest.mark.filterwarnings("ignore::rft_mujoco.RFTValidityWarning")]
 if compiled.AVAILABLE:
     compiled.ensure_compiled()
-    from rft_mujoco.compiled import native
+    from rft_mujoco.compiled import native, route
     SUPPORTED = native.support()[0]
 else:
     SUPPORTED = False
@@ -45,6 +45,9 @@ SCENE = """
   <actuator><position joint="hinge" kp="5"/></actuator>
 </mujoco>
 """
+FRICTION_SCENE = SCENE.replace('axis="0 1 0"/>', 'axis="0 1 0" frictionloss="0.02"/>').replace(
+    'axis="1 0 0"/>', 'axis="1 0 0" frictionloss="0.01"/>')
+"""Dry friction on both hinges: the route reads MuJoCo's constraint rows through mjData's pointers."""
 SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
@@ -62,12 +65,13 @@ def state(model, data):
 
 
 def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=True, disable_at=None, datas=1,
-            models=1):
-    """Final states and xfrc_applied of ``models`` models x ``datas`` datas stepped interleaved."""
+            models=1, friction=False):
+    """Final states, xfrc_applied, evaluations and evaluations with dofs locked by their dry friction of
+    ``models`` models x ``datas`` datas stepped interleaved."""
     DISPATCHER.native = native
     runs = []
     for k in range(models):
-        model = mujoco.MjModel.from_xml_string(SCENE.format(integrator=integrator))
+        model = mujoco.MjModel.from_xml_string((FRICTION_SCENE if friction else SCENE).format(integrator=integrator))
         handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=monitor, rk4_stages=rk4_stages)
         ds = []
         for j in range(datas):
@@ -83,8 +87,10 @@ def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=Tru
             for data in ds:
                 data.ctrl[:] = np.sin(0.05 * i)
                 mujoco.mj_step(model, data)
-    out = [(state(m, d), d.xfrc_applied.copy(), h.evaluations) for m, h, ds in runs for d in ds]
-    assert any(np.abs(x).max() > 0.1 for _, x, _ in out)                  # the sand acted
+    out = [(state(m, d), d.xfrc_applied.copy(), h.evaluations, h._work[d].state[10]) for m, h, ds in runs
+           for d in ds]
+    assert any(np.abs(x).max() > 0.1 for _, x, _, _ in out)               # the sand acted
+    assert all((locked > 0) == friction for *_, locked in out)
     for _, h, _ in runs:
         h.detach()
     return out
@@ -93,12 +99,13 @@ def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=Tru
 @needs_native
 @pytest.mark.parametrize("kwargs", [
     dict(), dict(integrator="RK4"), dict(integrator="RK4", rk4_stages="first"), dict(integrator="implicitfast"),
-    dict(monitor=False, disable_at=60), dict(datas=2, models=2)])
+    dict(monitor=False, disable_at=60), dict(datas=2, models=2), dict(friction=True),
+    dict(friction=True, integrator="RK4")])
 def test_native_equals_python_bit_for_bit(kwargs):
     python = rollout(False, **kwargs)
     native_ = rollout(True, **kwargs)
-    for (s0, x0, e0), (s1, x1, e1) in zip(python, native_):
-        assert np.array_equal(s0, s1) and np.array_equal(x0, x1) and e0 == e1
+    for (s0, x0, e0, l0), (s1, x1, e1, l1) in zip(python, native_):
+        assert np.array_equal(s0, s1) and np.array_equal(x0, x1) and e0 == e1 and l0 == l1
 
 
 @needs_native
@@ -233,3 +240,23 @@ def test_support_found_the_bindings_library_and_the_struct_offsets():
     assert ctypes.c_double.from_address(model._address + off["timestep"]).value == model.opt.timestep
     assert ctypes.c_int32.from_address(model._address + off["integrator"]).value == model.opt.integrator
     assert ctypes.c_double.from_address(data._address + off["time"]).value == 0.75
+    model = mujoco.MjModel.from_xml_string(FRICTION_SCENE.format(integrator="Euler"))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    layout = route.efc_layout()
+    assert data.nefc >= 2 and ctypes.c_int32.from_address(data._address + layout["nefc"]).value == data.nefc
+    for name in route.EFC_POINTERS:
+        assert ctypes.c_int64.from_address(data._address + layout[name]).value == getattr(data, name).ctypes.data
+
+
+@needs_native
+def test_where_the_constraint_rows_cannot_be_located_the_python_path_gives_the_same_motion(monkeypatch, capsys):
+    """No route without mjData's constraint layout: the compiled Python path (which reads the rows through
+    the bindings) runs every evaluation, says why once, and steps the very same motion."""
+    expected = rollout(True, friction=True)
+    monkeypatch.setattr(route, "_layout", "test: constraint rows not located")
+    monkeypatch.setattr(dispatch, "_noticed", [])
+    got = rollout(True, friction=True)
+    for (s0, x0, e0, l0), (s1, x1, e1, l1) in zip(expected, got):
+        assert np.array_equal(s0, s1) and np.array_equal(x0, x1) and e0 == e1 and l0 == l1
+    assert capsys.readouterr().err.count("test: constraint rows not located") == 1

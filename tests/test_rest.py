@@ -246,3 +246,71 @@ def test_a_kept_factor_is_not_used_for_other_resting_groups():
     fresh, fresh_resting = rest.rest_wrenches(free, a, rft_one_off, free, radius, dt)
     assert np.array_equal(resting, fresh_resting) and not resting[1]
     assert np.array_equal(w, fresh)
+
+
+# --- locked_rest: dofs held by their dry friction --------------------------------------------------------
+def locked_system(seed, nv=7, groups=2, locks=(1, 4)):
+    """A random mass matrix, Jacobians, forces and the lock matrices C, S, y of ``locks``."""
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(nv, nv))
+    mass = q @ q.T + nv * np.eye(nv)
+    jac = rng.normal(size=(6 * groups, nv))
+    qvel, qfrc = rng.normal(size=nv), rng.normal(size=nv) * 5
+    minv = np.linalg.inv(mass)
+    e = np.eye(nv)[list(locks)]
+    return dict(minv=minv, jac=jac, qvel=qvel, qfrc=qfrc, e=e, coupling=jac @ minv @ e.T, gram=e @ minv @ e.T,
+                acc=e @ minv @ qfrc, free=(jac @ (qvel + 0.01 * minv @ qfrc)).reshape(groups, 6),
+                mobility=jac @ minv @ jac.T)
+
+
+def test_locked_rest_solves_with_the_projected_motion_and_returns_what_it_solved():
+    """The rest solve gets the twists and mobility of the motion with the locked dofs held:
+    ``P = M^-1 - M^-1 E^T S^-1 E M^-1`` (computed here directly); a lock within capacity holds."""
+    s = locked_system(0)
+    p = s["minv"] - s["minv"] @ s["e"].T @ np.linalg.inv(s["gram"]) @ s["e"] @ s["minv"]
+    seen = []
+    w_out = np.full((2, 6), 0.1)
+
+    def solve(free, mob):
+        seen.append((free, mob))
+        return w_out, np.array([True, False])
+    w, resting, locked = rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"], s["acc"],
+                                          np.zeros(2), np.full(2, 1e6), 0.01, solve)
+    assert len(seen) == 1 and locked.all() and w is w_out and resting[0] and not resting[1]
+    free, mob = seen[0]
+    np.testing.assert_allclose(free.reshape(-1), s["jac"] @ (s["qvel"] + 0.01 * p @ s["qfrc"]), rtol=1e-12,
+                               atol=1e-12)
+    np.testing.assert_allclose(mob, s["jac"] @ p @ s["jac"].T, rtol=1e-12, atol=1e-12)
+
+
+def test_a_lock_the_friction_cannot_hold_is_released_and_the_solve_repeated():
+    """lam = -S^-1 (y + C^T W) is the extra friction force the lock needs; over capacity, the dof is
+    released (the second solve sees the unlocked motion of that dof)."""
+    s = locked_system(1, locks=(2,))
+    w_out = np.ones((2, 6))
+    lam = -np.linalg.solve(s["gram"], s["acc"] + s["coupling"].T @ w_out.reshape(-1))
+    calls = []
+
+    def solve(free, mob):
+        calls.append(mob)
+        return w_out, np.ones(2, dtype=bool)
+    for force, cap, n_calls, held in ((0.0, abs(lam[0]) * 1.01, 1, True), (0.0, abs(lam[0]) * 0.99, 2, False),
+                                      (-lam[0], 1e-9, 1, True)):       # the lagged force already does it
+        calls.clear()
+        _, _, locked = rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"], s["acc"],
+                                        np.array([force]), np.array([cap]), 0.01, solve)
+        assert len(calls) == n_calls and bool(locked[0]) == held
+    np.testing.assert_allclose(calls[0], s["mobility"] - s["coupling"] @ np.linalg.solve(s["gram"], s["coupling"].T),
+                               rtol=1e-10, atol=1e-12)
+
+
+def test_locked_rest_checks_shapes():
+    s = locked_system(2)
+    with pytest.raises(ValueError, match="coupling"):
+        rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"][:1], s["acc"], np.zeros(2),
+                         np.ones(2), 0.01, lambda f, m: None)
+
+
+def test_friction_estimate_is_the_unsaturated_row_force():
+    d, aref, acc = np.array([2.0, 0.5]), np.array([1.0, -4.0]), np.array([0.25, -2.0])
+    np.testing.assert_allclose(rest.friction_estimate(d, aref, acc), [1.5, -1.0])

@@ -30,7 +30,8 @@ from rft_mujoco import tol
 from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, wrenches
 from rft_mujoco.compiled.elements import finish_naive, touching
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
-from rft_mujoco.compiled.rest import KEPT_GROUPS, KEPT_RANK, _chain_dof, jacobian, rest_wrenches, solve_m
+from rft_mujoco.compiled.rest import (KEPT_GROUPS, KEPT_RANK, _chain_dof, jacobian, lock_matrices, locked_rest,
+                                      rest_wrenches, solve_m, stuck_dofs)
 
 _TIME_SLACK = 1.0 + tol.TIME_RTOL
 """A step of dt (1 + TIME_RTOL) still follows the previous evaluation (frozen into the compiled code)."""
@@ -62,8 +63,16 @@ WORK_FIELDS = (
     ("u_lin", "f2"), ("u_ang", "f2"), ("arm", "f2"), ("applied", "f2"), ("size", "f1"), ("total", "f1"),
     ("force", "f2"), ("torque", "f2"), ("submerged", "i1"), ("max_depth", "f1"), ("scale", "f1"),
     ("rft_force", "f2"), ("resting", "b1"), ("occluded_area", "f1"), ("state", "f1"), ("lin", "f2"),
-    ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"), ("keep_active", "i1"), ("keep_rest", "b1"))
+    ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"), ("keep_active", "i1"), ("keep_rest", "b1"),
+    ("lock_i", "i2"), ("lock_f", "f2"), ("lock_z", "f2"), ("lock_chain", "i2"), ("lock_s", "f2"), ("lock_c", "f2"),
+    ("lock_r", "f2"), ("lock_x", "f2"), ("lock_mob", "f2"), ("lock_free", "f2"))
 """(name, kind) of the arrays of ``ws``, in order."""
+
+FRICTION_FIELDS = (("efc_type", "i4"), ("efc_id", "i4"), ("efc_D", "f8"), ("efc_aref", "f8"),
+                   ("efc_frictionloss", "f8"), ("qacc", "f8"))
+"""(name, dtype) of the ``fr`` tuple: MjData's constraint rows of this step (they move with ``nefc``, so
+the Python path reads them at every call and the native route from ``mjData``'s pointers) and its
+``qacc`` (the last solve's accelerations)."""
 
 PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
           "passive", "margin", "monitor_every", "rk4_first")
@@ -71,13 +80,15 @@ PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_p
 three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
 validity checks (0: no monitor), ``rk4_stages="first"`` (0/1)."""
 STATE = ("last_time", "clean", "touching", "lagged", "evaluations", "rk4_stage", "kept_groups", "kept_rank",
-         "kept_evaluations")
+         "kept_evaluations", "locked_dofs", "locked_evaluations")
 """Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
 the number of touching bodies found by the last broadphase, whether MuJoCo's previous constraint solve
 belongs to this motion, evaluations so far; the RK4 stage of this evaluation (written by the caller
 before the broadphase: 1-4, 0 for other integrators), the number of groups whose mobility is kept for
 the later stages of this step (0: none), the kept rest factor's rank (-1: none, see
-:func:`rft_mujoco.compiled.rest.rest_wrenches`), and the evaluations that used a kept mobility."""
+:func:`rft_mujoco.compiled.rest.rest_wrenches`), the evaluations that used a kept mobility; the dofs
+held by their dry friction in this evaluation's rest solve (:func:`rft_mujoco.physics.rest.locked_rest`)
+and the evaluations that held any."""
 assert STATE.index("kept_groups") == KEPT_GROUPS and STATE.index("kept_rank") == KEPT_RANK
 
 # Status codes (besides 0: no wrench, 1: a non-zero wrench).
@@ -91,7 +102,7 @@ NOT_FINITE_STATE = -3
 
 def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
     """Zeroed arrays of :data:`WORK_FIELDS` for B bodies, G groups, nv dofs; ``n_rows``: scratch columns."""
-    b, g, n6 = n_bodies, n_groups, 6 * n_groups
+    b, g, n6, nv1 = n_bodies, n_groups, 6 * n_groups, max(nv, 1)
     shapes = dict(
         touch=(b,), body_pos=(b, 3), body_mat=(b, 9), body_com=(b, 3), v_com=(b, 3), omega=(b, 3),
         scratch=(SCRATCH_ROWS, n_rows), wrench=(b, 6), count=(b,), depth=(b,), occluded=(b,), active=(g,),
@@ -100,7 +111,9 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
         u=(g, 6), rft_g=(g, 6), w=(g, 6), cap=(g, 6), u_lin=(b, 3), u_ang=(b, 3), arm=(b, 3), applied=(b, 6),
         size=(b,), total=(g,), force=(b, 3), torque=(b, 3), submerged=(b,), max_depth=(b,), scale=(b,),
         rft_force=(b, 3), resting=(b,), occluded_area=(b,), state=(len(STATE),), lin=(3 * n6 + 5, max(n6, 1)),
-        perm=(2 * n6,), x=(n6,), index=(2, n_rows), chain=(g, nv + 1), keep_active=(g,), keep_rest=(g,))
+        perm=(2 * n6,), x=(n6,), index=(2, n_rows), chain=(g, nv + 1), keep_active=(g,), keep_rest=(g,),
+        lock_i=(3, nv1), lock_f=(4, nv1), lock_z=(nv1, nv1), lock_chain=(nv1, nv1 + 1), lock_s=(nv1, nv1),
+        lock_c=(nv1, max(n6, 1)), lock_r=(nv1, nv1), lock_x=(nv1, max(n6, 1)), lock_mob=(n6, n6), lock_free=(g, 6))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
     out["scale"][:] = 1.0
@@ -172,11 +185,13 @@ def broadphase(md, hc, ws, time, dt):
 
 
 @njit(**INLINE)
-def evaluate(md, hc, ws, user_xfrc, dt, sand_out):
+def evaluate(md, hc, ws, user_xfrc, dt, sand_out, fr):
     """Phase 2 (after ``mj_fwdActuation``), for the ``state[2] > 0`` touching bodies of :func:`broadphase`:
     the sand wrenches, the diagnostics, and the wrenches added to ``sand_out`` (nbody, 6) at their bodies'
-    rows. ``user_xfrc`` (nbody, 6): the user's own xfrc_applied (enters the free motion). Returns 1 (a
-    non-zero wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing written)."""
+    rows. ``user_xfrc`` (nbody, 6): the user's own xfrc_applied (enters the free motion); ``fr``
+    (:data:`FRICTION_FIELDS`): this step's constraint rows and MuJoCo's last ``qacc`` (the dofs held by
+    their dry friction). Returns 1 (a non-zero wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing
+    written)."""
     state = ws[45]
     k = int(state[2])
     state[1] = 0.0
@@ -188,7 +203,7 @@ def evaluate(md, hc, ws, user_xfrc, dt, sand_out):
     params = hc[35]
     xi_n = params[1] * g_mag
     if params[7] != 0.0:
-        return _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, state[3] != 0.0)
+        return _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, state[3] != 0.0)
     # stabilize=False: the published force at the element velocities
     occ_hs = hc[33]
     wrenches(ws[0], k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], ws[3], ws[4], ws[5],
@@ -300,7 +315,7 @@ def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, 
 
 
 @njit(**INLINE)
-def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
+def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     """The rest treatment of the ``k`` touching bodies: ``SandHandle._evaluate_rest``."""
     xipos, cdof, subtree_com, qvel = md[2], md[7], md[4], md[6]
     qfrc_passive, qfrc_bias, qfrc_actuator, qfrc_applied, qfrc_constraint = md[8], md[9], md[10], md[11], md[12]
@@ -356,23 +371,32 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     for i in range(nv):
         if not math.isfinite(qacc[i]):
             return BAD_ACCELERATION
-    # 3. Jacobians of the reference points, twists now and free, mobility J M^-1 J^T (_mobility): at a
-    #    later RK4 stage with the same touching groups, the first stage's mobility (reference.keep_mobility)
+    # 3. the dofs their dry friction held in MuJoCo's last solve (reference.stuck_dofs); Jacobians of the
+    #    reference points, twists now and free, mobility J M^-1 J^T (_mobility): at a later RK4 stage with
+    #    the same touching groups and no such dof, an earlier stage's mobility (reference.StepKeep)
+    lock_i, lock_f = ws[53], ws[54]
+    nl = 0
+    if lagged:
+        nl = stuck_dofs(fr[0], fr[1], fr[2], fr[3], fr[4], fr[5], ng, active, ids, group_ref, body_dofnum,
+                        body_dofadr, body_parentid, dof_parentid, lock_i, lock_f)
     state = ws[45]
     keep_active, keep_rest = ws[51], ws[52]
-    frozen = state[5] >= 2.0 and state[KEPT_GROUPS] == ng
+    frozen = state[5] >= 2.0 and state[KEPT_GROUPS] == ng and nl == 0
     for r in range(ng):
         frozen = frozen and keep_active[r] == active[r]
     if frozen:
         state[8] += 1.0
     else:
-        state[KEPT_GROUPS] = ng if state[5] >= 1.0 else 0.0
+        state[KEPT_GROUPS] = ng if state[5] >= 1.0 and nl == 0 else 0.0
         state[KEPT_RANK] = -1.0
         for r in range(ng):
             keep_active[r] = active[r]
     _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
               body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[50], zt,
               twist, free, mob, not frozen)
+    if nl > 0:
+        lock_matrices(nl, ng, ws[50], zt, rowadr, rownnz, colind, qld, qld_diag_inv, qacc, dof_parentid, lock_i,
+                      lock_f, ws[55], ws[56], ws[57], ws[58])
     # 4. blended twists (rest.blend), moved to each touching body's COM
     for r in range(ng):
         rad = group_radius[active[r]]
@@ -427,8 +451,16 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, k, g_hat, xi_n, lagged):
     rad_g = total                                   # (G,) reuses ``total`` as the active groups' radii
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
-    rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v, cap,
-                  w, rest, flow, idx, block, rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state, frozen)
+    state[9] = 0.0
+    if nl > 0:
+        state[9] = locked_rest(nl, free, mob, rft_g, u, rad_g, dt, ng, settings, a, v, cap, w, rest, flow, idx, block,
+                               rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state, lock_i, lock_f, ws[57],
+                               ws[58], ws[59], ws[60], ws[61], ws[62])
+        state[10] += 1.0 if state[9] > 0.0 else 0.0
+    else:
+        rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v,
+                      cap, w, rest, flow, idx, block, rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state,
+                      frozen)
     # 7. each body's part (coupling._share)
     for j in range(k):
         size[j] = _norm6(wrench[j], rad_g[slot[j]])
@@ -536,6 +568,11 @@ def handle_constants(model, body_ids, root, groups, bound_center, bound_radius, 
         tol=np.array(tol, dtype=np.float64), settings=np.array(settings, dtype=np.float64), occ_size=f8(occluders.size),
         occ_rbound=f8(occluders.rbound), occ_hs=f8(occluders.halfspaces), gravity=model.opt.gravity, params=params)
     return tuple(arrays[name] for name, _ in HANDLE_FIELDS)
+
+
+def friction_arrays(data) -> tuple:
+    """The ``fr`` tuple (:data:`FRICTION_FIELDS`) of ``data`` now."""
+    return data.efc_type, data.efc_id, data.efc_D, data.efc_aref, data.efc_frictionloss, data.qacc
 
 
 def mjdata_arrays(data) -> tuple:

@@ -267,6 +267,7 @@ def _check() -> tuple:
     try:
         lib = _library()
         offsets = _offsets()
+        rt.efc_layout()                              # the routes read mjData's constraint rows
         addr = lambda name: ctypes.addressof(ctypes.c_void_p.in_dll(lib, name))      # noqa: E731
         symbols = dict(control=addr("mjcb_control"), passive=addr("mjcb_passive"), act_dyn=addr("mjcb_act_dyn"),
                        act_gain=addr("mjcb_act_gain"), act_bias=addr("mjcb_act_bias"),

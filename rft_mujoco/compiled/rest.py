@@ -11,6 +11,7 @@ Nothing here calls MuJoCo. The evaluation that uses them is :mod:`rft_mujoco.com
 
 from __future__ import annotations
 
+import math
 
 import numpy as np
 
@@ -389,3 +390,177 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
     for g in range(ng):
         for c in range(6):
             w[g, c] *= scale * (radius[g] if c >= 3 else 1.0)
+
+
+# --- dofs held by their dry friction (rest.locked_rest) --------------------------------------------------
+FRICTION_DOF = 1
+"""MuJoCo's ``mjCNSTR_FRICTION_DOF`` (checked against the bindings by tests/test_fastrest.py)."""
+
+
+@njit(**JIT)
+def _tree_dof(j, dof_parentid):
+    """:func:`rft_mujoco.coupling.reference._tree_dof`."""
+    while j >= 0 and dof_parentid[j] >= 0:
+        j = dof_parentid[j]
+    return j
+
+
+@njit(**JIT)
+def stuck_dofs(efc_type, efc_id, efc_d, efc_aref, efc_frictionloss, qacc_prev, ng, active, ids, group_ref,
+               body_dofnum, body_dofadr, body_parentid, dof_parentid, lock_i, lock_f):
+    """:func:`rft_mujoco.coupling.reference.stuck_dofs`: the dofs into ``lock_i[0]``, their friction forces
+    and frictionloss into ``lock_f[0]``, ``lock_f[1]``; returns their number L."""
+    n = 0
+    for e in range(efc_type.shape[0]):
+        if efc_type[e] != FRICTION_DOF:
+            continue
+        j = efc_id[e]
+        f = -efc_d[e] * (qacc_prev[j] - efc_aref[e])       # rest.friction_estimate
+        cap = efc_frictionloss[e]
+        if not abs(f) < cap:
+            continue
+        tree = _tree_dof(j, dof_parentid)
+        mine = False
+        for r in range(ng):
+            b = ids[group_ref[active[r]]]
+            mine = mine or _tree_dof(_chain_dof(b, body_dofnum, body_dofadr, body_parentid), dof_parentid) == tree
+        if not mine:
+            continue
+        lock_i[0, n] = j
+        lock_f[0, n] = f
+        lock_f[1, n] = cap
+        n += 1
+    return n
+
+
+@njit(**JIT)
+def lock_matrices(nl, ng, chain, zt, rowadr, rownnz, colind, qld, qld_diag_inv, qacc, dof_parentid, lock_i,
+                  lock_f, lock_z, lock_chain, lock_s, lock_c):
+    """For the ``nl`` dofs of :func:`stuck_dofs` (``lock_i[0]``), with ``zt``/``chain`` the scaled
+    ``W = D^-1/2 L^-T J^T`` of :func:`rft_mujoco.compiled.evaluate._mobility`: ``C^T = E M^-1 J^T``
+    into ``lock_c`` (L, 6 ng), ``S = E M^-1 E^T`` into ``lock_s`` (L, L) and ``y = E qacc`` into
+    ``lock_f[2]``. A dof's column ``W_E = D^-1/2 L^-T e_j`` (``lock_z[:, l]``) lies on its chain (``lock_chain``);
+    the products sum over the dofs two chains share (next to the root)."""
+    for l in range(nl):
+        j = lock_i[0, l]
+        n = 0
+        while j >= 0:
+            lock_chain[l, 1 + n] = j
+            lock_z[j, l] = 0.0
+            n += 1
+            j = dof_parentid[j]
+        lock_chain[l, 0] = n
+        lock_z[lock_i[0, l], l] = 1.0
+        for u in range(n):
+            j = lock_chain[l, 1 + u]
+            a0 = rowadr[j]
+            x = lock_z[j, l]
+            for a in range(a0, a0 + rownnz[j] - 1):
+                lock_z[colind[a], l] -= qld[a] * x
+        for u in range(n):
+            j = lock_chain[l, 1 + u]
+            lock_z[j, l] *= math.sqrt(qld_diag_inv[j])
+        lock_f[2, l] = qacc[lock_i[0, l]]
+    for l in range(nl):
+        nd = lock_chain[l, 0]
+        for r in range(ng):
+            nr = chain[r, 0]
+            for c in range(6):
+                lock_c[l, 6 * r + c] = 0.0
+            t = 0
+            while t < nr and t < nd and chain[r, nr - t] == lock_chain[l, nd - t]:
+                j = chain[r, nr - t]
+                z = lock_z[j, l]
+                for c in range(6):
+                    lock_c[l, 6 * r + c] += z * zt[j, 6 * r + c]
+                t += 1
+        for m in range(l + 1):
+            nm = lock_chain[m, 0]
+            s = 0.0
+            t = 0
+            while t < nd and t < nm and lock_chain[l, nd - t] == lock_chain[m, nm - t]:
+                j = lock_chain[l, nd - t]
+                s += lock_z[j, l] * lock_z[j, m]
+                t += 1
+            lock_s[l, m] = s
+            lock_s[m, l] = s
+
+
+@njit(**JIT)
+def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, cap, w, rest, flow, idx, block, rhs,
+                capacity, v_w, lin, perm, sol, keep_rest, state, lock_i, lock_f, lock_s, lock_c, lock_r, lock_x,
+                lock_mob, lock_free):
+    """:func:`rft_mujoco.physics.rest.locked_rest` on the matrices of :func:`lock_matrices`, with
+    :func:`rest_wrenches` (its arguments as there; ``settings`` = dependent_tol, weight_floor,
+    capacity_tol, tiny; no factor is kept: ``state[KEPT_GROUPS]`` is 0). Returns the number of dofs held
+    in the final solve; which: ``lock_i[1]`` (1/0), ``lock_i[2]`` their indices; ``lock_f[3]`` work space."""
+    n6 = 6 * ng
+    tiny = settings[3]
+    for l in range(nl):
+        lock_i[1, l] = 1
+    while True:
+        m = 0
+        for l in range(nl):
+            if lock_i[1, l] != 0:
+                lock_i[2, m] = l
+                m += 1
+        if m == 0:
+            rest_wrenches(free, mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2], tiny,
+                          a, v, cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest,
+                          state, False)
+            return 0
+        for c in range(m):                           # Cholesky of S over the locked dofs (rest._cholesky)
+            lc = lock_i[2, c]
+            t = lock_s[lc, lc]
+            for j in range(c):
+                t -= lock_r[c, j] * lock_r[c, j]
+            d = math.sqrt(t) if t > tiny else math.sqrt(tiny)
+            lock_r[c, c] = d
+            for r in range(c + 1, m):
+                t = lock_s[lock_i[2, r], lc]
+                for j in range(c):
+                    t -= lock_r[r, j] * lock_r[c, j]
+                lock_r[r, c] = t / d
+        for r in range(m):                           # X = R^-1 C^T, z = R^-1 y
+            lr = lock_i[2, r]
+            for i in range(n6):
+                t = lock_c[lr, i]
+                for j in range(r):
+                    t -= lock_r[r, j] * lock_x[j, i]
+                lock_x[r, i] = t / lock_r[r, r]
+            t = lock_f[2, lr]
+            for j in range(r):
+                t -= lock_r[r, j] * lock_f[3, j]
+            lock_f[3, r] = t / lock_r[r, r]
+        for i in range(n6):                          # A - X^T X, Vf - dt X^T z
+            for k in range(i + 1):
+                t = mob[i, k]
+                for r in range(m):
+                    t -= lock_x[r, i] * lock_x[r, k]
+                lock_mob[i, k] = t
+                lock_mob[k, i] = t
+            t = 0.0
+            for r in range(m):
+                t += lock_x[r, i] * lock_f[3, r]
+            lock_free[i // 6, i % 6] = free[i // 6, i % 6] - dt * t
+        rest_wrenches(lock_free, lock_mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2],
+                      tiny, a, v, cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest,
+                      state, False)
+        for r in range(m):                           # z + X W, then lam = -R^-T (z + X W)
+            t = lock_f[3, r]
+            for i in range(n6):
+                t += lock_x[r, i] * w[i // 6, i % 6]
+            lock_f[3, r] = t
+        for r in range(m - 1, -1, -1):
+            t = lock_f[3, r]
+            for j in range(r + 1, m):
+                t -= lock_r[j, r] * lock_f[3, j]
+            lock_f[3, r] = t / lock_r[r, r]
+        over = False
+        for r in range(m):
+            lr = lock_i[2, r]
+            if abs(lock_f[0, lr] - lock_f[3, r]) > lock_f[1, lr]:
+                lock_i[1, lr] = 0
+                over = True
+        if not over:
+            return m

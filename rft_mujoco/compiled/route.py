@@ -40,8 +40,13 @@ BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"
 """The dispatcher's per-MjData book (:class:`rft_mujoco.coupling.dispatch._DataBook`); ``state`` =
 (nonzero, sand_dirty, rk4 stage (1-4; 0: another integrator), rk4 stage time, TIME_RTOL, what the native
 callback left to Python)."""
-_HEADER = 3
-"""Table header: number of handles, base of the book, base of md; then one base per handle."""
+_HEADER = 4
+"""Table header: number of handles, base of the book, base of md, base of the constraint rows; then one
+base per handle."""
+EFC_POINTERS = ("efc_type", "efc_id", "efc_D", "efc_aref", "efc_frictionloss", "qacc")
+"""The ``mjData`` pointers of the ``fr`` tuple (:data:`rft_mujoco.compiled.evaluate.FRICTION_FIELDS`)."""
+_EFC = 2 + len(EFC_POINTERS)
+"""Table entries of the constraint rows: the ``mjData*``, the offset of ``nefc``, those of the pointers."""
 
 
 @njit(**JIT)
@@ -84,9 +89,10 @@ if AVAILABLE:
 
     _as_f8 = _cast(types.CPointer(types.float64))
     _as_i8 = _cast(types.CPointer(types.int64))
+    _as_i4 = _cast(types.CPointer(types.int32))
     _as_b1 = _cast(types.CPointer(types.boolean))
 else:  # pragma: no cover - without numba the route is never built
-    _as_f8 = _as_i8 = _as_b1 = None
+    _as_f8 = _as_i8 = _as_i4 = _as_b1 = None
 
 
 @njit(**INLINE)
@@ -126,6 +132,25 @@ def _md(t, base):
 
 
 @njit(**INLINE)
+def _fr(t, base, nv):
+    """The ``fr`` tuple from ``mjData`` now (its constraint rows move in the arena with every step)."""
+    d = t[base]
+    nefc = carray(_as_i4(d + t[base + 1]), (1,))[0]
+    p = carray(_as_i8(d + t[base + 2]), (1,))[0]
+    efc_type = carray(_as_i4(p), (nefc,))
+    p = carray(_as_i8(d + t[base + 3]), (1,))[0]
+    efc_id = carray(_as_i4(p), (nefc,))
+    p = carray(_as_i8(d + t[base + 4]), (1,))[0]
+    efc_d = carray(_as_f8(p), (nefc,))
+    p = carray(_as_i8(d + t[base + 5]), (1,))[0]
+    efc_aref = carray(_as_f8(p), (nefc,))
+    p = carray(_as_i8(d + t[base + 6]), (1,))[0]
+    efc_floss = carray(_as_f8(p), (nefc,))
+    p = carray(_as_i8(d + t[base + 7]), (1,))[0]
+    return efc_type, efc_id, efc_d, efc_aref, efc_floss, carray(_as_f8(p), (nv,))
+
+
+@njit(**INLINE)
 def _hc(t, base):
     """The ``hc`` tuple from the table entries at ``base`` (schema order)."""
     return (
@@ -154,7 +179,9 @@ def _ws(t, base):
         _f1(t, base + 140), _f1(t, base + 144), _f2(t, base + 148), _f2(t, base + 152), _i1(t, base + 156),
         _f1(t, base + 160), _f1(t, base + 164), _f2(t, base + 168), _b1(t, base + 172), _f1(t, base + 176),
         _f1(t, base + 180), _f2(t, base + 184), _i1(t, base + 188), _f1(t, base + 192), _i2(t, base + 196),
-        _i2(t, base + 200), _i1(t, base + 204), _b1(t, base + 208),
+        _i2(t, base + 200), _i1(t, base + 204), _b1(t, base + 208), _i2(t, base + 212), _f2(t, base + 216),
+        _f2(t, base + 220), _i2(t, base + 224), _f2(t, base + 228), _f2(t, base + 232), _f2(t, base + 236),
+        _f2(t, base + 240), _f2(t, base + 244), _f2(t, base + 248),
     )
 
 
@@ -219,6 +246,7 @@ def phase2(t, time, dt):
     n = t[0]
     xfrc, written, added, rows, user, sand, state = _book(t, t[1])
     md = _md(t, t[2])
+    fr = _fr(t, t[3], md[6].shape[0])
     sand[:] = 0.0
     nonzero = False
     for h in range(n):
@@ -226,7 +254,7 @@ def phase2(t, time, dt):
         ws = _ws(t, base + _HC_SLOTS)
         if ws[45][2] <= 0.0:
             continue
-        status = ev.evaluate(md, _hc(t, base), ws, user, dt, sand)
+        status = ev.evaluate(md, _hc(t, base), ws, user, dt, sand, fr)
         if status < 0:
             return PYTHON
         nonzero = nonzero or status == 1
@@ -247,14 +275,14 @@ if AVAILABLE:
     @cfunc(_SIG, cache=True)
     def _phase1_c(ptr, time, dt):
         n = carray(ptr, (_HEADER,))[0]
-        t = carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT
+        t = carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT + _EFC
                          + n * (len(ev.HANDLE_FIELDS) + len(ev.WORK_FIELDS)) * SLOT,))
         return phase1(t, time, dt)
 
     @cfunc(_SIG, cache=True)
     def _phase2_c(ptr, time, dt):
         n = carray(ptr, (_HEADER,))[0]
-        t = carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT
+        t = carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT + _EFC
                          + n * (len(ev.HANDLE_FIELDS) + len(ev.WORK_FIELDS)) * SLOT,))
         return phase2(t, time, dt)
 
@@ -273,17 +301,91 @@ def entries():
 _DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_}
 
 
+_layout = None
+
+
+def efc_layout() -> dict:
+    """Offsets in ``mjData`` of ``nefc`` and of the pointers :data:`EFC_POINTERS`, found on private models
+    and verified by reading their rows back (mujoco 4.0's layout: ``nefc`` among the sizes just before
+    ``time``, the pointers after ``qpos``'s). Raises RuntimeError where they cannot be located: the route
+    is then not built, and the Python path computes the same forces."""
+    global _layout
+    if _layout is None:
+        _layout = _find_layout()
+    if isinstance(_layout, str):
+        raise RuntimeError(_layout)
+    return _layout
+
+
+def _layout_data(k: int):
+    """A data with a connect (3 rows), ``k`` frictionloss hinges and a contact, after ``mj_forward``."""
+    import mujoco
+    chain = "".join(f"<body name='l{i}' pos='0 0 -0.1'><joint type='hinge' axis='0 1 0' frictionloss='0.{i + 1}'/>"
+                    "<geom type='capsule' size='.01' fromto='0 0 0 0 0 -.1'/>" for i in range(k)) + "</body>" * k
+    xml = ("<mujoco><worldbody><geom type='plane' size='1 1 .1'/><body pos='0 0 .009'><freejoint/>"
+           f"<geom size='.01'/></body><body pos='0 0 1'>{chain}</body></worldbody>"
+           f"<equality><connect body1='l{k - 1}' anchor='0 0 -.1'/></equality></mujoco>")
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    return model, data
+
+
+def _find_layout():
+    import ctypes
+    i64 = lambda a: ctypes.c_int64.from_address(a).value      # noqa: E731
+    i32 = lambda a: ctypes.c_int32.from_address(a).value      # noqa: E731
+    datas = [_layout_data(k)[1] for k in (2, 4, 5)]
+    if len({d.nefc for d in datas}) != 3 or min(d.ncon for d in datas) < 1:
+        return "the layout models do not have the constraint rows expected"
+    found = None
+    for d in datas:
+        base = d._address
+        energy = d.energy.ctypes.data - base
+        nefc = {o for o in range(energy - 4, energy - 257, -4) if i32(base + o) == d.nefc}
+        qpos, o = d.qpos.ctypes.data, 0
+        while i64(base + o) != qpos:                   # the first pointer field (inside the struct)
+            o += 8
+            if o > 1 << 22:
+                return "cannot locate mjData.qpos"
+        want = {getattr(d, name).ctypes.data: name for name in EFC_POINTERS}
+        if len(want) != len(EFC_POINTERS):
+            return "the layout model's constraint arrays share addresses"
+        ptrs = {}
+        while len(ptrs) < len(want) and o < (1 << 22):
+            v = i64(base + o)
+            if v in want and want[v] not in ptrs:
+                ptrs[want[v]] = o
+            o += 8
+        mine = (frozenset(nefc), tuple(sorted(ptrs.items())))
+        found = mine if found is None else (found[0] & mine[0], found[1] if found[1] == mine[1] else None)
+        if found[1] is None:
+            return "mjData's constraint pointers are not where this module looks for them"
+    if len(found[0]) != 1 or len(found[1]) != len(EFC_POINTERS):
+        return "cannot locate mjData.nefc"
+    layout = dict(found[1], nefc=next(iter(found[0])))
+    model, data = _layout_data(3)                      # read back through the offsets
+    base = data._address
+    ok = i32(base + layout["nefc"]) == data.nefc
+    for name in EFC_POINTERS:
+        ok = ok and i64(base + layout[name]) == getattr(data, name).ctypes.data
+    return layout if ok else "mjData's constraint offsets do not read back"
+
+
 class Route:
     """The table of one (model, MjData) and its handles, and the two calls.
 
     Args:
         book: (name -> array) of :data:`BOOK_FIELDS`.
         md: the ``md`` tuple; handles: [(hc tuple, ws tuple)] in the dispatcher's order.
+        data: the MjData (its constraint rows are read through its pointers, :func:`efc_layout`).
     Raises:
         TypeError: an array is not C-contiguous or not of its schema's dtype and rank (say which).
+        RuntimeError: the constraint rows cannot be located in this MuJoCo build (:func:`efc_layout`).
     """
 
-    def __init__(self, book: dict, md: tuple, handles: list) -> None:
+    def __init__(self, book: dict, md: tuple, handles: list, data) -> None:
+        layout = efc_layout()
         entries_ = []
         self._keep = []
 
@@ -306,6 +408,8 @@ class Route:
         md_base = book_base + len(BOOK_FIELDS) * SLOT
         for (name, kind), a in zip(ev.MJDATA_FIELDS, md):
             add(a, name, kind)
+        efc_base = book_base + len(entries_)
+        entries_.extend([data._address, layout["nefc"], *(layout[name] for name in EFC_POINTERS)])
         bases = []
         for hc, ws in handles:
             bases.append(book_base + len(entries_))
@@ -313,7 +417,7 @@ class Route:
                 add(a, name, kind)
             for (name, kind), a in zip(ev.WORK_FIELDS, ws):
                 add(a, name, kind)
-        self.table = np.array([n, book_base, md_base, *bases, *entries_], dtype=np.int64)
+        self.table = np.array([n, book_base, md_base, efc_base, *bases, *entries_], dtype=np.int64)
         self.address = self.table.ctypes.data
         self.phase1, self.phase2 = entries()
 
@@ -323,6 +427,6 @@ def warm_up(model, data) -> None:
     nbody = model.nbody
     book = dict(xfrc=np.zeros((nbody, 6)), written=np.zeros((nbody, 6)), added=np.zeros((nbody, 6)),
                 rows=np.zeros(0, np.int64), user=np.zeros((nbody, 6)), sand=np.zeros((nbody, 6)), state=np.zeros(4))
-    route = Route(book, ev.mjdata_arrays(data), [])
+    route = Route(book, ev.mjdata_arrays(data), [], data)
     route.phase1(route.address, 0.0, 0.001)
     route.phase2(route.address, 0.0, 0.001)

@@ -54,11 +54,14 @@ def run() -> None:
             sand = np.zeros((model.nbody, 6))
             evaluate.broadphase(md, hc, wt, 0.0, 0.002)
             wt[45][2] = 2.0
-            evaluate.evaluate(md, hc, wt, data.xfrc_applied, 0.002, sand)
+            evaluate.evaluate(md, hc, wt, data.xfrc_applied, 0.002, sand, evaluate.friction_arrays(data))
     del x
     c3 = np.zeros((2, 3))
     law._element_forces(c3.reshape(-1), np.tile([0.0, 0.0, 1.0], 2), np.ones(2), np.ones(6), 0.0,
                         np.array([0.0, 0.0, -1.0]), 1.0, plaw.COEFFICIENTS, 0.4, False, False, False,
                         law.tolerances(), np.zeros((9, law.CHUNK)), np.zeros(6))
-    route.warm_up(model, data)
+    try:
+        route.warm_up(model, data)
+    except RuntimeError:                             # no route here (route.efc_layout): the Python path runs
+        pass
     from rft_mujoco.compiled import native  # noqa: F401  (compiles the native callbacks)

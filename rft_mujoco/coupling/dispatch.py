@@ -332,7 +332,8 @@ class Dispatcher:
         elif native is None or native[0] != self._generation:
             book.native = None
         self._evaluate(model, data, book, handles, rows)
-        if book.native is None and all(h._fast is not None for h in handles) and compiled.ready():
+        if book.native is None and all(h._fast is not None for h in handles) and compiled.ready() \
+                and _route_layout():
             book.native = (self._generation, self._build_route(data, book, handles, rows))
         if self._registry is not None and book.native is not None and book.native[0] == self._generation \
                 and not self._registry.routed(model, data):
@@ -370,7 +371,7 @@ class Dispatcher:
         route = _ROUTE.Route(dict(xfrc=data.xfrc_applied, written=book.written, added=book.added, rows=rows,
                                   user=book.user, sand=book.sand, state=book.state),
                              handles[0]._workspace(data).md,
-                             [(h._hc, h._workspace(data).tuple) for h in handles])
+                             [(h._hc, h._workspace(data).tuple) for h in handles], data)
         route.handles = handles
         return route
 
@@ -442,6 +443,17 @@ class Dispatcher:
 
 _log = logging.getLogger("rft_mujoco")
 _noticed = []
+
+
+def _route_layout() -> bool:
+    """Whether the native route can read MuJoCo's constraint rows here (else the Python path runs, saying
+    why once)."""
+    try:
+        _ROUTE.efc_layout()
+    except RuntimeError as exc:
+        _native_notice(str(exc))
+        return False
+    return True
 
 
 def _native_notice(reason: str) -> None:

@@ -415,7 +415,8 @@ class SandHandle:
             return False
         if self.stabilize:
             mujoco.mj_fwdActuation(self.model, data)
-        status = evaluate.evaluate(work.md, self._hc, work.tuple, user_xfrc, dt, sand_out)
+        status = evaluate.evaluate(work.md, self._hc, work.tuple, user_xfrc, dt, sand_out,
+                                   evaluate.friction_arrays(data))
         touch = work.arrays["touch"][:k]
         if status == evaluate.BAD_ACCELERATION:
             reference.free_twists(self, data, user_xfrc, self.body_ids[self.groups.ref], dt, False)  # raises

@@ -114,7 +114,8 @@ def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_
     slot = np.searchsorted(active, group_of)           # (k,) row of each body's group in ``active``
     ref = handle.body_ids[grp.ref[active]]             # (G,) MuJoCo ids of the reference bodies
     radius = grp.radius[active]
-    jac, free, twist = free_twists(handle, data, user_xfrc, ref, dt, lagged)
+    jac, free, twist, qacc = free_twists(handle, data, user_xfrc, ref, dt, lagged)
+    dofs, force, capacity = stuck_dofs(handle, data, ref) if lagged else (np.zeros(0, np.int64),) * 3
     # Element motions of the blended twists, at each touching body's COM.
     u = rest.blend(twist, free, radius)
     arm = a["body_com"][:touch.size] - data.xipos[ref[slot]]    # (k, 3) reference point -> body COM
@@ -125,7 +126,10 @@ def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_
     rft_g = np.zeros((active.size, 6))
     np.add.at(rft_g, slot, np.hstack([wrench[:, :3], wrench[:, 3:] + np.cross(arm, wrench[:, :3])]))
     keep = work.keep
-    frozen = work.state[5] >= 2 and keep.groups is not None and np.array_equal(keep.groups, active)
+    # A later RK4 stage reuses an earlier stage's mobility and factor while the same groups touch and no
+    # dof is held by its dry friction (the locks change the mobility).
+    frozen = (work.state[5] >= 2 and keep.groups is not None and np.array_equal(keep.groups, active)
+              and dofs.size == 0)
     if frozen:
         work.state[8] += 1
     else:
@@ -133,9 +137,22 @@ def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_
         minv_jt = np.empty_like(flat)
         mujoco.mj_solveM(m, data, minv_jt, flat)
         keep.factor.clear()
-        keep.groups, keep.mobility = (active, flat @ minv_jt.T) if work.state[5] >= 1 else (None, flat @ minv_jt.T)
-    applied_g, resting_g = rest.rest_wrenches(free, keep.mobility, rft_g, u, radius, dt,
-                                              keep.factor if keep.groups is not None else None, frozen)
+        kept = work.state[5] >= 1 and dofs.size == 0
+        keep.groups, keep.mobility = (active if kept else None), flat @ minv_jt.T
+    work.state[9] = 0
+    if dofs.size:
+        rows = np.zeros((dofs.size, m.nv))
+        rows[np.arange(dofs.size), dofs] = 1.0
+        minv_et = np.empty_like(rows)                      # (L, nv) M^-1 E^T, by rows
+        mujoco.mj_solveM(m, data, minv_et, rows)
+        applied_g, resting_g, locked = rest.locked_rest(
+            free, keep.mobility, jac.reshape(-1, m.nv) @ minv_et.T, minv_et[:, dofs], qacc[dofs], force, capacity,
+            dt, lambda f, mob: rest.rest_wrenches(f, mob, rft_g, u, radius, dt))
+        work.state[9] = np.count_nonzero(locked)
+        work.state[10] += 1 if locked.any() else 0
+    else:
+        applied_g, resting_g = rest.rest_wrenches(free, keep.mobility, rft_g, u, radius, dt,
+                                                  keep.factor if keep.groups is not None else None, frozen)
     applied = share(applied_g, rft_g, resting_g, wrench, slot, arm, radius)
     return commit(handle, work.diag, touch, applied, wrench, count, max_depth, occluded, resting_g[slot],
                   sand_out)
@@ -167,7 +184,7 @@ class StepKeep:
 
 def free_twists(handle, data, user_xfrc, ref, dt, lagged):
     """Jacobians (G, 6, nv) of the reference bodies' COMs, their free twists (G, 6) at the end of the step
-    without sand, and their twists now (G, 6).
+    without sand, their twists now (G, 6) and the free acceleration (nv,).
 
     The free acceleration uses the smooth forces of this evaluation (passive, bias, actuators, applied,
     the user's xfrc_applied) plus, when ``lagged``, the constraint forces of MuJoCo's previous solve.
@@ -195,7 +212,40 @@ def free_twists(handle, data, user_xfrc, ref, dt, lagged):
             "data.ctrl, data.qfrc_applied or data.xfrc_applied holds NaN/inf (or the model's "
             "actuators produce it); fix the input before stepping")
     twist = jac @ data.qvel
-    return jac, twist + dt * (jac @ qacc), twist
+    return jac, twist + dt * (jac @ qacc), twist, qacc
+
+
+def stuck_dofs(handle, data, ref):
+    """The dofs (L,) whose dry friction (``frictionloss``) held them still in MuJoCo's last solve, on the
+    kinematic trees of the reference bodies ``ref``, in MuJoCo's row order; their friction force (L,) and
+    ``frictionloss`` (L,) (N or N m; :func:`rft_mujoco.physics.rest.friction_estimate`).
+
+    MuJoCo makes this step's rows, their impedance and reference acceleration before ``mjcb_control``;
+    ``qacc`` still holds its last solve. Tendon frictionloss rows are not locked."""
+    m = handle.model
+    rows = np.flatnonzero(data.efc_type == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF)
+    dofs = data.efc_id[rows].astype(np.int64)
+    force = rest.friction_estimate(data.efc_D[rows], data.efc_aref[rows], data.qacc[dofs])
+    capacity = data.efc_frictionloss[rows].copy()
+    trees = {_tree_dof(m, _chain_dof(m, int(b))) for b in ref}
+    stuck = (np.abs(force) < capacity) & np.array([_tree_dof(m, int(d)) in trees for d in dofs], dtype=bool)
+    return dofs[stuck], force[stuck], capacity[stuck]
+
+
+def _chain_dof(m, b: int) -> int:
+    """The last dof of body ``b``'s kinematic chain (its own, or its nearest ancestor's), -1 if none."""
+    while b > 0:
+        if m.body_dofnum[b] > 0:
+            return int(m.body_dofadr[b] + m.body_dofnum[b] - 1)
+        b = int(m.body_parentid[b])
+    return -1
+
+
+def _tree_dof(m, j: int) -> int:
+    """The dof nearest the world on dof ``j``'s chain (-1 for -1): dofs of one tree share it."""
+    while j >= 0 and m.dof_parentid[j] >= 0:
+        j = int(m.dof_parentid[j])
+    return j
 
 
 def share(applied_g, rft_g, resting_g, rft_b, slot, arm, radius) -> np.ndarray:

@@ -302,3 +302,94 @@ def pivoted_apply(a: np.ndarray, rhs: np.ndarray, order: np.ndarray, g: np.ndarr
             t += a[order[r], j] * y[r]
         x[j] = weight[j] * t
     return x
+
+
+# --- dry friction (frictionloss) that holds a dof still ----------------------------------------------------
+def friction_estimate(d: np.ndarray, aref: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """The force (L,) of MuJoCo's frictionloss rows in their unsaturated zone: ``-D (a - aref)``.
+
+    A frictionloss row of dof ``j`` is a soft constraint on ``a = qacc[j]``; its force is ``-D (a - aref)``
+    clamped to ``[-frictionloss, frictionloss]`` (N or N m). ``d`` (1/kg-like impedance) and ``aref``
+    (m/s^2 or rad/s^2) are this step's (MuJoCo computes them before ``mjcb_control``), ``acc`` the dofs'
+    accelerations of MuJoCo's previous solve: where the estimate lies strictly inside the bounds, the
+    friction held the dof in that solve (it equals MuJoCo's ``efc_force`` there)."""
+    return -np.asarray(d, dtype=float) * (np.asarray(acc, dtype=float) - np.asarray(aref, dtype=float))
+
+
+def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarray, gram: np.ndarray,
+                acc: np.ndarray, force: np.ndarray, capacity: np.ndarray, dt: float,
+                solve) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rest solve with L dofs held still by their dry friction (MuJoCo's ``frictionloss``).
+
+    MuJoCo solves dry friction after ``mjcb_control``; the free twists see the previous solve's friction
+    force only, so a dof that the friction holds still is, to the rest solve, free to move under that
+    force plus whatever the sand adds, and the two chatter without rest (the ``frictionloss`` load path
+    of :mod:`rft_mujoco.studies.loadpaths`). Here such a dof is *locked* in the step: with ``E`` its unit
+    rows, the motion is ``M a = f + J^T W + E^T lam``, ``E a = 0``, whose mobility and free twists are
+
+        ``A_l = A - C S^-1 C^T``,  ``Vf_l = Vf - dt C S^-1 y``,  ``lam = -S^-1 (y + C^T W)``
+
+    with ``C = J M^-1 E^T``, ``S = E M^-1 E^T`` and ``y = E M^-1 f``. A lock holds while the friction force
+    it needs, ``force + lam``, is within ``capacity``; the dofs over it are released (all at once) and the
+    rest solve is repeated, until every lock left holds or none is left.
+
+    Args:
+        free_twist: (G, 6) and mobility (6G, 6G): those of :func:`rest_wrenches`, without locks.
+        coupling: (6G, L) ``C``; gram: (L, L) ``S`` (symmetric positive definite); acc: (L,) ``y``, the free
+            accelerations of the dofs (m/s^2, rad/s^2, the previous friction force included).
+        force: (L,) the friction force already in ``y`` (:func:`friction_estimate`), N or N m; capacity:
+            (L,) the rows' ``frictionloss``.
+        dt: the time step (s).
+        solve: ``solve(free_twist, mobility) -> (wrenches (G, 6), resting (G,))``, :func:`rest_wrenches`
+            with its other arguments bound.
+    Returns:
+        wrenches (G, 6), resting (G,), locked (L,) bool: the dofs held in the final solve.
+    """
+    n = np.shape(coupling)[1]
+    if np.shape(gram) != (n, n) or np.shape(acc) != (n,) or np.shape(force) != (n,) or np.shape(capacity) != (n,):
+        raise ValueError(f"coupling (6G, L) = {np.shape(coupling)} needs gram (L, L) and acc, force, capacity "
+                         f"(L,), got {np.shape(gram)}, {np.shape(acc)}, {np.shape(force)}, {np.shape(capacity)}")
+    free_twist = np.asarray(free_twist, dtype=float)
+    lock = np.ones(n, dtype=bool)
+    while lock.any():
+        i = np.flatnonzero(lock)
+        low = _cholesky(np.asarray(gram, dtype=float)[np.ix_(i, i)])
+        x = _forward(low, np.asarray(coupling, dtype=float)[:, i].T)        # (l, 6G) L^-1 C^T
+        z = _forward(low, np.asarray(acc, dtype=float)[i][:, None])[:, 0]    # L^-1 y
+        w, resting = solve(free_twist - dt * (x.T @ z).reshape(free_twist.shape), mobility - x.T @ x)
+        lam = -_backward(low, z + x @ w.reshape(-1))
+        over = np.abs(force[i] + lam) > capacity[i]
+        if not over.any():
+            return w, resting, lock
+        lock[i[over]] = False
+    w, resting = solve(free_twist, mobility)
+    return w, resting, lock
+
+
+def _cholesky(s: np.ndarray) -> np.ndarray:
+    """The lower Cholesky factor of ``s`` (n, n), plain loops (as :mod:`rft_mujoco.compiled.rest`)."""
+    n = s.shape[0]
+    low = np.zeros((n, n))
+    for c in range(n):
+        t = s[c, c] - low[c, :c] @ low[c, :c]
+        d = np.sqrt(t) if t > tol.TINY else np.sqrt(tol.TINY)
+        low[c, c] = d
+        for r in range(c + 1, n):
+            low[r, c] = (s[r, c] - low[r, :c] @ low[c, :c]) / d
+    return low
+
+
+def _forward(low: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``low^-1 b`` for a lower triangular ``low`` (n, n) and ``b`` (n, m)."""
+    x = np.array(b, dtype=float)
+    for r in range(low.shape[0]):
+        x[r] = (x[r] - low[r, :r] @ x[:r]) / low[r, r]
+    return x
+
+
+def _backward(low: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``low^-T b`` for a lower triangular ``low`` (n, n) and ``b`` (n,)."""
+    x = np.array(b, dtype=float)
+    for r in range(low.shape[0] - 1, -1, -1):
+        x[r] = (x[r] - low[r + 1:, r] @ x[r + 1:]) / low[r, r]
+    return x
