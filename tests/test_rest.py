@@ -264,8 +264,8 @@ def locked_system(seed, nv=7, groups=2, locks=(1, 4)):
 
 
 def test_locked_rest_solves_with_the_projected_motion_and_returns_what_it_solved():
-    """The rest solve gets the twists and mobility of the motion with the locked dofs held:
-    ``P = M^-1 - M^-1 E^T S^-1 E M^-1`` (computed here directly); a lock within capacity holds."""
+    """After the unlocked solve, the rest solve gets the twists and mobility of the motion with the locked
+    dofs held: ``P = M^-1 - M^-1 E^T S^-1 E M^-1`` (computed here directly); a lock within capacity holds."""
     s = locked_system(0)
     p = s["minv"] - s["minv"] @ s["e"].T @ np.linalg.inv(s["gram"]) @ s["e"] @ s["minv"]
     seen = []
@@ -275,17 +275,18 @@ def test_locked_rest_solves_with_the_projected_motion_and_returns_what_it_solved
         seen.append((free, mob))
         return w_out, np.array([True, False])
     w, resting, locked = rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"], s["acc"],
-                                          np.zeros(2), np.full(2, 1e6), 0.01, solve)
-    assert len(seen) == 1 and locked.all() and w is w_out and resting[0] and not resting[1]
-    free, mob = seen[0]
+                                          np.zeros(2), np.full(2, 1e6), 0.01, solve, np.zeros((2, 6)), np.ones(2))
+    assert len(seen) == 2 and locked.all() and w is w_out and resting[0] and not resting[1]
+    assert seen[0][0] is s["free"] and seen[0][1] is s["mobility"]
+    free, mob = seen[1]
     np.testing.assert_allclose(free.reshape(-1), s["jac"] @ (s["qvel"] + 0.01 * p @ s["qfrc"]), rtol=1e-12,
                                atol=1e-12)
     np.testing.assert_allclose(mob, s["jac"] @ p @ s["jac"].T, rtol=1e-12, atol=1e-12)
 
 
-def test_a_lock_the_friction_cannot_hold_is_released_and_the_solve_repeated():
+def test_a_lock_the_friction_cannot_hold_is_released_and_the_unlocked_solve_kept():
     """lam = -S^-1 (y + C^T W) is the extra friction force the lock needs; over capacity, the dof is
-    released (the second solve sees the unlocked motion of that dof)."""
+    released, and with no lock left the unlocked solve is the answer (not solved again)."""
     s = locked_system(1, locks=(2,))
     w_out = np.ones((2, 6))
     lam = -np.linalg.solve(s["gram"], s["acc"] + s["coupling"].T @ w_out.reshape(-1))
@@ -294,21 +295,43 @@ def test_a_lock_the_friction_cannot_hold_is_released_and_the_solve_repeated():
     def solve(free, mob):
         calls.append(mob)
         return w_out, np.ones(2, dtype=bool)
-    for force, cap, n_calls, held in ((0.0, abs(lam[0]) * 1.01, 1, True), (0.0, abs(lam[0]) * 0.99, 2, False),
-                                      (-lam[0], 1e-9, 1, True)):       # the lagged force already does it
+    for force, cap, held in ((0.0, abs(lam[0]) * 1.01, True), (0.0, abs(lam[0]) * 0.99, False),
+                             (-lam[0], 1e-9, True)):       # the lagged force already does it
         calls.clear()
         _, _, locked = rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"], s["acc"],
-                                        np.array([force]), np.array([cap]), 0.01, solve)
-        assert len(calls) == n_calls and bool(locked[0]) == held
-    np.testing.assert_allclose(calls[0], s["mobility"] - s["coupling"] @ np.linalg.solve(s["gram"], s["coupling"].T),
+                                        np.array([force]), np.array([cap]), 0.01, solve, np.zeros((2, 6)), np.ones(2))
+        assert len(calls) == 2 and bool(locked[0]) == held
+    np.testing.assert_allclose(calls[1], s["mobility"] - s["coupling"] @ np.linalg.solve(s["gram"], s["coupling"].T),
                                rtol=1e-10, atol=1e-12)
+
+
+def test_no_lock_where_the_unlocked_solve_already_holds_the_dofs():
+    """When the friction MuJoCo would add under the unlocked wrenches moves no group by more than
+    LOCK_TOL of its step's twist change, the unlocked solve is the answer (one solve, nothing locked);
+    just above it, the lock is tried."""
+    s = locked_system(2, locks=(3,))
+    w_u = np.zeros((2, 6))
+    lam = -np.linalg.solve(s["gram"], s["acc"])
+    moved = rest.twist_speed((-0.01 * s["coupling"] @ lam).reshape(2, 6), np.ones(2))
+    change = rest.twist_speed(s["free"], np.ones(2))
+    ratio = (moved / change).max()
+    for factor, n_calls in ((1.01, 1), (0.99, 2)):
+        calls = []
+
+        def solve(free, mob):
+            calls.append(1)
+            return w_u, np.ones(2, dtype=bool)
+        tol_ratio = ratio * factor / rest.LOCK_TOL       # scale the twist change so that moved/change = ratio / factor
+        _, _, locked = rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"], s["acc"], np.zeros(1),
+                                        np.full(1, 1e6), 0.01, solve, s["free"] - s["free"] * tol_ratio, np.ones(2))
+        assert len(calls) == n_calls and bool(locked[0]) == (n_calls == 2)
 
 
 def test_locked_rest_checks_shapes():
     s = locked_system(2)
     with pytest.raises(ValueError, match="coupling"):
         rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"][:1], s["acc"], np.zeros(2),
-                         np.ones(2), 0.01, lambda f, m: None)
+                         np.ones(2), 0.01, lambda f, m: None, np.zeros((2, 6)), np.ones(2))
 
 
 def test_friction_estimate_is_the_unsaturated_row_force():

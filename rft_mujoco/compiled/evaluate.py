@@ -65,7 +65,8 @@ WORK_FIELDS = (
     ("rft_force", "f2"), ("resting", "b1"), ("occluded_area", "f1"), ("state", "f1"), ("lin", "f2"),
     ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"), ("keep_active", "i1"), ("keep_rest", "b1"),
     ("lock_i", "i2"), ("lock_f", "f2"), ("lock_z", "f2"), ("lock_chain", "i2"), ("lock_s", "f2"), ("lock_c", "f2"),
-    ("lock_r", "f2"), ("lock_x", "f2"), ("lock_mob", "f2"), ("lock_free", "f2"))
+    ("lock_r", "f2"), ("lock_x", "f2"), ("lock_mob", "f2"), ("lock_free", "f2"), ("lock_w", "f2"), ("lock_rest", "b1"),
+    ("group_tree", "i1"))
 """(name, kind) of the arrays of ``ws``, in order."""
 
 FRICTION_FIELDS = (("efc_type", "i4"), ("efc_id", "i4"), ("efc_D", "f8"), ("efc_aref", "f8"),
@@ -112,8 +113,9 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
         size=(b,), total=(g,), force=(b, 3), torque=(b, 3), submerged=(b,), max_depth=(b,), scale=(b,),
         rft_force=(b, 3), resting=(b,), occluded_area=(b,), state=(len(STATE),), lin=(3 * n6 + 5, max(n6, 1)),
         perm=(2 * n6,), x=(n6,), index=(2, n_rows), chain=(g, nv + 1), keep_active=(g,), keep_rest=(g,),
-        lock_i=(3, nv1), lock_f=(4, nv1), lock_z=(nv1, nv1), lock_chain=(nv1, nv1 + 1), lock_s=(nv1, nv1),
-        lock_c=(nv1, max(n6, 1)), lock_r=(nv1, nv1), lock_x=(nv1, max(n6, 1)), lock_mob=(n6, n6), lock_free=(g, 6))
+        lock_i=(3, nv1), lock_f=(5, nv1), lock_z=(nv1, nv1), lock_chain=(nv1, nv1 + 1), lock_s=(nv1, nv1),
+        lock_c=(nv1, max(n6, 1)), lock_r=(nv1, nv1), lock_x=(nv1, max(n6, 1)), lock_mob=(n6, n6), lock_free=(g, 6),
+        lock_w=(g, 6), lock_rest=(g,), group_tree=(g,))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
     out["scale"][:] = 1.0
@@ -378,7 +380,7 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     nl = 0
     if lagged:
         nl = stuck_dofs(fr[0], fr[1], fr[2], fr[3], fr[4], fr[5], ng, active, ids, group_ref, body_dofnum,
-                        body_dofadr, body_parentid, dof_parentid, lock_i, lock_f)
+                        body_dofadr, body_parentid, dof_parentid, lock_i, lock_f, ws[65])
     state = ws[45]
     keep_active, keep_rest = ws[51], ws[52]
     frozen = state[5] >= 2.0 and state[KEPT_GROUPS] == ng and nl == 0
@@ -395,8 +397,8 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
               body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[50], zt,
               twist, free, mob, not frozen)
     if nl > 0:
-        lock_matrices(nl, ng, ws[50], zt, rowadr, rownnz, colind, qld, qld_diag_inv, qacc, dof_parentid, lock_i,
-                      lock_f, ws[55], ws[56], ws[57], ws[58])
+        lock_matrices(nl, rowadr, rownnz, colind, qld, qld_diag_inv, qacc, dof_parentid, lock_i, lock_f, ws[55],
+                      ws[56], ws[57])
     # 4. blended twists (rest.blend), moved to each touching body's COM
     for r in range(ng):
         rad = group_radius[active[r]]
@@ -454,8 +456,8 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     state[9] = 0.0
     if nl > 0:
         state[9] = locked_rest(nl, free, mob, rft_g, u, rad_g, dt, ng, settings, a, v, cap, w, rest, flow, idx, block,
-                               rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state, lock_i, lock_f, ws[57],
-                               ws[58], ws[59], ws[60], ws[61], ws[62])
+                               rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state, twist, ws[50], zt, lock_i,
+                               lock_f, ws[55], ws[56], ws[57], ws[58], ws[59], ws[60], ws[61], ws[62], ws[63], ws[64])
         state[10] += 1.0 if state[9] > 0.0 else 0.0
     else:
         rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v,

@@ -147,7 +147,7 @@ def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_
         mujoco.mj_solveM(m, data, minv_et, rows)
         applied_g, resting_g, locked = rest.locked_rest(
             free, keep.mobility, jac.reshape(-1, m.nv) @ minv_et.T, minv_et[:, dofs], qacc[dofs], force, capacity,
-            dt, lambda f, mob: rest.rest_wrenches(f, mob, rft_g, u, radius, dt))
+            dt, lambda f, mob: rest.rest_wrenches(f, mob, rft_g, u, radius, dt), twist, radius)
         work.state[9] = np.count_nonzero(locked)
         work.state[10] += 1 if locked.any() else 0
     else:

@@ -316,9 +316,17 @@ def friction_estimate(d: np.ndarray, aref: np.ndarray, acc: np.ndarray) -> np.nd
     return -np.asarray(d, dtype=float) * (np.asarray(acc, dtype=float) - np.asarray(aref, dtype=float))
 
 
+LOCK_TOL = 1e-4
+"""A lock is tried only where the friction MuJoCo adds to hold the stuck dofs under the unlocked rest
+wrenches would move a group by more than this fraction of its twist change in the step (twist speeds,
+:func:`twist_speed`). Measured (docs/rest.md): the bundled quadruped standing, every joint stuck, 4e-6
+(its unlocked solve is already what the locks give); the ``frictionloss`` load path chattering without
+locks, 3e-4 to 8e-2."""
+
+
 def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarray, gram: np.ndarray,
-                acc: np.ndarray, force: np.ndarray, capacity: np.ndarray, dt: float,
-                solve) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                acc: np.ndarray, force: np.ndarray, capacity: np.ndarray, dt: float, solve, twist: np.ndarray,
+                radius: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rest solve with L dofs held still by their dry friction (MuJoCo's ``frictionloss``).
 
     MuJoCo solves dry friction after ``mjcb_control``; the free twists see the previous solve's friction
@@ -329,9 +337,14 @@ def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarr
 
         ``A_l = A - C S^-1 C^T``,  ``Vf_l = Vf - dt C S^-1 y``,  ``lam = -S^-1 (y + C^T W)``
 
-    with ``C = J M^-1 E^T``, ``S = E M^-1 E^T`` and ``y = E M^-1 f``. A lock holds while the friction force
-    it needs, ``force + lam``, is within ``capacity``; the dofs over it are released (all at once) and the
-    rest solve is repeated, until every lock left holds or none is left.
+    with ``C = J M^-1 E^T``, ``S = E M^-1 E^T`` and ``y = E M^-1 f``.
+
+    1. The unlocked solve gives ``W_u``; ``lam_u`` is the friction MuJoCo would add to hold every dof
+       under it, ``dt C lam_u`` the groups' motion from that. Where it is within :data:`LOCK_TOL` of each
+       group's twist change ``Vf - V``, ``W_u`` is the answer (no lock).
+    2. Otherwise every dof is locked; a lock holds while the friction force it needs, ``force + lam``,
+       is within ``capacity``; the dofs over it are released (all at once) and the rest solve is
+       repeated, until every lock left holds; with none left, ``W_u`` is the answer.
 
     Args:
         free_twist: (G, 6) and mobility (6G, 6G): those of :func:`rest_wrenches`, without locks.
@@ -342,6 +355,7 @@ def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarr
         dt: the time step (s).
         solve: ``solve(free_twist, mobility) -> (wrenches (G, 6), resting (G,))``, :func:`rest_wrenches`
             with its other arguments bound.
+        twist: (G, 6) the groups' twists now; radius: (G,) m.
     Returns:
         wrenches (G, 6), resting (G,), locked (L,) bool: the dofs held in the final solve.
     """
@@ -350,20 +364,31 @@ def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarr
         raise ValueError(f"coupling (6G, L) = {np.shape(coupling)} needs gram (L, L) and acc, force, capacity "
                          f"(L,), got {np.shape(gram)}, {np.shape(acc)}, {np.shape(force)}, {np.shape(capacity)}")
     free_twist = np.asarray(free_twist, dtype=float)
+    coupling, gram, acc = (np.asarray(x, dtype=float) for x in (coupling, gram, acc))
+    w_u, rest_u = solve(free_twist, mobility)
     lock = np.ones(n, dtype=bool)
+    low, x, z = _lock_factor(coupling, gram, acc, lock)
+    moved = (-dt * (x.T @ (z + x @ w_u.reshape(-1)))).reshape(free_twist.shape)
+    if np.all(twist_speed(moved, radius) <= LOCK_TOL * twist_speed(free_twist - twist, radius)):
+        return w_u, rest_u, ~lock
     while lock.any():
         i = np.flatnonzero(lock)
-        low = _cholesky(np.asarray(gram, dtype=float)[np.ix_(i, i)])
-        x = _forward(low, np.asarray(coupling, dtype=float)[:, i].T)        # (l, 6G) L^-1 C^T
-        z = _forward(low, np.asarray(acc, dtype=float)[i][:, None])[:, 0]    # L^-1 y
+        low, x, z = _lock_factor(coupling, gram, acc, lock)
         w, resting = solve(free_twist - dt * (x.T @ z).reshape(free_twist.shape), mobility - x.T @ x)
         lam = -_backward(low, z + x @ w.reshape(-1))
         over = np.abs(force[i] + lam) > capacity[i]
         if not over.any():
             return w, resting, lock
         lock[i[over]] = False
-    w, resting = solve(free_twist, mobility)
-    return w, resting, lock
+    return w_u, rest_u, lock
+
+
+def _lock_factor(coupling, gram, acc, lock):
+    """For the locked dofs: the lower Cholesky factor ``R`` of ``S``, ``X = R^-1 C^T`` and ``z = R^-1 y``
+    (so that ``C S^-1 C^T = X^T X`` and ``C S^-1 y = X^T z``)."""
+    i = np.flatnonzero(lock)
+    low = _cholesky(gram[np.ix_(i, i)])
+    return low, _forward(low, coupling[:, i].T), _forward(low, acc[i][:, None])[:, 0]
 
 
 def _cholesky(s: np.ndarray) -> np.ndarray:
