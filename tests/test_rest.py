@@ -308,7 +308,7 @@ def test_a_lock_the_friction_cannot_hold_is_released_and_the_unlocked_solve_kept
 def test_no_lock_where_the_unlocked_solve_already_holds_the_dofs():
     """When the friction MuJoCo would add under the unlocked wrenches moves no group by more than
     LOCK_TOL of its step's twist change, the unlocked solve is the answer (one solve, nothing locked);
-    just above it, the lock is tried."""
+    just above it, or without the check, the lock is tried."""
     s = locked_system(2, locks=(3,))
     w_u = np.zeros((2, 6))
     lam = -np.linalg.solve(s["gram"], s["acc"])
@@ -325,6 +325,11 @@ def test_no_lock_where_the_unlocked_solve_already_holds_the_dofs():
         _, _, locked = rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"], s["acc"], np.zeros(1),
                                         np.full(1, 1e6), 0.01, solve, s["free"] - s["free"] * tol_ratio, np.ones(2))
         assert len(calls) == n_calls and bool(locked[0]) == (n_calls == 2)
+    calls = []                                           # check=False (a dof locked last time): tried anyway
+    _, _, locked = rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"], s["acc"], np.zeros(1),
+                                    np.full(1, 1e6), 0.01, lambda f, m: calls.append(1) or (w_u, np.ones(2, bool)),
+                                    np.zeros((2, 6)) + s["free"] * 0.5, np.ones(2), check=False)
+    assert len(calls) == 2 and locked[0]
 
 
 def test_locked_rest_checks_shapes():

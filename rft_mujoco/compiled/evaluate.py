@@ -66,7 +66,7 @@ WORK_FIELDS = (
     ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"), ("keep_active", "i1"), ("keep_rest", "b1"),
     ("lock_i", "i2"), ("lock_f", "f2"), ("lock_z", "f2"), ("lock_chain", "i2"), ("lock_s", "f2"), ("lock_c", "f2"),
     ("lock_r", "f2"), ("lock_x", "f2"), ("lock_mob", "f2"), ("lock_free", "f2"), ("lock_w", "f2"), ("lock_rest", "b1"),
-    ("group_tree", "i1"))
+    ("group_tree", "i1"), ("lock_prev", "b1"))
 """(name, kind) of the arrays of ``ws``, in order."""
 
 FRICTION_FIELDS = (("efc_type", "i4"), ("efc_id", "i4"), ("efc_D", "f8"), ("efc_aref", "f8"),
@@ -115,7 +115,7 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
         perm=(2 * n6,), x=(n6,), index=(2, n_rows), chain=(g, nv + 1), keep_active=(g,), keep_rest=(g,),
         lock_i=(3, nv1), lock_f=(5, nv1), lock_z=(nv1, nv1), lock_chain=(nv1, nv1 + 1), lock_s=(nv1, nv1),
         lock_c=(nv1, max(n6, 1)), lock_r=(nv1, nv1), lock_x=(nv1, max(n6, 1)), lock_mob=(n6, n6), lock_free=(g, 6),
-        lock_w=(g, 6), lock_rest=(g,), group_tree=(g,))
+        lock_w=(g, 6), lock_rest=(g,), group_tree=(g,), lock_prev=(nv1,))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
     out["scale"][:] = 1.0
@@ -454,10 +454,20 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
     state[9] = 0.0
+    lock_prev = ws[66]                               # the dofs locked in the last evaluation
+    sticky = False
+    for l in range(nl):
+        sticky = sticky or lock_prev[lock_i[0, l]]
+    for j in range(lock_prev.shape[0]):
+        lock_prev[j] = False
     if nl > 0:
         state[9] = locked_rest(nl, free, mob, rft_g, u, rad_g, dt, ng, settings, a, v, cap, w, rest, flow, idx, block,
                                rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state, twist, ws[50], zt, lock_i,
-                               lock_f, ws[55], ws[56], ws[57], ws[58], ws[59], ws[60], ws[61], ws[62], ws[63], ws[64])
+                               lock_f, ws[55], ws[56], ws[57], ws[58], ws[59], ws[60], ws[61], ws[62], ws[63], ws[64],
+                               not sticky)
+        for l in range(nl):
+            if lock_i[1, l] != 0:
+                lock_prev[lock_i[0, l]] = True
         state[10] += 1.0 if state[9] > 0.0 else 0.0
     else:
         rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v,

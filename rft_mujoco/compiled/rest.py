@@ -619,11 +619,12 @@ def _plus_xw(m, n6, w, lock_x, lock_f):
 @njit(**JIT)
 def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, cap, w, rest, flow, idx, block, rhs,
                 capacity, v_w, lin, perm, sol, keep_rest, state, twist, chain, zt, lock_i, lock_f, lock_z, lock_chain,
-                lock_s, lock_c, lock_r, lock_x, lock_mob, lock_free, lock_w, lock_rest):
+                lock_s, lock_c, lock_r, lock_x, lock_mob, lock_free, lock_w, lock_rest, check):
     """:func:`rft_mujoco.physics.rest.locked_rest` on the matrices of :func:`lock_matrices`, with
     :func:`rest_wrenches` (its arguments as there; ``settings`` = dependent_tol, weight_floor,
     capacity_tol, tiny; no factor is kept: ``state[KEPT_GROUPS]`` is 0); ``twist`` (G, 6) the groups'
-    twists now; ``chain``, ``zt``: the scaled Jacobians of ``_mobility``. Returns the number of dofs held
+    twists now; ``chain``, ``zt``: the scaled Jacobians of ``_mobility``; ``check``: whether step 1 runs.
+    Returns the number of dofs held
     in the final solve; which: ``lock_i[1]`` (1/0); the other ``lock_*`` are work space."""
     n6 = 6 * ng
     tiny = settings[3]
@@ -631,8 +632,8 @@ def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, c
                   w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest, state, False)
     for l in range(nl):
         lock_i[1, l] = 0
-    if not _lock_needed(nl, ng, lock_f.shape[1], dt, chain, zt, free, twist, radius, w, lock_i, lock_f, lock_z,
-                        lock_chain, lock_s, lock_r, tiny):
+    if check and not _lock_needed(nl, ng, lock_f.shape[1], dt, chain, zt, free, twist, radius, w, lock_i, lock_f,
+                                  lock_z, lock_chain, lock_s, lock_r, tiny):
         return 0
     _lock_coupling(nl, ng, chain, zt, lock_z, lock_chain, lock_c)
     for l in range(nl):

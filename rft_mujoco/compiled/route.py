@@ -182,7 +182,7 @@ def _ws(t, base):
         _i2(t, base + 200), _i1(t, base + 204), _b1(t, base + 208), _i2(t, base + 212), _f2(t, base + 216),
         _f2(t, base + 220), _i2(t, base + 224), _f2(t, base + 228), _f2(t, base + 232), _f2(t, base + 236),
         _f2(t, base + 240), _f2(t, base + 244), _f2(t, base + 248), _f2(t, base + 252), _b1(t, base + 256),
-        _i1(t, base + 260),
+        _i1(t, base + 260), _b1(t, base + 264),
     )
 
 

@@ -140,6 +140,9 @@ def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_
         kept = work.state[5] >= 1 and dofs.size == 0
         keep.groups, keep.mobility = (active if kept else None), flat @ minv_jt.T
     work.state[9] = 0
+    prev = work.arrays["lock_prev"]                        # (nv,) the dofs locked in the last evaluation
+    sticky = bool(prev[dofs].any())
+    prev[:] = False
     if dofs.size:
         rows = np.zeros((dofs.size, m.nv))
         rows[np.arange(dofs.size), dofs] = 1.0
@@ -147,7 +150,8 @@ def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_
         mujoco.mj_solveM(m, data, minv_et, rows)
         applied_g, resting_g, locked = rest.locked_rest(
             free, keep.mobility, jac.reshape(-1, m.nv) @ minv_et.T, minv_et[:, dofs], qacc[dofs], force, capacity,
-            dt, lambda f, mob: rest.rest_wrenches(f, mob, rft_g, u, radius, dt), twist, radius)
+            dt, lambda f, mob: rest.rest_wrenches(f, mob, rft_g, u, radius, dt), twist, radius, not sticky)
+        prev[dofs[locked]] = True
         work.state[9] = np.count_nonzero(locked)
         work.state[10] += 1 if locked.any() else 0
     else:

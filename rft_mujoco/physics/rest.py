@@ -326,7 +326,7 @@ locks, 3e-4 to 8e-2."""
 
 def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarray, gram: np.ndarray,
                 acc: np.ndarray, force: np.ndarray, capacity: np.ndarray, dt: float, solve, twist: np.ndarray,
-                radius: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                radius: np.ndarray, check: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rest solve with L dofs held still by their dry friction (MuJoCo's ``frictionloss``).
 
     MuJoCo solves dry friction after ``mjcb_control``; the free twists see the previous solve's friction
@@ -341,7 +341,9 @@ def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarr
 
     1. The unlocked solve gives ``W_u``; ``lam_u`` is the friction MuJoCo would add to hold every dof
        under it, ``dt C lam_u`` the groups' motion from that. Where it is within :data:`LOCK_TOL` of each
-       group's twist change ``Vf - V``, ``W_u`` is the answer (no lock).
+       group's twist change ``Vf - V``, ``W_u`` is the answer (no lock). Skipped without ``check`` (the
+       caller's choice when a dof was locked in the previous evaluation: a lock that holds stays, where
+       the test alone would alternate locked and unlocked steps at a residual of LOCK_TOL).
     2. Otherwise every dof is locked; a lock holds while the friction force it needs, ``force + lam``,
        is within ``capacity``; the dofs over it are released (all at once) and the rest solve is
        repeated, until every lock left holds; with none left, ``W_u`` is the answer.
@@ -356,6 +358,7 @@ def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarr
         solve: ``solve(free_twist, mobility) -> (wrenches (G, 6), resting (G,))``, :func:`rest_wrenches`
             with its other arguments bound.
         twist: (G, 6) the groups' twists now; radius: (G,) m.
+        check: whether step 1 runs.
     Returns:
         wrenches (G, 6), resting (G,), locked (L,) bool: the dofs held in the final solve.
     """
@@ -367,10 +370,11 @@ def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarr
     coupling, gram, acc = (np.asarray(x, dtype=float) for x in (coupling, gram, acc))
     w_u, rest_u = solve(free_twist, mobility)
     lock = np.ones(n, dtype=bool)
-    low, x, z = _lock_factor(coupling, gram, acc, lock)
-    moved = (-dt * (x.T @ (z + x @ w_u.reshape(-1)))).reshape(free_twist.shape)
-    if np.all(twist_speed(moved, radius) <= LOCK_TOL * twist_speed(free_twist - twist, radius)):
-        return w_u, rest_u, ~lock
+    if check:
+        low, x, z = _lock_factor(coupling, gram, acc, lock)
+        moved = (-dt * (x.T @ (z + x @ w_u.reshape(-1)))).reshape(free_twist.shape)
+        if np.all(twist_speed(moved, radius) <= LOCK_TOL * twist_speed(free_twist - twist, radius)):
+            return w_u, rest_u, ~lock
     while lock.any():
         i = np.flatnonzero(lock)
         low, x, z = _lock_factor(coupling, gram, acc, lock)
