@@ -202,7 +202,15 @@ def min_norm_factor(a, weight, m, dependent_tol, tiny, lin, perm):
             for c in range(r + 1):
                 gr[c] += s * row[c]
         j += 1
-    for c in range(k):                              # Cholesky, in place (lower), as the reference
+    _cholesky(k, g, tiny)                           # in place (lower), as the reference
+    return k
+
+
+@njit(**JIT)
+def _cholesky(k, g, tiny):
+    """The lower Cholesky factor of ``g[:k, :k]`` in place (its lower triangle read; the loops of
+    :func:`rft_mujoco.physics.rest.pivoted_factor`; a pivot below ``tiny`` is ``sqrt(tiny)``)."""
+    for c in range(k):
         t = g[c, c]
         for j in range(c):
             t -= g[c, j] * g[c, j]
@@ -213,7 +221,22 @@ def min_norm_factor(a, weight, m, dependent_tol, tiny, lin, perm):
             for j in range(c):
                 t -= g[r, j] * g[c, j]
             g[r, c] = t / d
-    return k
+
+
+@njit(**JIT)
+def _cholesky_solve(m, low, x):
+    """``x[:m] <- (R R^T)^-1 x[:m]`` for the lower triangular ``R = low[:m, :m]`` (the loops of
+    :func:`rft_mujoco.physics.rest.pivoted_apply`)."""
+    for r in range(m):
+        t = x[r]
+        for c in range(r):
+            t -= low[r, c] * x[c]
+        x[r] = t / low[r, r]
+    for r in range(m - 1, -1, -1):
+        t = x[r]
+        for c in range(r + 1, m):
+            t -= low[c, r] * x[c]
+        x[r] = t / low[r, r]
 
 
 @njit(**JIT)
@@ -228,15 +251,8 @@ def min_norm_apply(a, rhs, weight, m, k, lin, perm, x):
     y, acc = lin[3 * m + 2], lin[3 * m + 3]
     order = perm[0:m]
     for r in range(k):
-        t = rhs[order[r]]
-        for c in range(r):
-            t -= g[r, c] * y[c]
-        y[r] = t / g[r, r]
-    for r in range(k - 1, -1, -1):
-        t = y[r]
-        for c in range(r + 1, k):
-            t -= g[c, r] * y[c]
-        y[r] = t / g[r, r]
+        y[r] = rhs[order[r]]
+    _cholesky_solve(k, g, y)
     for j in range(m):
         acc[j] = 0.0
     for r in range(k):
@@ -507,16 +523,9 @@ def _lock_cholesky(m, lock_i, lock_s, lock_r, tiny):
     (:func:`rft_mujoco.physics.rest._cholesky`)."""
     for c in range(m):
         lc = lock_i[2, c]
-        t = lock_s[lc, lc]
-        for j in range(c):
-            t -= lock_r[c, j] * lock_r[c, j]
-        d = math.sqrt(t) if t > tiny else math.sqrt(tiny)
-        lock_r[c, c] = d
-        for r in range(c + 1, m):
-            t = lock_s[lock_i[2, r], lc]
-            for j in range(c):
-                t -= lock_r[r, j] * lock_r[c, j]
-            lock_r[r, c] = t / d
+        for r in range(c, m):
+            lock_r[r, c] = lock_s[lock_i[2, r], lc]
+    _cholesky(m, lock_r, tiny)
 
 
 @njit(**JIT)
@@ -535,23 +544,6 @@ def _lock_factor(m, n6, lock_i, lock_f, lock_s, lock_c, lock_r, lock_x, tiny):
         for j in range(r):
             t -= lock_r[r, j] * lock_f[3, j]
         lock_f[3, r] = t / lock_r[r, r]
-
-
-@njit(**JIT)
-def _cholesky_solve(m, lock_r, x):
-    """``x[:m] <- -(R R^T)^-1 x[:m]``."""
-    for r in range(m):
-        t = x[r]
-        for j in range(r):
-            t -= lock_r[r, j] * x[j]
-        x[r] = t / lock_r[r, r]
-    for r in range(m - 1, -1, -1):
-        t = x[r]
-        for j in range(r + 1, m):
-            t -= lock_r[j, r] * x[j]
-        x[r] = t / lock_r[r, r]
-    for r in range(m):
-        x[r] = -x[r]
 
 
 @njit(**JIT)
@@ -579,7 +571,10 @@ def _lock_needed(nl, ng, nv, dt, chain, zt, free, twist, radius, w, lock_i, lock
         lock_f[3, l] = t
         lock_i[2, l] = l
     _lock_cholesky(nl, lock_i, lock_s, lock_r, tiny)
-    _cholesky_solve(nl, lock_r, lock_f[3])           # lam_u = -S^-1 (y + C^T w)
+    lam = lock_f[3]
+    _cholesky_solve(nl, lock_r, lam)                 # lam_u = -S^-1 (y + C^T w)
+    for l in range(nl):
+        lam[l] = -lam[l]
     for j in range(nv):
         q[j] = 0.0
     for l in range(nl):                              # q = W_E lam_u
