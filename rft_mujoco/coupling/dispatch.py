@@ -451,18 +451,19 @@ def _route_layout() -> bool:
     try:
         _ROUTE.efc_layout()
     except RuntimeError as exc:
-        _native_notice(str(exc))
+        _native_notice(str(exc), f"rft_mujoco: native sand route unavailable ({exc}); every evaluation takes "
+                                 "the compiled Python path (same forces, a few us more per evaluation)")
         return False
     return True
 
 
-def _native_notice(reason: str) -> None:
-    """Say once per process why the native callbacks are off."""
+def _native_notice(reason: str, msg: str | None = None) -> None:
+    """Say once per process why the native callbacks (or, with ``msg``, the native route) are off."""
     if not _noticed:
         _noticed.append(reason)
-        msg = (f"rft_mujoco: native sand callbacks unavailable ({reason}); using the Python callback "
-               "(same forces, ~2 us more per evaluation)")
-        _log.warning(msg)
+        msg = msg or (f"rft_mujoco: native sand callbacks unavailable ({reason}); using the Python callback "
+                      "(same forces, ~2 us more per evaluation)")
+        _log.info(msg)                               # (a warning would be printed twice by logging's last resort)
         print(msg, file=sys.stderr, flush=True)
 
 
