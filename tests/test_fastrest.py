@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import rft_mujoco
+from rft_mujoco.compiled import locks
 from rft_mujoco.compiled import rest as fastrest
 from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface
@@ -205,13 +206,13 @@ FRICTION_SCENE = (SCENE.replace('range="-1 1"/>', 'range="-1 1" frictionloss="0.
 def test_mujoco_friction_rows_in_their_unsaturated_zone_give_the_estimated_force():
     """What the lock test relies on: a frictionloss row's force is -D (qacc - aref) while it is inside its
     bounds (MuJoCo's efc_D, efc_aref, qacc of the same step), and its type code is the compiled one's."""
-    assert int(mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF) == fastrest.FRICTION_DOF
+    assert int(mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF) == locks.FRICTION_DOF
     model = mujoco.MjModel.from_xml_string(FRICTION_SCENE.format(integrator="Euler"))
     data = mujoco.MjData(model)
     inside = 0
     for _ in range(200):
         mujoco.mj_step(model, data)
-        rows = np.flatnonzero(data.efc_type == fastrest.FRICTION_DOF)
+        rows = np.flatnonzero(data.efc_type == locks.FRICTION_DOF)
         assert rows.size == 3
         est = rest.friction_estimate(data.efc_D[rows], data.efc_aref[rows], data.qacc[data.efc_id[rows]])
         free = np.abs(data.efc_force[rows]) < data.efc_frictionloss[rows] * (1 - 1e-6)

@@ -30,8 +30,8 @@ from rft_mujoco import tol
 from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, wrenches
 from rft_mujoco.compiled.elements import finish_naive, touching
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
-from rft_mujoco.compiled.rest import (KEPT_GROUPS, KEPT_RANK, _chain_dof, jacobian, lock_matrices, locked_rest,
-                                      rest_wrenches, solve_m, stuck_dofs)
+from rft_mujoco.compiled.locks import lock_matrices, locked_rest, stuck_dofs
+from rft_mujoco.compiled.rest import KEPT_GROUPS, KEPT_RANK, _chain_dof, jacobian, rest_wrenches, solve_m
 
 _TIME_SLACK = 1.0 + tol.TIME_RTOL
 """A step of dt (1 + TIME_RTOL) still follows the previous evaluation (frozen into the compiled code)."""

@@ -43,8 +43,8 @@ COMPILE_SECONDS = 30
 """Rough first-use compile time in s on a 2-core machine, for the notice."""
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
-                  "compiled/element_pass.py", "compiled/rest.py", "compiled/evaluate.py", "compiled/route.py",
-                  "compiled/native.py", "physics/rest.py", "tol.py")
+                  "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",
+                  "compiled/route.py", "compiled/native.py", "physics/rest.py", "tol.py")
 """Every source file (relative to the package) whose code ends up in compiled machine code."""
 
 

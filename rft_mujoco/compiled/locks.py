@@ -1,0 +1,287 @@
+"""Dofs held by their dry friction (MuJoCo's ``frictionloss``), locked in the rest solve, compiled.
+
+:func:`rft_mujoco.physics.rest.locked_rest` and :func:`rft_mujoco.coupling.reference.stuck_dofs` on work
+buffers: the stuck dofs from MuJoCo's friction rows (:func:`stuck_dofs`), ``S = E M^-1 E^T`` from the dofs'
+columns of ``D^-1/2 L^-T`` along their chains (:func:`lock_matrices`), the test of whether to lock
+without building ``C`` (:func:`_lock_needed`) and the lock / release loop around
+:func:`rft_mujoco.compiled.rest.rest_wrenches` (:func:`locked_rest`). Design: docs/rest.md, "Dry friction".
+Nothing here calls MuJoCo; :mod:`rft_mujoco.compiled.evaluate` calls it.
+"""
+
+from __future__ import annotations
+
+import math
+
+from rft_mujoco.compiled.jit import JIT, njit
+from rft_mujoco.compiled.rest import _chain_dof, _cholesky, _cholesky_solve, rest_wrenches
+from rft_mujoco.physics import rest as _rest
+
+FRICTION_DOF = 1
+"""MuJoCo's ``mjCNSTR_FRICTION_DOF`` (checked against the bindings by tests/test_fastrest.py)."""
+LOCK_TOL = _rest.LOCK_TOL
+""":data:`rft_mujoco.physics.rest.LOCK_TOL` (frozen into the compiled code)."""
+
+
+@njit(**JIT)
+def _tree_dof(j, dof_parentid):
+    """:func:`rft_mujoco.coupling.reference._tree_dof`."""
+    while j >= 0 and dof_parentid[j] >= 0:
+        j = dof_parentid[j]
+    return j
+
+
+@njit(**JIT)
+def stuck_dofs(efc_type, efc_id, efc_d, efc_aref, efc_frictionloss, qacc_prev, ng, active, ids, group_ref,
+               body_dofnum, body_dofadr, body_parentid, dof_parentid, lock_i, lock_f, group_tree):
+    """:func:`rft_mujoco.coupling.reference.stuck_dofs`: the dofs into ``lock_i[0]``, their friction forces
+    and frictionloss into ``lock_f[0]``, ``lock_f[1]``; returns their number L. ``group_tree`` (G,): work
+    space (the groups' tree dofs, found at the first friction row)."""
+    n = 0
+    trees = False
+    for e in range(efc_type.shape[0]):
+        if efc_type[e] != FRICTION_DOF:
+            continue
+        j = efc_id[e]
+        f = -efc_d[e] * (qacc_prev[j] - efc_aref[e])       # rest.friction_estimate
+        cap = efc_frictionloss[e]
+        if not abs(f) < cap:
+            continue
+        if not trees:
+            for r in range(ng):
+                b = ids[group_ref[active[r]]]
+                group_tree[r] = _tree_dof(_chain_dof(b, body_dofnum, body_dofadr, body_parentid), dof_parentid)
+            trees = True
+        tree = _tree_dof(j, dof_parentid)
+        mine = False
+        for r in range(ng):
+            mine = mine or group_tree[r] == tree
+        if not mine:
+            continue
+        lock_i[0, n] = j
+        lock_f[0, n] = f
+        lock_f[1, n] = cap
+        n += 1
+    return n
+
+
+@njit(**JIT)
+def lock_matrices(nl, rowadr, rownnz, colind, qld, qld_diag_inv, qacc, dof_parentid, lock_i, lock_f, lock_z,
+                  lock_chain, lock_s):
+    """For the ``nl`` dofs of :func:`stuck_dofs` (``lock_i[0]``): ``S = E M^-1 E^T`` into ``lock_s`` (L, L)
+    and ``y = E qacc`` into ``lock_f[2]``. A dof's column ``W_E = D^-1/2 L^-T e_j`` (``lock_z[:, l]``; the
+    factor ``M = L^T D L`` as in :func:`rft_mujoco.compiled.evaluate._mobility`) lies on its chain
+    (``lock_chain``); products sum over the dofs two chains share (next to the root)."""
+    for l in range(nl):
+        j = lock_i[0, l]
+        n = 0
+        while j >= 0:
+            lock_chain[l, 1 + n] = j
+            lock_z[j, l] = 0.0
+            n += 1
+            j = dof_parentid[j]
+        lock_chain[l, 0] = n
+        lock_z[lock_i[0, l], l] = 1.0
+        for u in range(n):
+            j = lock_chain[l, 1 + u]
+            a0 = rowadr[j]
+            x = lock_z[j, l]
+            for a in range(a0, a0 + rownnz[j] - 1):
+                lock_z[colind[a], l] -= qld[a] * x
+        for u in range(n):
+            j = lock_chain[l, 1 + u]
+            lock_z[j, l] *= math.sqrt(qld_diag_inv[j])
+        lock_f[2, l] = qacc[lock_i[0, l]]
+    for l in range(nl):
+        nd = lock_chain[l, 0]
+        for m in range(l + 1):
+            nm = lock_chain[m, 0]
+            s = 0.0
+            t = 0
+            while t < nd and t < nm and lock_chain[l, nd - t] == lock_chain[m, nm - t]:
+                j = lock_chain[l, nd - t]
+                s += lock_z[j, l] * lock_z[j, m]
+                t += 1
+            lock_s[l, m] = s
+            lock_s[m, l] = s
+
+
+@njit(**JIT)
+def _lock_coupling(nl, ng, chain, zt, lock_z, lock_chain, lock_c):
+    """``C^T = E M^-1 J^T = W_E^T W`` into ``lock_c`` (L, 6 ng), with ``zt``/``chain`` the scaled
+    ``W = D^-1/2 L^-T J^T`` of :func:`rft_mujoco.compiled.evaluate._mobility`."""
+    for l in range(nl):
+        nd = lock_chain[l, 0]
+        for r in range(ng):
+            nr = chain[r, 0]
+            for c in range(6):
+                lock_c[l, 6 * r + c] = 0.0
+            t = 0
+            while t < nr and t < nd and chain[r, nr - t] == lock_chain[l, nd - t]:
+                j = chain[r, nr - t]
+                z = lock_z[j, l]
+                for c in range(6):
+                    lock_c[l, 6 * r + c] += z * zt[j, 6 * r + c]
+                t += 1
+
+
+@njit(**JIT)
+def _lock_cholesky(m, lock_i, lock_s, lock_r, tiny):
+    """The lower Cholesky factor ``R`` of ``S`` over the dofs ``lock_i[2, :m]`` into ``lock_r``
+    (:func:`rft_mujoco.physics.rest._cholesky`)."""
+    for c in range(m):
+        lc = lock_i[2, c]
+        for r in range(c, m):
+            lock_r[r, c] = lock_s[lock_i[2, r], lc]
+    _cholesky(m, lock_r, tiny)
+
+
+@njit(**JIT)
+def _lock_factor(m, n6, lock_i, lock_f, lock_s, lock_c, lock_r, lock_x, tiny):
+    """:func:`rft_mujoco.physics.rest._lock_factor` for the ``m`` dofs ``lock_i[2, :m]``: ``R`` into
+    ``lock_r``, ``X`` into ``lock_x`` rows, ``z`` into ``lock_f[3]`` (compact: index r of ``lock_i[2]``)."""
+    _lock_cholesky(m, lock_i, lock_s, lock_r, tiny)
+    for r in range(m):                               # X = R^-1 C^T, z = R^-1 y
+        lr = lock_i[2, r]
+        for i in range(n6):
+            t = lock_c[lr, i]
+            for j in range(r):
+                t -= lock_r[r, j] * lock_x[j, i]
+            lock_x[r, i] = t / lock_r[r, r]
+        t = lock_f[2, lr]
+        for j in range(r):
+            t -= lock_r[r, j] * lock_f[3, j]
+        lock_f[3, r] = t / lock_r[r, r]
+
+
+@njit(**JIT)
+def _lock_needed(nl, ng, nv, dt, chain, zt, free, twist, radius, w, lock_i, lock_f, lock_z, lock_chain, lock_s,
+                 lock_r, tiny):
+    """Step 1 of :func:`rft_mujoco.physics.rest.locked_rest`: whether the groups' motion ``dt C lam_u``
+    from the friction that would hold every dof under the unlocked wrenches ``w`` exceeds LOCK_TOL of their
+    twist change. Without ``C``: ``C^T w = W_E^T (W w)`` and ``C lam = W^T (W_E lam)`` through nv-vectors
+    (``lock_f[4]``); ``lam_u`` in ``lock_f[3]``."""
+    q = lock_f[4]
+    for j in range(nv):
+        q[j] = 0.0
+    for r in range(ng):                              # q = W w
+        for u in range(chain[r, 0]):
+            j = chain[r, 1 + u]
+            t = 0.0
+            for c in range(6):
+                t += zt[j, 6 * r + c] * w[r, c]
+            q[j] += t
+    for l in range(nl):                              # y + C^T w
+        t = lock_f[2, l]
+        for u in range(lock_chain[l, 0]):
+            j = lock_chain[l, 1 + u]
+            t += lock_z[j, l] * q[j]
+        lock_f[3, l] = t
+        lock_i[2, l] = l
+    _lock_cholesky(nl, lock_i, lock_s, lock_r, tiny)
+    lam = lock_f[3]
+    _cholesky_solve(nl, lock_r, lam)                 # lam_u = -S^-1 (y + C^T w)
+    for l in range(nl):
+        lam[l] = -lam[l]
+    for j in range(nv):
+        q[j] = 0.0
+    for l in range(nl):                              # q = W_E lam_u
+        for u in range(lock_chain[l, 0]):
+            j = lock_chain[l, 1 + u]
+            q[j] += lock_z[j, l] * lock_f[3, l]
+    for g in range(ng):                              # dt C lam_u = dt W^T q, against the twist change
+        ml = ma = sl = sa = 0.0
+        for c in range(6):
+            t = 0.0
+            for u in range(chain[g, 0]):
+                j = chain[g, 1 + u]
+                t += zt[j, 6 * g + c] * q[j]
+            t *= dt
+            d = free[g, c] - twist[g, c]
+            if c < 3:
+                ml += t * t
+                sl += d * d
+            else:
+                ma += t * t
+                sa += d * d
+        if math.sqrt(ml) + radius[g] * math.sqrt(ma) > LOCK_TOL * (math.sqrt(sl) + radius[g] * math.sqrt(sa)):
+            return True
+    return False
+
+
+@njit(**JIT)
+def _plus_xw(m, n6, w, lock_x, lock_f):
+    """``lock_f[3, :m] += X W`` (``W`` (G, 6) flattened)."""
+    for r in range(m):
+        t = lock_f[3, r]
+        for i in range(n6):
+            t += lock_x[r, i] * w[i // 6, i % 6]
+        lock_f[3, r] = t
+
+
+@njit(**JIT)
+def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, cap, w, rest, flow, idx, block, rhs,
+                capacity, v_w, lin, perm, sol, keep_rest, state, twist, chain, zt, lock_i, lock_f, lock_z, lock_chain,
+                lock_s, lock_c, lock_r, lock_x, lock_mob, lock_free, lock_w, lock_rest, check):
+    """:func:`rft_mujoco.physics.rest.locked_rest` on the matrices of :func:`lock_matrices`, with
+    :func:`rest_wrenches` (its arguments as there; ``settings`` = dependent_tol, weight_floor,
+    capacity_tol, tiny; no factor is kept: ``state[KEPT_GROUPS]`` is 0); ``twist`` (G, 6) the groups'
+    twists now; ``chain``, ``zt``: the scaled Jacobians of ``_mobility``; ``check``: whether step 1 runs.
+    Returns the number of dofs held
+    in the final solve; which: ``lock_i[1]`` (1/0); the other ``lock_*`` are work space."""
+    n6 = 6 * ng
+    tiny = settings[3]
+    rest_wrenches(free, mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2], tiny, a, v, cap,
+                  w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest, state, False)
+    for l in range(nl):
+        lock_i[1, l] = 0
+    if check and not _lock_needed(nl, ng, lock_f.shape[1], dt, chain, zt, free, twist, radius, w, lock_i, lock_f,
+                                  lock_z, lock_chain, lock_s, lock_r, tiny):
+        return 0
+    _lock_coupling(nl, ng, chain, zt, lock_z, lock_chain, lock_c)
+    for l in range(nl):
+        lock_i[1, l] = 1
+    for g in range(ng):
+        lock_rest[g] = rest[g]
+        for c in range(6):
+            lock_w[g, c] = w[g, c]
+    while True:
+        m = 0
+        for l in range(nl):
+            if lock_i[1, l] != 0:
+                lock_i[2, m] = l
+                m += 1
+        if m == 0:                                   # every lock released: the unlocked solve
+            for g in range(ng):
+                rest[g] = lock_rest[g]
+                for c in range(6):
+                    w[g, c] = lock_w[g, c]
+            return 0
+        _lock_factor(m, n6, lock_i, lock_f, lock_s, lock_c, lock_r, lock_x, tiny)
+        for i in range(n6):                          # A - X^T X, Vf - dt X^T z
+            for k in range(i + 1):
+                t = mob[i, k]
+                for r in range(m):
+                    t -= lock_x[r, i] * lock_x[r, k]
+                lock_mob[i, k] = t
+                lock_mob[k, i] = t
+            t = 0.0
+            for r in range(m):
+                t += lock_x[r, i] * lock_f[3, r]
+            lock_free[i // 6, i % 6] = free[i // 6, i % 6] - dt * t
+        rest_wrenches(lock_free, lock_mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2],
+                      tiny, a, v, cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest,
+                      state, False)
+        _plus_xw(m, n6, w, lock_x, lock_f)           # lam = -R^-T (z + X W)
+        for r in range(m - 1, -1, -1):
+            t = lock_f[3, r]
+            for j in range(r + 1, m):
+                t -= lock_r[j, r] * lock_f[3, j]
+            lock_f[3, r] = t / lock_r[r, r]
+        over = False
+        for r in range(m):
+            lr = lock_i[2, r]
+            if abs(lock_f[0, lr] - lock_f[3, r]) > lock_f[1, lr]:
+                lock_i[1, lr] = 0
+                over = True
+        if not over:
+            return m
