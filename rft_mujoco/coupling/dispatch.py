@@ -332,8 +332,8 @@ class Dispatcher:
         elif native is None or native[0] != self._generation:
             book.native = None
         self._evaluate(model, data, book, handles, rows)
-        if book.native is None and all(h._fast is not None for h in handles) and compiled.ready() \
-                and _route_layout():
+        if book.native is None and all(h._fast is not None and not h._observers for h in handles) \
+                and compiled.ready() and _route_layout():
             book.native = (self._generation, self._build_route(data, book, handles, rows))
         if self._registry is not None and book.native is not None and book.native[0] == self._generation \
                 and not self._registry.routed(model, data):

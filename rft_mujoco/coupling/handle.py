@@ -55,6 +55,10 @@ BACKENDS = ("auto", "numba", "numpy")
 """Backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.compiled`) or numpy (the readable reference,
 :mod:`rft_mujoco.coupling.reference`); "auto" is numba when it imports and supports the terrain, numpy
 otherwise."""
+SOLVES = ("explicit", "implicit")
+"""Values of ``attach(solve=...)``: the explicit rest/flow treatment (:func:`rft_mujoco.physics.rest.rest_wrenches`)
+or the implicit solve (:func:`rft_mujoco.physics.rest.implicit_wrenches`, this step's constraints linearized:
+:func:`rft_mujoco.coupling.reference.constrained_free_motion`; numpy backend only for now)."""
 RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
 
@@ -193,6 +197,9 @@ class SandHandle:
         self._opt_gravity = model.opt.gravity            # a live view: gravity changes are seen
         self._gravity_seen = None
         self.rk4_stages = "all"
+        self.solve = "explicit"
+        self._constraints = "linearized"
+        self._observers: list = []
         self._backend_request = backend
         self._packed = None
         self._fast = None
@@ -359,6 +366,29 @@ class SandHandle:
                 f"elements={self.n_elements}, element_size={self.element_size} m, backend={self.backend!r}, "
                 f"attached={self.attached})")
 
+    def observe(self, observer) -> None:
+        """Call ``observer(data, wrenches, stage)`` after every sand evaluation of this handle, on every path.
+
+        ``wrenches`` (B, 6): the sand wrench of each body of :attr:`body_ids` this evaluation (N, N m, world
+        frame, about each body's COM; zero for bodies above the sand); ``stage``: the RK4 stage (1-4), 0 with
+        another integrator. Studies record the sand's work with it. While a handle of a model has an observer,
+        that model's evaluations take the Python path (the native route calls no Python): the forces are the
+        same, the cost higher. Remove it with :meth:`unobserve`."""
+        if not callable(observer):
+            raise TypeError(f"observer must be callable as observer(data, wrenches, stage), got "
+                            f"{type(observer).__name__}")
+        self._observers.append(observer)
+        DISPATCHER.invalidate()
+
+    def unobserve(self, observer) -> None:
+        """Stop calling ``observer`` (added with :meth:`observe`); ValueError if it is not observing."""
+        try:
+            self._observers.remove(observer)
+        except ValueError:
+            raise ValueError(f"{observer!r} is not an observer of this handle; observers: "
+                             f"{self._observers!r}") from None
+        DISPATCHER.invalidate()
+
     # --- per evaluation -----------------------------------------------------------------------------
     def _workspace(self, data) -> _Workspace:
         work = self._work.get(data)
@@ -376,6 +406,16 @@ class SandHandle:
         """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero (the
         dispatcher's Python path; its native route runs the compiled phases of every handle at once).
         ``stage``: the RK4 stage of this evaluation (1-4), 0 with another integrator."""
+        if not self._observers:
+            return self._evaluate_once(data, user_xfrc, sand_out, stage)
+        before = sand_out[self.body_ids].copy()
+        loaded = self._evaluate_once(data, user_xfrc, sand_out, stage)
+        wrenches = sand_out[self.body_ids] - before
+        for observer in tuple(self._observers):
+            observer(data, wrenches, stage)
+        return loaded
+
+    def _evaluate_once(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, stage: int = 0) -> bool:
         work = self._workspace(data)
         work.state[5] = stage
         dt = self._opt.timestep
@@ -396,7 +436,9 @@ class SandHandle:
                 work.state[1] = 1.0
             return False
         work.state[1] = 0.0
-        if self.stabilize:
+        if self.stabilize and self.solve == "implicit":
+            status = reference.evaluate_implicit(self, data, user_xfrc, work, touch, dt, g_hat, sand_out)
+        elif self.stabilize:
             status = reference.evaluate_rest(self, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out)
         else:
             status = reference.evaluate_naive(self, data, work, touch, g_hat, sand_out)
@@ -457,7 +499,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
            surface_height: float | Terrain = 0.0, resolution: str | float = "default", *,
            guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True,
            monitor: bool | ValidityMonitor = True, backend: str = "auto", rk4_stages: str = "all",
-           cull: bool = True) -> SandHandle:
+           cull: bool = True, solve: str = "explicit") -> SandHandle:
     """Attach 3D-RFT sand to ``model``: from now on ``mujoco.mj_step(model, data)`` includes it.
 
     Args:
@@ -491,11 +533,20 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             of the same body or weld group are dropped at attach, and elements inside a geom of another
             body (a calf inside its thigh at the knee, a rock) carry nothing while they are inside it.
             False: every geom's whole surface feels sand (overlaps count twice; for comparisons).
+        solve: with ``stabilize=True``, "explicit" (default: rest, or flow scaled not to reverse the motion,
+            constraint forces of the previous solve) or "implicit" (the law at the twist the step ends with,
+            per direction, this step's constraints linearized; docs/rest.md "The implicit solve"). "implicit"
+            runs on ``backend="numpy"`` only, for now.
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """
     if not isinstance(model, mujoco.MjModel):
         raise TypeError(f"model must be a mujoco.MjModel, got {type(model).__name__}")
+    if solve not in SOLVES:
+        raise ValueError(f"solve must be one of {SOLVES}, got {solve!r}")
+    if solve == "implicit" and backend != "numpy":
+        raise ValueError(f"solve='implicit' runs on backend='numpy' only for now, got backend={backend!r}; "
+                         "pass backend='numpy'")
     if rk4_stages not in RK4_STAGES:
         raise ValueError(f"rk4_stages must be one of {RK4_STAGES}, got {rk4_stages!r}")
     media = get_media(media)
@@ -509,6 +560,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         raise ValueError(checks.ACTUATION_DISABLED_MESSAGE)
     handle = SandHandle(model, media, ids, terrain, size, guards, stabilize, passive, monitor, backend, cull)
     handle.rk4_stages = rk4_stages
+    handle.solve = solve
     DISPATCHER.register(handle)
     handle.attached = True
     return handle

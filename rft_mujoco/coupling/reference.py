@@ -304,3 +304,173 @@ def commit(handle, diag, touch, applied, rft_b, count, max_depth, occluded, rest
         return -1
     np.add.at(sand_out, handle.body_ids[touch], applied)
     return int(np.any(applied != 0.0))
+
+
+# --- the implicit solve (attach(solve="implicit"), numpy backend) -------------------------------------------
+_C = mujoco.mjtConstraint
+_UNILATERAL = tuple(int(c) for c in (_C.mjCNSTR_LIMIT_JOINT, _C.mjCNSTR_LIMIT_TENDON, _C.mjCNSTR_CONTACT_FRICTIONLESS,
+                                     _C.mjCNSTR_CONTACT_PYRAMIDAL))
+_FRICTION = (int(_C.mjCNSTR_FRICTION_DOF), int(_C.mjCNSTR_FRICTION_TENDON))
+_EQUALITY, _ELLIPTIC = int(_C.mjCNSTR_EQUALITY), int(_C.mjCNSTR_CONTACT_ELLIPTIC)
+
+
+def constraint_rows(model, data) -> np.ndarray:
+    """(nefc, nv) this step's constraint Jacobian ``efc_J``, dense (MuJoCo stores it sparse for large models)."""
+    nefc = data.nefc
+    if nefc == 0:
+        return np.zeros((0, model.nv))
+    if mujoco.mj_isSparse(model):
+        dense = np.zeros((nefc, model.nv))
+        for i in range(nefc):
+            adr, nnz = data.efc_J_rowadr[i], data.efc_J_rownnz[i]
+            dense[i, data.efc_J_colind[adr:adr + nnz]] = data.efc_J[adr:adr + nnz]
+        return dense
+    return np.asarray(data.efc_J[:nefc * model.nv]).reshape(nefc, model.nv).copy()
+
+
+def constrained_free_motion(model, data, qfrc: np.ndarray):
+    """This step's constraints, linearized where MuJoCo's last solve left them: the matrix ``H`` (nv, nv) and the
+    force ``f`` (nv,) with ``H qacc = f + J^T W`` for any sand wrench ``W`` while the rows keep their zone.
+
+    MuJoCo's constraint solve minimizes ``1/2 |qacc - qacc_smooth|_M^2 + sum_i s_i(J_i qacc - aref_i)``; a row
+    in its quadratic zone has ``s = D (J qacc - aref)^2 / 2`` (force ``-D (J qacc - aref)``), a saturated
+    dry-friction row a constant force, an inactive row none. MuJoCo makes this step's rows (``efc_J``, ``efc_D``,
+    ``efc_aref``) before ``mjcb_control``; their zones are taken from the force each row would carry at the
+    accelerations of the last solve (``qacc``, :func:`rft_mujoco.physics.rest.friction_estimate`). So the
+    loads that reach the sand through contacts, welds, limits and dry friction enter with this step's
+    constraint forces, and the sand's own wrench moves them as MuJoCo's solve will. Elliptic contacts are
+    taken as quadratic in all rows while their normal row is active (an approximation of the cone)."""
+    nv = model.nv
+    mass = np.zeros((nv, nv))
+    mujoco.mj_fullM(model, data, mass)
+    rows = constraint_rows(model, data)
+    if rows.shape[0] == 0:
+        return mass, qfrc
+    kind = data.efc_type[:rows.shape[0]]
+    d = data.efc_D[:rows.shape[0]]
+    aref = data.efc_aref[:rows.shape[0]]
+    est = rest.friction_estimate(d, aref, rows @ data.qacc)
+    quad = np.zeros(rows.shape[0], dtype=bool)
+    const = np.zeros(rows.shape[0])
+    for i, t in enumerate(kind.tolist()):
+        if t == _EQUALITY:
+            quad[i] = True
+        elif t in _FRICTION:
+            fl = data.efc_frictionloss[i]
+            if abs(est[i]) < fl:
+                quad[i] = True
+            else:
+                const[i] = np.sign(est[i]) * fl
+        elif t in _UNILATERAL:
+            quad[i] = est[i] > 0.0
+    if np.any(kind == _ELLIPTIC):
+        for c in np.unique(data.efc_id[:rows.shape[0]][kind == _ELLIPTIC]):
+            sel = np.flatnonzero((kind == _ELLIPTIC) & (data.efc_id[:rows.shape[0]] == c))
+            quad[sel] = est[sel[0]] > 0.0
+    jq, dq = rows[quad], d[quad]
+    return mass + jq.T @ (dq[:, None] * jq), qfrc + jq.T @ (dq * aref[quad]) + rows.T @ const
+
+
+def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str):
+    """Jacobians (G, 6, nv), free twists (G, 6), twists now (G, 6) and the mobility (6G, 6G) of the groups'
+    reference points for the implicit solve: with ``constraints="linearized"`` through this step's constraint
+    rows (:func:`constrained_free_motion`), with ``"lagged"`` through the mass matrix and MuJoCo's previous
+    constraint forces (as :func:`free_twists`)."""
+    m = handle.model
+    jac = np.empty((ref.size, 6, m.nv))
+    jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+    for i, b in enumerate(ref):
+        mujoco.mj_jacBodyCom(m, data, jacp, jacr, int(b))
+        jac[i, :3] = jacp
+        jac[i, 3:] = jacr
+    mujoco.mj_fwdActuation(m, data)
+    qfrc = data.qfrc_passive - data.qfrc_bias + data.qfrc_actuator + data.qfrc_applied
+    for b in np.flatnonzero(np.any(user_xfrc[1:] != 0.0, axis=1)) + 1:
+        mujoco.mj_applyFT(m, data, user_xfrc[b, :3].copy(), user_xfrc[b, 3:].copy(), data.xipos[b].copy(),
+                          int(b), qfrc)
+    flat = jac.reshape(-1, m.nv)
+    if constraints == "linearized":
+        h, f = constrained_free_motion(m, data, qfrc)
+        chol = np.linalg.cholesky(h)
+        solve = lambda b: np.linalg.solve(chol.T, np.linalg.solve(chol, b))       # noqa: E731
+        qacc = solve(f)
+        minv_jt = solve(flat.T)
+    else:
+        if handle._work.get(data) is not None and handle._work[data].state[3]:
+            qfrc = qfrc + data.qfrc_constraint
+        qacc = np.empty(m.nv)
+        mujoco.mj_solveM(m, data, qacc.reshape(1, -1), qfrc.reshape(1, -1))
+        minv_jt = np.empty_like(flat)
+        mujoco.mj_solveM(m, data, minv_jt, flat)
+        minv_jt = minv_jt.T
+    if not np.all(np.isfinite(qacc)):
+        names = [m.body(int(b)).name for b in ref]
+        raise FloatingPointError(
+            f"non-finite acceleration without sand while computing sand forces on bodies {names}: "
+            "data.ctrl, data.qfrc_applied or data.xfrc_applied holds NaN/inf; fix the input before stepping")
+    twist = jac @ data.qvel
+    return jac, twist + dt * (jac @ qacc), twist, flat @ minv_jt
+
+
+def rft_jacobian(handle, data, work, touch, v_com, omega, g_hat, speed_scale):
+    """As :func:`rft` with the regularized law and its derivative (k, 6, 6) in each body's COM twist."""
+    k = touch.size
+    a = work.arrays
+    sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in touch])
+    remap = np.empty(len(handle.body_ids), dtype=np.int64)
+    remap[touch] = np.arange(k)
+    b = remap[handle.elem_body[sel]]
+    hidden = occluded_mask(handle, data, touch, sel, b)
+    return elements.body_wrench_jacobians(
+        handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
+        a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, handle.terrain, g_hat,
+        handle._gravity_vec, handle._media, handle.guards, speed_scale, active=~hidden)
+
+
+def _shift(arm: np.ndarray) -> np.ndarray:
+    """(k, 6, 6) ``S`` with (v_com, omega) = S (v_ref, omega) for COMs at ``arm`` (k, 3) from the reference."""
+    s = np.zeros((arm.shape[0], 6, 6))
+    s[:, :3, :3] = np.eye(3)
+    s[:, 3:, 3:] = np.eye(3)
+    s[:, 0, 4], s[:, 0, 5], s[:, 1, 5] = arm[:, 2], -arm[:, 1], arm[:, 0]
+    s[:, 1, 3], s[:, 2, 3], s[:, 2, 4] = -arm[:, 2], arm[:, 1], -arm[:, 0]
+    return s
+
+
+def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out) -> int:
+    """The implicit solve (:func:`rft_mujoco.physics.rest.implicit_wrenches`) of the touching bodies. Returns
+    the status of :func:`commit`."""
+    grp = handle.groups
+    group_of = grp.of_body[touch]
+    active = np.unique(group_of)
+    slot = np.searchsorted(active, group_of)
+    ref = handle.body_ids[grp.ref[active]]
+    radius = grp.radius[active]
+    jac, free, twist, mobility = implicit_free(handle, data, user_xfrc, ref, dt, handle._constraints)
+    arm = work.arrays["body_com"][:touch.size] - data.xipos[ref[slot]]
+    shift = _shift(arm)
+    last = {}
+
+    def law(u, groups):
+        ub = np.einsum("kij,kj->ki", shift, u[slot])
+        w_b, j_b, count, max_depth = rft_jacobian(handle, data, work, touch, ub[:, :3], ub[:, 3:], g_hat,
+                                                  rest.SPEED_SCALE)
+        f = np.zeros((active.size, 6))
+        np.add.at(f, slot, np.einsum("kji,kj->ki", shift, w_b))
+        df = np.zeros((active.size, 6, 6))
+        np.add.at(df, slot, np.einsum("kji,kjl,klm->kim", shift, j_b, shift))
+        last.update(w_b=w_b, count=count, max_depth=max_depth, u=u)
+        return f, df
+
+    applied_g, resting_g, end, its = rest.implicit_wrenches(free, mobility, law, twist, radius, dt)
+    # The bodies' own law wrenches at the end twists (flow) and at the probe (capacities, rest sharing).
+    probe = rest.blend(twist, free, radius)
+    law(np.where(resting_g[:, None], probe, end), np.ones(active.size, dtype=bool))
+    wrench = last["w_b"]
+    rft_g = np.zeros((active.size, 6))
+    np.add.at(rft_g, slot, np.einsum("kji,kj->ki", shift, wrench))
+    applied = share(applied_g, rft_g, resting_g, wrench, slot, arm, radius)
+    work.state[9] = its
+    occluded = np.zeros(touch.size)
+    return commit(handle, work.diag, touch, applied, wrench, last["count"], last["max_depth"], occluded,
+                  resting_g[slot], sand_out)

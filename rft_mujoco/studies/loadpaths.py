@@ -43,6 +43,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco.coupling.handle import attach
+from rft_mujoco.studies.recorder import StageRecorder
 
 MEDIA = "li_loose_glass_beads"
 RESOLUTION = 0.01
@@ -58,6 +59,8 @@ BALANCE_RTOL = 0.01
 GAIN_RTOL = 1e-9
 """Energy gains beyond this fraction of a step's energy exchange are failures (as the drop study)."""
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
+RK4_WEIGHTS = np.array([1.0, 2.0, 2.0, 1.0]) / 6.0
+"""The stage weights of MuJoCo's RK4 (the sand's impulse of a step)."""
 TIMESTEPS = (0.0005, 0.001, 0.002, 0.005)
 
 _PLATE = "<body name='plate' pos='0 0 0.005'><freejoint/><geom type='box' size='0.05 0.05 0.005' mass='0.2'/>"
@@ -136,6 +139,7 @@ class Result:
     dt: float
     integrator: str
     nan: bool = False
+    observed: int = 0                    # sand evaluations the energy recorder saw (0: nothing measured)
     max_gain: float = -math.inf          # J, largest dE of a step (see rft_mujoco.studies.stability)
     max_gain_rel: float = -math.inf
     t_rest: float = math.inf             # s, every body slower than REST_SPEED from then on
@@ -168,13 +172,12 @@ def run_case(name: str, dt: float, integrator: str, *, stabilize: bool = True, b
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RFTValidityWarning)
         sand = attach(model, MEDIA, bodies=bodies, resolution=RESOLUTION, stabilize=stabilize, backend=backend)
+        rec = StageRecorder(sand, model)
         try:
             ball = model.body("ball").id if name == "rock" else -1
             start = data.qpos.copy()
             mujoco.mj_forward(model, data)
             z0 = data.xipos[sand.body_ids[0], 2]
-            rec = _Recorder(sand, model)
-            minv_j = np.zeros(model.nv)
             for i in range(n):
                 if ball > 0:
                     data.xfrc_applied[ball, 0] = ROCK_PUSH
@@ -184,15 +187,10 @@ def run_case(name: str, dt: float, integrator: str, *, stabilize: bool = True, b
                     res.nan = True
                     n = i
                     break
-                if rec.q:
-                    w = np.array([1.0, 2.0, 2.0, 1.0]) / 6.0 if len(rec.q) == 4 else np.ones(1)
-                    jimp = dt * np.einsum("s,sn->n", w, np.array(rec.q))
-                    if np.any(jimp != 0.0):
-                        mujoco.mj_solveM(model, data, minv_j.reshape(1, -1), jimp.reshape(1, -1))
-                        power = float(jimp @ data.qvel)
-                        quad = 0.5 * float(jimp @ minv_j)
-                        res.max_gain = max(res.max_gain, power - quad)
-                        res.max_gain_rel = max(res.max_gain_rel, (power - quad) / (abs(power) + quad))
+                gain = rec.step_gain(model, data, dt, RK4_WEIGHTS)
+                if gain is not None:
+                    res.max_gain = max(res.max_gain, gain[0])
+                    res.max_gain_rel = max(res.max_gain_rel, gain[1])
                 s = 0.0
                 for b in range(1, model.nbody):
                     mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, b, vel, 0)
@@ -208,11 +206,14 @@ def run_case(name: str, dt: float, integrator: str, *, stabilize: bool = True, b
                 res.balance = float(np.linalg.norm((got - load)[mask]) / np.linalg.norm(load[mask]))
                 res.sinkage = float(z0 - data.xipos[sand.body_ids[0], 2])
         finally:
+            res.observed = rec.evaluations
             sand.detach()
     res.wall = time.perf_counter() - t0
     out = []
     if res.nan:
         out.append("NaN")
+    if res.observed == 0:
+        out.append("energy not measured: the observer saw no sand evaluation")
     if res.max_gain_rel > GAIN_RTOL:
         out.append(f"energy gain {res.max_gain:.3g} J")
     if not res.nan and not res.t_rest <= DEADLINE:
@@ -221,27 +222,6 @@ def run_case(name: str, dt: float, integrator: str, *, stabilize: bool = True, b
         out.append(f"sand force off the load by {res.balance:.3g}")
     res.failures = tuple(out)
     return res
-
-
-class _Recorder:
-    """The sand's generalized force of every evaluation (integrator stage), all its bodies together."""
-
-    def __init__(self, handle, model):
-        self.q = []
-        evaluate = handle._evaluate
-        ids = handle.body_ids
-
-        def wrapped(data, user, sand_out, stage=0):
-            before = sand_out[ids].copy()
-            loaded = evaluate(data, user, sand_out, stage)
-            q = np.zeros(model.nv)
-            for b, w in zip(ids, sand_out[ids] - before):
-                if np.any(w != 0.0):
-                    mujoco.mj_applyFT(model, data, w[:3].copy(), w[3:].copy(), data.xipos[b].copy(), int(b), q)
-            self.q.append(q)
-            return loaded
-
-        handle._evaluate = wrapped
 
 
 def cases(quick: bool = False) -> list[tuple[str, float, str]]:

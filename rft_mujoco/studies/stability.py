@@ -59,6 +59,7 @@ from rft_mujoco.coupling.handle import attach
 from rft_mujoco.physics.law import element_forces
 from rft_mujoco.physics.media import PRESETS, get_media
 from rft_mujoco.coupling.monitor import RFTValidityWarning
+from rft_mujoco.studies.recorder import StageRecorder
 
 # --- the matrix: one place ---------------------------------------------------------------------------
 SHAPES = {
@@ -123,6 +124,7 @@ class Case:
 class Result:
     case: Case
     nan: bool = False
+    observed: int = 0                    # sand evaluations the energy recorder saw (0: nothing measured)
     max_gain: float = -math.inf          # J, largest dE of a step
     max_gain_rel: float = -math.inf      # dE / (|J.v+| + 0.5 J M^-1 J)
     t_rest: float = math.inf             # s
@@ -212,25 +214,6 @@ def _twist_speed(model, data, wrench, radius: float) -> float:
     return float(np.linalg.norm(acc[:3]) + radius * np.linalg.norm(acc[3:6]))
 
 
-class _StageRecorder:
-    """Records the sand's generalized force of every evaluation (integrator stage) of one body."""
-
-    def __init__(self, handle, model, body: int):
-        self.q = []
-        evaluate = handle._evaluate
-
-        def wrapped(data, user, sand_out, stage=0):
-            before = sand_out[body].copy()
-            loaded = evaluate(data, user, sand_out, stage)
-            w = sand_out[body] - before
-            q = np.zeros(model.nv)
-            mujoco.mj_applyFT(model, data, w[:3].copy(), w[3:].copy(), data.xipos[body].copy(), body, q)
-            self.q.append(q)
-            return loaded
-
-        handle._evaluate = wrapped
-
-
 # --- one case -----------------------------------------------------------------------------------------
 def run_case(case: Case) -> Result:
     res = Result(case)
@@ -254,10 +237,9 @@ def run_case(case: Case) -> Result:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RFTValidityWarning)
         sand = attach(model, case.media, resolution=RESOLUTION, stabilize=case.stabilize)
+        rec = StageRecorder(sand, model)
         try:
             radius = float(sand._bound_radius[0])
-            rec = _StageRecorder(sand, model, 1)
-            minv_j = np.zeros(model.nv)
             for i in range(n):
                 t = i * dt
                 loaded = case.kind != "drop" and SETTLE <= t < SETTLE + LOAD
@@ -268,16 +250,10 @@ def run_case(case: Case) -> Result:
                     res.nan = True
                     n = i
                     break
-                if rec.q:
-                    w = weights if len(rec.q) == len(weights) else np.ones(len(rec.q)) / len(rec.q)
-                    jimp = dt * np.einsum("s,sn->n", w, np.array(rec.q))
-                    if np.any(jimp != 0.0):
-                        mujoco.mj_solveM(model, data, minv_j.reshape(1, -1), jimp.reshape(1, -1))
-                        power = float(jimp @ data.qvel)
-                        quad = 0.5 * float(jimp @ minv_j)
-                        gain = power - quad
-                        res.max_gain = max(res.max_gain, gain)
-                        res.max_gain_rel = max(res.max_gain_rel, gain / (abs(power) + quad))
+                gain = rec.step_gain(model, data, dt, weights)
+                if gain is not None:
+                    res.max_gain = max(res.max_gain, gain[0])
+                    res.max_gain_rel = max(res.max_gain_rel, gain[1])
                 speeds[i] = np.linalg.norm(data.qvel[:3]) + radius * np.linalg.norm(data.qvel[3:6])
                 heights[i] = data.qpos[2]
                 if loaded and speeds[i] >= REST_SPEED:
@@ -305,6 +281,7 @@ def run_case(case: Case) -> Result:
                 res.i_micro = worst.get("i_micro", (math.nan,))[0]
                 res.depth_ratio = worst.get("depth_ratio", (math.nan,))[0]
         finally:
+            res.observed = rec.evaluations
             sand.detach()
     res.validity_warnings = sum(issubclass(w.category, RFTValidityWarning) for w in caught)
     if n and not res.nan:
@@ -339,6 +316,8 @@ def failures(res: Result) -> tuple:
     case, out = res.case, []
     if res.nan:
         out.append("NaN")
+    if res.observed == 0:
+        out.append("energy not measured: the observer saw no sand evaluation")
     if res.max_gain_rel > GAIN_RTOL:
         out.append(f"energy gain {res.max_gain:.3g} J")
     if case.kind == "drop" and case.stabilize and case.dt <= REST_DT_MAX + 1e-12 and not res.nan:
