@@ -25,7 +25,6 @@ Units: SI (m, s, N, rad) throughout.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import time
 
@@ -165,8 +164,8 @@ class _Swimmer:
 
     def pose(self, root: np.ndarray, q: np.ndarray, qd: np.ndarray):
         """Place the links at root pose (x m, y m, yaw rad) and joint angles ``q`` (rad) moving at ``qd`` (rad/s).
-        Returns the balance ``r(u, eps)`` of the root velocity u = (vx, vy, omega_z) and the exposed element
-        count.
+        Returns the balance ``r(u, eps)`` of the root velocity u = (vx, vy, omega_z) and the share of the surface
+        area that is exposed (not inside a neighbouring link).
 
         ``r(u, eps)`` -> ((3,) the sand's generalized force on root_x, root_y (N) and root_yaw (N m) over the
         body length, the gross force sum |f_e| in N): each exposed, submerged, leading element feels the law's
@@ -209,7 +208,7 @@ class _Swimmer:
                             (arm[idx, 0] * f[:, 1] - arm[idx, 1] * f[:, 0]).sum() / self.length])
             return gen, float(np.abs(f).sum())
 
-        return residual, int(e.size)
+        return residual, float(self.bodies.areas[e].sum() / self.bodies.areas.sum())
 
     def com(self) -> np.ndarray:
         """(2,) the whole body's centre of mass in the plane (m) at the last pose."""
@@ -306,9 +305,11 @@ def swimmer_limit(amplitude: float, frequency: float = 1.0, *, element_size: flo
     Method: for each instant t the joints follow ``q_i = ramp(t) a sin(2 pi f t - 2 pi i / 6)`` exactly
     (``mirror``: ``-q_i``, the mirrored wave); the planar root velocity u = (vx m/s, vy m/s, omega_z rad/s) is
     the root of the sand's generalized force on the three root dofs (in-plane force and torque about z of the
-    whole body: every link, the exposed surface), solved by damped Newton from the last instant's u; the root
-    pose is advanced by classical RK4 with ``steps_per_cycle`` steps per period. No inertia, no servo, no
-    MuJoCo dynamics. The swim study's floor plane is the sand surface (height 0, :data:`MALADEN_GLASS_BEADS`).
+    whole body: every link, the exposed surface), solved by quasi-Newton from the last instant's u
+    (:class:`_Newton`: the element forces regularized at ``reg`` times the speed scale, so that a link at
+    rest, whose force the law leaves set-valued, can anchor the rest); the root pose is advanced by classical
+    RK4 with ``steps_per_cycle`` steps per period. No inertia, no servo, no MuJoCo dynamics. The swim study's
+    floor plane is the sand surface (height 0, :data:`MALADEN_GLASS_BEADS`).
 
     Args:
         amplitude: joint amplitude a, rad.
@@ -324,9 +325,9 @@ def swimmer_limit(amplitude: float, frequency: float = 1.0, *, element_size: flo
     Returns:
         dict: amplitude_rad, frequency_hz, element_size_m, steps_per_cycle, cull, a_over_lambda, wavelength_m,
         speed_mps (|COM displacement| over the measured span), forward_mps (its x part), lateral_mps (y part),
-        eta (speed / (f lambda)), yaw_drift_rad (over the measured span), max_residual (largest balance
-        residual over the gross force), n_elements, exposed_fraction (the mean share of elements not
-        inside a neighbouring link), solves (balance solves), evaluations (of the
+        eta (speed / (f lambda)), yaw_drift_rad (over the measured span), max_residual and mean_residual
+        (of the balance over the gross force, over the solves), n_elements, exposed_area_fraction (the mean
+        share of the surface area not inside a neighbouring link), solves (balance solves), evaluations (of the
         balance), wall_s.
     """
     from rft_mujoco.studies.swim import wave_shape
@@ -342,18 +343,19 @@ def swimmer_limit(amplitude: float, frequency: float = 1.0, *, element_size: flo
     sign = -1.0 if mirror else 1.0
     h = 1.0 / (frequency * steps_per_cycle)
     speed_scale = max(amplitude * 2 * math.pi * frequency * sw.length, 1e-6)   # m/s, the body's joint speeds
-    state = dict(u=np.zeros(3), worst=0.0, solves=0, exposed=0, evals=0)
+    state = dict(u=np.zeros(3), worst=0.0, solves=0, exposed=0.0, evals=0, mean_residual=0.0)
     newton = _Newton(speed_scale, sw.length, reg)
 
     def velocity(t: float, root: np.ndarray) -> np.ndarray:
         q, qd = _serpenoid(t, amplitude, frequency, sw.n_joints)
-        residual, n_exposed = sw.pose(root, sign * q, sign * qd)
+        residual, exposed = sw.pose(root, sign * q, sign * qd)
         u, res, evals = newton.solve(residual, state["u"])
         state["u"] = u
         state["evals"] += evals
         state["worst"] = max(state["worst"], res)
         state["solves"] += 1
-        state["exposed"] += n_exposed
+        state["exposed"] += exposed
+        state["mean_residual"] += res
         return u
 
     root = sw.data.qpos[:3].copy()   # the model's qpos0 = the keyframe "buried" (straight, heading +x)
@@ -383,7 +385,8 @@ def swimmer_limit(amplitude: float, frequency: float = 1.0, *, element_size: flo
                 lateral_mps=float(disp[1] / span), eta=speed / (frequency * lam),
                 yaw_drift_rad=float(root[2]) - yaw0, max_residual=state["worst"],
                 n_elements=int(sw.bodies.areas.size),
-                exposed_fraction=state["exposed"] / max(state["solves"], 1) / sw.bodies.areas.size,
+                mean_residual=state["mean_residual"] / max(state["solves"], 1),
+                exposed_area_fraction=state["exposed"] / max(state["solves"], 1),
                 solves=state["solves"], evaluations=state["evals"],
                 continuations=newton.continuations, reg=float(reg), wall_s=time.perf_counter() - t0)
 
@@ -518,3 +521,40 @@ def scene_rest_depth(name: str, *, element_size: float | None = None, media: Med
     depth = rest_depth_of(model, body, load, element_size=loadpaths.RESOLUTION if element_size is None
                           else element_size, media=loadpaths.MEDIA if media is None else media)
     return depth, load
+
+
+# --- command line --------------------------------------------------------------------------------------------
+def run(quick: bool = False, progress=print) -> dict:
+    """The swimmer's limits at :data:`SWIM_AMPLITUDES` (1 Hz) and every scene's rest depth; prints tables."""
+    from rft_mujoco.studies import loadpaths
+
+    size, steps = (0.006, 25) if quick else (SWIM_ELEMENT_SIZE, STEPS_PER_CYCLE)
+    progress(f"swimmer, inertia-free limit (1 Hz, {size * 1e3:g} mm elements, {steps} RK4 steps per period, "
+             f"speed over the last 2 of 4 periods)")
+    progress(f"{'a rad':>6} {'A/lambda':>9} {'eta':>7} {'forward m/s':>12} {'lateral m/s':>12} {'yaw drift':>10} "
+             f"{'residual':>9} {'wall s':>7}")
+    swims = []
+    for a in SWIM_AMPLITUDES:
+        r = swimmer_limit(a, 1.0, element_size=size, steps_per_cycle=steps)
+        swims.append(r)
+        progress(f"{a:6.2f} {r['a_over_lambda']:9.3f} {r['eta']:7.4f} {r['forward_mps']:12.5f} "
+                 f"{r['lateral_mps']:12.5f} {r['yaw_drift_rad']:10.4f} {r['max_residual']:9.1e} {r['wall_s']:7.1f}")
+    progress(f"\nquasi-static rest depths ({loadpaths.MEDIA}, {loadpaths.RESOLUTION * 1e3:g} mm elements as the "
+             "load-path study; depth = the sand body's displacement from its start pose = its lowest point's depth)")
+    progress(f"{'scene':>15} {'load N':>8} {'depth mm':>9}")
+    depths = {}
+    for name in list(loadpaths.SCENES) + list(SELF_WEIGHT):
+        d, load = scene_rest_depth(name)
+        depths[name] = (d, load)
+        progress(f"{name:>15} {load:8.3f} {d * 1e3:9.3f}")
+    return dict(swim=swims, depths=depths)
+
+
+def main(argv: list[str] | None = None, command: str = "quasistatic") -> int:
+    parser = argparse.ArgumentParser(prog=f"python -m rft_mujoco {command}",
+                                     description="Quasi-static references: the swimmer's inertia-free limit and "
+                                                 "the rest depths of the load-path scenes.")
+    parser.add_argument("--quick", action="store_true", help="6 mm elements and 25 steps per period (minutes)")
+    args = parser.parse_args(argv)
+    run(quick=args.quick)
+    return 0
