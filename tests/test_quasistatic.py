@@ -143,3 +143,30 @@ def test_swimmer_balance_mirror_symmetric(t):
 def test_swimmer_limit_converged_in_steps():
     coarse, fine = _swim(0.9, 8), _swim(0.9, 16)
     assert fine["eta"] == pytest.approx(coarse["eta"], rel=0.02)
+
+
+def test_swimmer_balance_matches_body_wrenches():
+    """The swimmer's balance (its own element pass, eps = 0) against the per-body law of
+    physics.elements.body_wrenches mapped through MuJoCo's COM Jacobians: the generalized force on the root."""
+    from rft_mujoco.physics import elements
+    from rft_mujoco.physics.law import PUBLISHED
+    from rft_mujoco.physics.media import MALADEN_GLASS_BEADS
+    from rft_mujoco.physics.terrain import FlatSurface
+    sw = qs._Swimmer(0.01, True, MALADEN_GLASS_BEADS)
+    q, qd = qs._serpenoid(1.3, 0.9, 1.0, sw.n_joints)
+    root, u = np.array([0.02, 0.01, 0.4]), np.array([0.01, -0.004, 0.3])
+    residual, _ = sw.pose(root, q, qd)
+    got, _ = residual(u, 0.0)
+    m, d = sw.model, sw.data                       # posed by sw.pose
+    d.qvel[:3], d.qvel[3:] = u, qd
+    ids, b = sw.bodies.ids, sw.bodies
+    jp, jr = qs._jacobians(m, d, ids)
+    v, w = jp @ d.qvel, jr @ d.qvel
+    wr, _, _ = elements.body_wrenches(b.centroids, b.normals, b.areas, b.elem_body, ids.size, d.xpos[ids],
+                                      d.xmat[ids].reshape(-1, 3, 3), d.xipos[ids], v, w, FlatSurface(0.0),
+                                      np.array([0.0, 0.0, -1.0]), m.opt.gravity, MALADEN_GLASS_BEADS, PUBLISHED,
+                                      b.exposed(d))
+    gen = np.einsum("bij,bi->j", jp, wr[:, :3]) + np.einsum("bij,bi->j", jr, wr[:, 3:])
+    want = gen[:3] * [1.0, 1.0, 1.0 / sw.length]
+    assert np.linalg.norm(want) > 0.1
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
