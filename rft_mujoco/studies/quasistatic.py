@@ -4,7 +4,8 @@
 against. Both use only the exposed surface elements that ``attach`` builds
 (:func:`rft_mujoco.coupling.setup.surfaces`, culled inside a body's own geoms at attach, and inside other
 bodies' geoms at each pose as the coupling's run-time culling does), the published law
-(:func:`rft_mujoco.physics.elements.body_wrenches`: guards off, flat free surface) and force balance.
+(:func:`rft_mujoco.physics.law.stress_per_depth`, through :func:`rft_mujoco.physics.elements.body_wrenches`
+for the depths; guards off, flat free surface) and force balance.
 MuJoCo places the links for a given ``qpos`` (``mj_kinematics``, ``mj_comPos``, ``mj_jacBodyCom``) and
 nothing else: no ``mj_step``, no masses, no constraint solve.
 
@@ -12,8 +13,8 @@ nothing else: no ``mj_step``, no masses, no constraint solve.
    serpenoid (:mod:`rft_mujoco.studies.swim`). At each instant the joint angles and rates are exactly the
    commanded ones; the planar root velocity ``u = (vx, vy, omega_z)`` (the root joints ``root_x``,
    ``root_y``, ``root_yaw``) is the one at which the sand's generalized force on the three root dofs
-   vanishes (zero in-plane force, zero torque about z: damped Newton, finite-difference Jacobian, warm
-   started). The root pose is integrated with classical RK4 (a solve per stage). eta, speed and A/lambda
+   vanishes (zero in-plane force, zero torque about z: quasi-Newton, finite-difference Jacobian, warm
+   started; the element forces regularized at a tiny speed, :class:`_Newton`). The root pose is integrated with classical RK4 (a solve per stage). eta, speed and A/lambda
    are defined as in :func:`rft_mujoco.studies.swim.swim`, so the numbers compare one to one.
 2. :func:`rest_depth_of` / :func:`scene_rest_depth`: the depth at which the sand first carries a given
    load on a body moving straight down along the load (bisection on the law's force against the body's
@@ -40,17 +41,19 @@ from rft_mujoco.physics.terrain import FlatSurface
 
 # --- settings: one place ---------------------------------------------------------------------------------
 SWIM_ELEMENT_SIZE = 0.003
-"""m: the swimmer's element size (the surface is converged there: see docs/rest.md, "Quasi-static references")."""
-STEPS_PER_CYCLE = 100
-"""RK4 steps per wave period of :func:`swimmer_limit` (converged: docs/rest.md)."""
+"""m: the swimmer's element size. The limit wanders by +-3% with the element size from 4 to 1 mm (the run-time
+culling at the joints), 3 mm at its low end; without culling it is converged there (docs/rest.md,
+"Quasi-static references")."""
+STEPS_PER_CYCLE = 50
+"""RK4 steps per wave period of :func:`swimmer_limit` (25, 50 and 100 agree to 0.1%: docs/rest.md)."""
 NEWTON_RTOL = 1e-9
 """Balance tolerance of the swimmer's solve: |generalized root force| (N, and N m over the body length) over
 the gross element force sum |f_e| (N)."""
 NEWTON_MAX_ITER = 40
 FD_STEP = 1e-4
+"""The finite-difference step of the swimmer's Jacobian, as a fraction of |u|."""
 REG_SPEED = 1e-6
 """The regularization speed of the swimmer's solve as a fraction of its speed scale a 2 pi f L (see :class:`_Newton`)."""
-"""The finite-difference step of the swimmer's Jacobian, as a fraction of |u|."""
 DEPTH_TOL = 1e-7
 """m: bisection tolerance of the rest depths."""
 DEPTH_MAX = 1.0
