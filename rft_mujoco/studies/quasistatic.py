@@ -331,7 +331,7 @@ def swimmer_limit(amplitude: float, frequency: float = 1.0, *, element_size: flo
         eta (speed / (f lambda)), yaw_drift_rad (over the measured span), max_residual and mean_residual
         (of the balance over the gross force, over the solves), n_elements, exposed_area_fraction (the mean
         share of the surface area not inside a neighbouring link), solves (balance solves), evaluations (of the
-        balance), wall_s.
+        balance), continuations (solves rerun by continuation in the regularization), reg, wall_s (s).
     """
     from rft_mujoco.studies.swim import wave_shape
 
