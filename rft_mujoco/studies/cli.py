@@ -1,4 +1,4 @@
-"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim}`` (``--help`` on each)."""
+"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic}`` (``--help`` on each)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,8 @@ COMMANDS = {
     "bench": ("rft_mujoco.studies.bench", "speed and speed-accuracy benchmarks: tables and plots"),
     "stability": ("rft_mujoco.studies.stability", "drop / drag / rotate stability study: table and stability map"),
     "swim": ("rft_mujoco.studies.swim", "sand-swimming: wave efficiency against A/lambda, against experiments"),
+    "quasistatic": ("rft_mujoco.studies.quasistatic", "quasi-static references: the swimmer's inertia-free limit, "
+                    "rest depths of the load-path scenes"),
 }
 
 
