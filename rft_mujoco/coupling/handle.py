@@ -114,7 +114,7 @@ class _Workspace:
     :data:`rft_mujoco.compiled.evaluate.WORK_FIELDS` (the diagnostics are views of them), their tuple for the
     compiled calls, and the tuple of the MjData's arrays."""
 
-    __slots__ = ("arrays", "tuple", "md", "diag", "keep")
+    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing")
 
     def __init__(self, handle, data) -> None:
         from rft_mujoco.compiled import evaluate
@@ -126,6 +126,7 @@ class _Workspace:
         self.diag = Diagnostics(a["force"], a["torque"], a["submerged"], a["max_depth"], a["scale"],
                                 a["rft_force"], a["resting"], a["occluded_area"])
         self.keep = reference.StepKeep()
+        self.flowing = None                 # the implicit solve's (touching groups, flowed) of the last evaluation
 
     @property
     def state(self) -> np.ndarray:
