@@ -119,8 +119,11 @@ def surfaces(model, body_ids, names, size: float, cull: bool = True) -> Surfaces
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         out = _surfaces(model, body_ids, names, size, cull)
-    for w in caught:
-        warnings.warn(w.message, w.category, stacklevel=user_stacklevel())
+    seen = set()
+    for w in caught:                            # once per text: a mesh asset used by several geoms warns once
+        if (str(w.message), w.category) not in seen:
+            seen.add((str(w.message), w.category))
+            warnings.warn(w.message, w.category, stacklevel=user_stacklevel())
     return out
 
 

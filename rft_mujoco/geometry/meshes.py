@@ -325,8 +325,9 @@ def mesh(vertices, faces, size=None, *, name: str = "mesh") -> Elements:
     return _mesh(vertices, faces, size, f"mesh {name!r}")
 
 
-def _mesh(vertices, faces, size, label: str) -> Elements:
-    """:func:`mesh`, with ``label`` naming the mesh in errors and warnings."""
+def _mesh(vertices, faces, size, label: str, notice: str | None = None) -> Elements:
+    """:func:`mesh`, with ``label`` naming the mesh in errors and ``notice`` (default ``label``) in the
+    warning (the same mesh asset used by several geoms gives the same warning text, shown once)."""
     v = as_points(vertices, "vertices")
     f = np.asarray(faces)
     if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
@@ -351,7 +352,7 @@ def _mesh(vertices, faces, size, label: str) -> Elements:
     o = orientation(v, f[keep], name=label)
     notes = o.notes()
     if notes:
-        warnings.warn(f"rft_mujoco: {label} is used as given, approximated: " + "; ".join(notes) + ". To silence "
+        warnings.warn(f"rft_mujoco: {notice or label} is used as given, approximated: " + "; ".join(notes) + ". To silence "
                       "this, repair the mesh (e.g. trimesh: mesh.merge_vertices(); trimesh.repair.fix_normals(mesh); "
                       "trimesh.repair.fill_holes(mesh)) or filter SandSetupWarning", SandSetupWarning, stacklevel=3)
     t = v[o.faces]

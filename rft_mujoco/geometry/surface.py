@@ -300,7 +300,7 @@ def geom_elements(model, geom_id: int, size: float) -> Elements:
         fa, fn = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
         label = repr(model.mesh(m).name) if model.mesh(m).name else f"id {m}"
         return _mesh(model.mesh_vert[va:va + vn], model.mesh_face[fa:fa + fn], h,
-                     f"mesh {label} of {_geom_label(model, g)}")
+                     f"mesh {label} of {_geom_label(model, g)}", f"mesh {label}")
     try:
         type_name = _GEOM(t).name.removeprefix("mjGEOM_").lower()
     except ValueError:
