@@ -5,7 +5,8 @@ Nothing here is copied from a public model: every mesh is generated below (numpy
 to MuJoCo as in-memory assets. Used by the bench (section 5, :func:`standing_cost`) and by
 tests/test_mesh_robots.py.
 
-* :func:`mesh_humanoid`: a 33 kg biped; torso, thighs, shins and soles are STL meshes made of two
+* :func:`mesh_humanoid`: a 34 kg biped (its servos only hold the joint angles: on loose sand its soles
+  sink a few cm and it falls backwards, then lies at rest, like the public humanoids with a pose holder); torso, thighs, shins and soles are STL meshes made of two
   closed boxes that share an edge (non-manifold edges, consistently wound, like a humanoid's shipped
   links); the head is a visual-only mesh body; servos hold ``home``.
 * :func:`mesh_quadruped`: a 17 kg quadruped; box torso, visual-only hip bodies (an OBJ mesh each), capsule
@@ -95,10 +96,10 @@ def mesh_humanoid() -> mujoco.MjModel:
     assets = {"torso.stl": _stl(*two_box_link((0.22, 0.32, 0.40))),
               "thigh.stl": _stl(*two_box_link((0.10, 0.10, 0.36))),
               "shin.stl": _stl(*two_box_link((0.08, 0.08, 0.36))),
-              "sole.stl": _stl(*two_box_link((0.26, 0.13, 0.04), split=0.45)),
+              "sole.stl": _stl(*two_box_link((0.30, 0.16, 0.04), split=0.45)),
               "head.stl": _stl(*_icosphere(0.1))}
     legs = ""
-    for side, y in (("left", 0.1), ("right", -0.1)):
+    for side, y in (("left", 0.12), ("right", -0.12)):
         legs += f"""
         <body name="{side}_thigh" pos="0 {y} -0.22">
           <joint name="{side}_hip" axis="0 1 0" range="-1.5 1.5"/>
@@ -110,14 +111,14 @@ def mesh_humanoid() -> mujoco.MjModel:
             <geom type="mesh" mesh="shin" pos="0 0 -0.18"/>
             <body name="{side}_foot" pos="0 0 -0.36">
               <joint name="{side}_ankle" axis="0 1 0" range="-1 1"/>
-              <inertial pos="0.03 0 -0.02" mass="1.2" diaginertia="0.004 0.006 0.008"/>
-              <geom type="mesh" mesh="sole" pos="0.03 0 -0.02"/>
+              <inertial pos="0 0 -0.02" mass="1.2" diaginertia="0.004 0.006 0.008"/>
+              <geom type="mesh" mesh="sole" pos="0 0 -0.02"/>
             </body>
           </body>
         </body>"""
     actuators = "".join(f'<position joint="{s}_{j}" kp="{kp}" kv="{kv}"/>'
-                        for s in ("left", "right") for j, kp, kv in (("hip", 800, 40), ("knee", 800, 40),
-                                                                     ("ankle", 400, 20)))
+                        for s in ("left", "right") for j, kp, kv in (("hip", 3000, 60), ("knee", 3000, 60),
+                                                                     ("ankle", 3000, 60)))
     xml = f"""
     <mujoco model="mesh_humanoid">
       {_OPTION}
@@ -205,8 +206,9 @@ def standing_cost(names=None, resolution="default", settle_s: float = 1.5, steps
 
     Returns:
         one dict per robot: name, elements, area (m^2), count_ratio (elements / (area / size^2)),
-        attach_s, bare_us, sand_us, ratio, height (torso, m, after settling), sink (m, of the lowest
-        sand element), weight_carried (sand force z / total weight, after settling).
+        attach_s, bare_us, sand_us, ratio, height (torso, m, after settling), weight_carried (sand force z /
+        total weight, after settling), loaded and resting (bodies with submerged elements, and those of
+        them held at rest by the rest treatment), speed (torso, m/s, after settling), summary (``handle.summary()``).
     """
     from rft_mujoco.coupling.handle import attach
     from rft_mujoco.geometry import surface
@@ -231,6 +233,9 @@ def standing_cost(names=None, resolution="default", settle_s: float = 1.5, steps
         diag = handle.diagnostics(data)
         weight = float(model.body_subtreemass[1] * -model.opt.gravity[2])
         carried = float(diag.force[:, 2].sum() / weight)
+        loaded = diag.submerged > 0
+        resting = int(np.count_nonzero(diag.resting & loaded))
+        speed = float(np.linalg.norm(data.qvel[:3]))
         sand_t, bare_t = [], []
         state = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
         mujoco.mj_getState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
@@ -248,6 +253,7 @@ def standing_cost(names=None, resolution="default", settle_s: float = 1.5, steps
                          count_ratio=handle.n_elements / (area / size**2), attach_s=attach_s,
                          bare_us=1e6 * float(np.median(bare_t)), sand_us=1e6 * float(np.median(sand_t)),
                          ratio=float(np.median(sand_t) / np.median(bare_t)), height=float(data.qpos[2]),
-                         weight_carried=carried, summary=handle.summary()))
+                         weight_carried=carried, loaded=int(loaded.sum()), resting=resting, speed=speed,
+                         summary=handle.summary()))
         handle.detach()
     return rows
