@@ -5,9 +5,9 @@ Elements (:func:`mesh` with a ``size``) are made in two passes, both vectorized:
 
 1. pieces: each triangle is cut into small flat pieces whose extent is at most ``PIECE_FRACTION * size``
    (:func:`_pieces`): a long thin triangle is cut along its length only, a triangle already smaller
-   than that stays whole;
-2. clusters: pieces are gathered into cells of a grid of edge ``VOXEL_SCALE * size`` (body-independent,
-   in the mesh frame), one cluster per cell and normal direction (the six faces of a cube map, so the
+   than that stays whole, others into congruent sub-triangles;
+2. clusters: pieces are gathered into cells of a grid of edge ``VOXEL_SCALE * size`` (in the mesh frame,
+   a cell centred on the middle of the mesh), one cluster per cell and normal direction (the six faces of a cube map, so the
    two sides of a thin plate and the faces of a sharp edge stay apart); a cluster whose normals spread
    more than :data:`SPREAD_TOL` (a small curved feature, an edge sharper than the cube map sees) is
    split by finer normal directions (:data:`FINE_NORMAL_BINS`). An element is a cluster: its area is
@@ -229,12 +229,14 @@ def orientation(vertices, faces, *, name: str = "mesh") -> Orientation:
 def _pieces(t: np.ndarray, area: np.ndarray, size: float):
     """Cut triangles ``t`` (m, 3, 3) (areas (m,), m^2) into flat pieces at most ``size`` m across.
 
-    Each triangle is parametrized from its tip ``T`` (the vertex opposite its shortest edge ``PQ``) as
-    ``x(s, w) = T + s ((P - T) + w (Q - P))`` on ``[0, 1]^2``, area density ``2 A s``; the pieces are the
-    images of an ``m x n`` grid, ``m = ceil(max(|TP|, |TQ|) / size)``, ``n = ceil(|PQ| / size)``: strips
-    across the long direction, cut along it only where the triangle is wide. Piece areas and centroids
-    are exact: area ``A (s1^2 - s0^2) (w1 - w0)``, centroid at ``s = (2/3)(s1^3 - s0^3) / (s1^2 - s0^2)``,
-    ``w = (w0 + w1) / 2``.
+    A well-shaped triangle is cut into ``k^2`` congruent triangles, ``k = ceil(longest edge / size)`` (a
+    cut that does not depend on the order of its vertices: mirror images give mirror pieces). A thin one
+    (where that would give more than twice the pieces of the strips below) is parametrized from its tip
+    ``T`` (the vertex opposite its shortest edge ``PQ``) as ``x(s, w) = T + s ((P - T) + w (Q - P))`` on
+    ``[0, 1]^2``, area density ``2 A s``, and cut along an ``m x n`` grid, ``m = ceil(max(|TP|, |TQ|) /
+    size)``, ``n = ceil(|PQ| / size)``: strips across its long direction. Piece areas and centroids are
+    exact (strips: area ``A (s1^2 - s0^2) (w1 - w0)``, centroid at ``s = (2/3)(s1^3 - s0^3) / (s1^2 - s0^2)``,
+    ``w = (w0 + w1) / 2``).
 
     Returns:
         centroids (N, 3) m, areas (N,) m^2, triangle index (N,) int.
@@ -247,18 +249,41 @@ def _pieces(t: np.ndarray, area: np.ndarray, size: float):
     long = np.maximum(np.linalg.norm(P - T, axis=1), np.linalg.norm(Q - T, axis=1))
     m = np.maximum(np.ceil(long / size - tol.ROUND_RTOL), 1).astype(np.int64)
     n = np.maximum(np.ceil(opposite[r, tip] / size - tol.ROUND_RTOL), 1).astype(np.int64)
-    per = m * n
-    tri = np.repeat(r, per)
+    k = np.maximum(np.ceil(opposite.max(axis=1) / size - tol.ROUND_RTOL), 1).astype(np.int64)
+    thin = k * k > 2 * m * n
+    parts = []
+    for kk in np.unique(k[~thin]):                       # congruent sub-triangles, one pass per k
+        sel = np.flatnonzero(~thin & (k == kk))
+        uw = _subdivision_centroids(int(kk))
+        e1, e2 = t[sel, 1] - t[sel, 0], t[sel, 2] - t[sel, 0]
+        c = t[sel, None, 0] + uw[None, :, 0, None] * e1[:, None] + uw[None, :, 1, None] * e2[:, None]
+        parts.append((c.reshape(-1, 3), np.repeat(area[sel] / uw.shape[0], uw.shape[0]),
+                      np.repeat(sel, uw.shape[0])))
+    sel = np.flatnonzero(thin)
+    per = (m * n)[sel]
+    tri = np.repeat(sel, per)
     local = np.arange(tri.size) - np.repeat(np.cumsum(per) - per, per)
     i, j = local // n[tri], local % n[tri]
     s0, s1 = i / m[tri], (i + 1) / m[tri]
     w0, w1 = j / n[tri], (j + 1) / n[tri]
     d2 = s1**2 - s0**2
-    a = area[tri] * d2 * (w1 - w0)
     s = (2.0 / 3.0) * (s1**3 - s0**3) / d2
     w = 0.5 * (w0 + w1)
     c = T[tri] + s[:, None] * ((P - T)[tri] + w[:, None] * (Q - P)[tri])
-    return c, a, tri
+    parts.append((c, area[tri] * d2 * (w1 - w0), tri))
+    return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+            np.concatenate([p[2] for p in parts]))
+
+
+def _subdivision_centroids(k: int) -> np.ndarray:
+    """(k^2, 2) barycentric (u, w) of the centroids of the k^2 congruent sub-triangles of a triangle
+    (point = v0 + u (v1 - v0) + w (v2 - v0))."""
+    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    up = i + j <= k - 1
+    down = i + j <= k - 2
+    return np.concatenate([np.stack([i[up] + 1 / 3, j[up] + 1 / 3], axis=1),
+                           np.stack([i[down] + 2 / 3, j[down] + 2 / 3], axis=1)]) / k
 
 
 def _normal_bins(n: np.ndarray, per_face: int) -> np.ndarray:
@@ -282,7 +307,11 @@ def _clusters(c: np.ndarray, n: np.ndarray, a: np.ndarray, size: float) -> Eleme
     the grid clusters of the module docstring."""
     out_c, out_n, out_a = [], [], []
     rest = np.arange(a.size)
-    vox = np.floor(c / (VOXEL_SCALE * size)).astype(np.int64)
+    # cells centred on the middle of the pieces' bounding box: a mesh symmetric about its middle gets a
+    # symmetric grid, and its mid-planes (where piece centroids of symmetric meshes lie) are no cell
+    # boundaries, so float32 round-off of MuJoCo's vertices does not move pieces between cells there
+    mid = 0.5 * (c.min(axis=0) + c.max(axis=0))
+    vox = np.floor((c - mid) / (VOXEL_SCALE * size) + 0.5).astype(np.int64)
     vox -= vox.min(axis=0)
     span = vox.max(axis=0) + 1
     for per_face in (1, FINE_NORMAL_BINS):
