@@ -240,8 +240,8 @@ def test_mesh_from_mjcf():
     assert model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
     exact_area = 8 * (0.01 * 0.02 + 0.02 * 0.03 + 0.01 * 0.03)
     exact_volume = 8 * 0.01 * 0.02 * 0.03
-    coarse = surface.geom_elements(model, g, 1.0)          # no subdivision needed: the 12 faces
-    assert len(coarse) == 12
+    coarse = surface.geom_elements(model, g, 1.0)          # one grid cell: one element per face
+    assert len(coarse) == 6
     for h in (0.01, 0.005):
         el = surface.geom_elements(model, g, h)
         assert el.area() == pytest.approx(exact_area, rel=1e-6)
@@ -259,8 +259,9 @@ def test_mesh_pieces_match_plain_integration():
     with pytest.warns(UserWarning, match="'tri' is used as given.*open"):
         el = surface.mesh(v, [[0, 1, 2]], size=0.01, name="tri")
     assert el.area() == pytest.approx(0.5 * 0.3 * 0.01) and np.allclose(el.normals, [0, 0, 1])
-    # one element per grid cell along the sliver (not k^2 = 900 sub-triangles as by longest-edge cutting)
-    assert len(el) <= math.ceil(0.3 / (meshes.VOXEL_SCALE * 0.01)) + 1
+    # one element per grid cell the sliver crosses (a line of length L crosses at most sqrt(3) L / cell
+    # cells of the turned grid), not k^2 = 900 sub-triangles as by longest-edge cutting
+    assert len(el) <= math.ceil(math.sqrt(3) * 0.3 / (meshes.VOXEL_SCALE * 0.01)) + 2
     c, a, tri = meshes._pieces(v[None], np.array([0.5 * 0.3 * 0.01]), 0.005)
     assert a.sum() == pytest.approx(0.0015) and np.allclose((c * a[:, None]).sum(0) / a.sum(), v.mean(0))
     # each piece against plain sampling: uniform points of the triangle binned by the (s, w) grid of the

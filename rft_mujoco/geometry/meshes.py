@@ -64,6 +64,26 @@ SPREAD_TOL = 0.02
 """A cluster whose normals spread, ``1 - |sum n dA| / sum dA``, more than this is split (a cap of
 half-angle a has spread ``(1 - cos a) / 2``: 0.02 is a = 16 degrees, cells of about 32 degrees, near the
 18-degree cells that :data:`rft_mujoco.geometry.surface.MIN_CIRCLE_SEGMENTS` gives small primitives)."""
+def _rotation(axis, angle: float) -> np.ndarray:
+    a = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+GRID_AXIS, GRID_ANGLE = (1.0, 2.0, 3.0), 0.7
+"""The clustering grid is turned by GRID_ANGLE rad about GRID_AXIS against the mesh frame, so that its cell
+layers are not horizontal when the mesh stands upright in the sand: cells cut by the waterline then
+straddle it at every height around the body, and their centroid-rule errors cancel instead of adding up.
+Measured on a 5 cm ball, 13 depths of its waterline, 1 cm elements, pulled straight up: worst 33% and mean
+9.4% force error with an axis-aligned grid, 5.8% and 1.6% turned (the primitive sphere: 22% and 3.3%)."""
+_GRID_AXES = _rotation(GRID_AXIS, GRID_ANGLE)
+
+COARSE_NORMAL_BINS = 2
+"""Clusters are first split by a cube map of this many bins per face edge: 2 puts the planes ``n_x = 0``,
+``n_y = 0``, ``n_z = 0`` of the mesh frame between clusters, as the primitives put their equators between
+latitude bands (:data:`rft_mujoco.geometry.surface.LATITUDE_BANDS_MULTIPLE`): a cluster straddling the
+leading-edge boundary of a motion along a mesh axis misplaces it. Measured on a 5 cm ball, waterline 1 cm
+and 2 cm below its top, 1 cm elements, pulled straight up: 13% and 9% force error with 1 bin per face."""
 FINE_NORMAL_BINS = 4
 """A cluster spread more than :data:`SPREAD_TOL` is split by a cube map of this many bins per face edge
 (18-27 degrees each) within its grid cell: a small curved feature gets cells like a small primitive's, a
@@ -311,10 +331,10 @@ def _clusters(c: np.ndarray, n: np.ndarray, a: np.ndarray, size: float) -> Eleme
     # symmetric grid, and its mid-planes (where piece centroids of symmetric meshes lie) are no cell
     # boundaries, so float32 round-off of MuJoCo's vertices does not move pieces between cells there
     mid = 0.5 * (c.min(axis=0) + c.max(axis=0))
-    vox = np.floor((c - mid) / (VOXEL_SCALE * size) + 0.5).astype(np.int64)
+    vox = np.floor((c - mid) @ _GRID_AXES / (VOXEL_SCALE * size) + 0.5).astype(np.int64)
     vox -= vox.min(axis=0)
     span = vox.max(axis=0) + 1
-    for per_face in (1, FINE_NORMAL_BINS):
+    for per_face in (COARSE_NORMAL_BINS, FINE_NORMAL_BINS):
         if rest.size == 0:
             break
         last = per_face == FINE_NORMAL_BINS
