@@ -6,9 +6,10 @@ Elements (:func:`mesh` with a ``size``) are made in two passes, both vectorized:
 1. pieces: each triangle is cut into small flat pieces whose extent is at most ``PIECE_FRACTION * size``
    (:func:`_pieces`): a long thin triangle is cut along its length only, a triangle already smaller
    than that stays whole, others into congruent sub-triangles;
-2. clusters: pieces are gathered into cells of a grid of edge ``VOXEL_SCALE * size`` (in the mesh frame,
-   a cell centred on the middle of the mesh), one cluster per cell and normal direction (the six faces of a cube map, so the
-   two sides of a thin plate and the faces of a sharp edge stay apart); a cluster whose normals spread
+2. clusters: pieces are gathered into cells of a grid of edge ``VOXEL_SCALE * size`` (a cell centred on
+   the middle of the mesh, the grid turned against the mesh frame: :data:`GRID_ANGLE`), one cluster per
+   cell and normal direction (a cube map, :data:`COARSE_NORMAL_BINS`, so the two sides of a thin plate
+   and the faces of a sharp edge stay apart); a cluster whose normals spread
    more than :data:`SPREAD_TOL` (a small curved feature, an edge sharper than the cube map sees) is
    split by finer normal directions (:data:`FINE_NORMAL_BINS`). An element is a cluster: its area is
    the sum of its pieces' areas, its normal the direction of the sum of ``n dA`` and its centroid the
