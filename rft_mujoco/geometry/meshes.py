@@ -138,7 +138,8 @@ def _edges(f: np.ndarray):
     per edge). Use ``u = k m + i`` is edge ``(f[i, k], f[i, k + 1])``."""
     directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     und = np.sort(directed, axis=1)
-    _, edge, count = np.unique(und, axis=0, return_inverse=True, return_counts=True)
+    _, edge, count = np.unique(und[:, 0] * (int(f.max()) + 1) + und[:, 1], return_inverse=True,
+                               return_counts=True)            # one int64 key per edge (fast unique)
     return edge.reshape(-1), np.tile(np.arange(f.shape[0]), 3), directed[:, 0] < directed[:, 1], count
 
 
@@ -168,7 +169,11 @@ def orientation(vertices, faces, *, name: str = "mesh") -> Orientation:
     used = v[np.unique(f)]
     scale = float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))
     key = np.round(v / (MERGE_TOL * max(scale, tol.TINY))).astype(np.int64)
-    _, vid = np.unique(key, axis=0, return_inverse=True)
+    order = np.lexsort(key.T)
+    new = np.ones(key.shape[0], dtype=bool)
+    new[1:] = np.any(key[order[1:]] != key[order[:-1]], axis=1)
+    vid = np.empty(key.shape[0], dtype=np.int64)
+    vid[order] = np.cumsum(new) - 1                      # the same id for coincident vertices
     g = vid.reshape(-1)[f]
     alive = (g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])
     live = np.flatnonzero(alive)
@@ -182,7 +187,7 @@ def orientation(vertices, faces, *, name: str = "mesh") -> Orientation:
     second = order[1:][(e_sorted[:-1] == e_sorted[1:]) & (count[e_sorted[:-1]] == 2)]
     fa, fb = face[first], face[second]
     same = forward[first] == forward[second]            # the two faces disagree across this edge
-    _, one = np.unique(np.sort(np.column_stack([fa, fb]), axis=1), axis=0, return_index=True)
+    _, one = np.unique(np.minimum(fa, fb) * (m + 1) + np.maximum(fa, fb), return_index=True)
     la, lb, lsame = fa[one], fb[one], same[one]         # one link per pair of faces (for the BFS)
     n_flipped = int(np.count_nonzero(same))
     k = live.size
