@@ -256,7 +256,8 @@ def summary_text(rows: list[dict], size: float) -> str:
     head = ["body", "source", "elements", "area m^2", "culled m^2", "smallest m", "geoms"]
     body = [[r["body"], r["source"], str(r["elements"]), f"{r['area']:.4g}", f"{r['culled']:.3g}",
              f"{r['smallest']:.3g}" + (" (< element)" if 0 < r["smallest"] < size else ""),
-             ", ".join(r["geoms"]) if len(r["geoms"]) <= 4 else ", ".join(r["geoms"][:3]) + f", ... ({len(r['geoms'])})"]
+             ", ".join(r["geoms"]) if len(r["geoms"]) <= 4
+             else ", ".join(r["geoms"][:3]) + f", ... ({len(r['geoms'])})"]
             for r in rows]
     width = [max(len(x) for x in col) for col in zip(head, *body)]
     line = lambda cells: "  ".join(c.ljust(w) for c, w in zip(cells, width)).rstrip()  # noqa: E731

@@ -25,7 +25,8 @@ same direction); an edge on one face is open; an edge on three or more faces (no
 meeting at an edge, a fin) says nothing about winding, and is not counted as a flip. Where faces
 disagree across manifold edges they are re-wound to agree with their neighbours; each patch connected
 through manifold edges then takes the orientation with a positive enclosed volume when it is closed (its
-own faces use each of their edges twice), or that of the larger area of its faces as given when it is open; a mesh every edge of which has two or
+own faces use each of their edges twice), or that of the larger area of its faces as given when it is
+open; a mesh every edge of which has two or
 more faces and whose volume is negative is turned outside in. Errors only where that answer is not
 unique: a patch that cannot be wound consistently (one-sided, like a Moebius strip), an open patch
 wound half one way and half the other, an open mesh whose volume is negative. Whatever was repaired or
@@ -407,7 +408,8 @@ def _mesh(vertices, faces, size, label: str, notice: str | None = None) -> Eleme
     o = orientation(v, f[keep], name=label)
     notes = o.notes()
     if notes:
-        warnings.warn(f"rft_mujoco: {notice or label} is used as given, approximated: " + "; ".join(notes) + ". To silence "
+        warnings.warn(f"rft_mujoco: {notice or label} is used as given, approximated: " + "; ".join(notes)
+                      + ". To silence "
                       "this, repair the mesh (e.g. trimesh: mesh.merge_vertices(); trimesh.repair.fix_normals(mesh); "
                       "trimesh.repair.fill_holes(mesh)) or filter SandSetupWarning", SandSetupWarning, stacklevel=3)
     t = v[o.faces]

@@ -6,7 +6,8 @@ to MuJoCo as in-memory assets. Used by the bench (section 5, :func:`standing_cos
 tests/test_mesh_robots.py.
 
 * :func:`mesh_humanoid`: a 34 kg biped (its servos only hold the joint angles: on loose sand its soles
-  sink a few cm and it falls backwards, then lies at rest, like the public humanoids with a pose holder); torso, thighs, shins and soles are STL meshes made of two
+  sink a few cm and it falls backwards, then lies at rest, like the public humanoids with a pose holder);
+  torso, thighs, shins and soles are STL meshes made of two
   closed boxes that share an edge (non-manifold edges, consistently wound, like a humanoid's shipped
   links); the head is a visual-only mesh body; servos hold ``home``.
 * :func:`mesh_quadruped`: a 17 kg quadruped; box torso, visual-only hip bodies (an OBJ mesh each), capsule
@@ -187,7 +188,9 @@ def mesh_quadruped() -> mujoco.MjModel:
         </body>
       </worldbody>
       <actuator>{actuators}</actuator>
-      <keyframe><key name="home" qpos="0 0 {height:.5f} 1 0 0 0 {' '.join(['0'] * 12)}" ctrl="{' '.join(['0'] * 12)}"/></keyframe>
+      <keyframe>
+        <key name="home" qpos="0 0 {height:.5f} 1 0 0 0 {' '.join(['0'] * 12)}" ctrl="{' '.join(['0'] * 12)}"/>
+      </keyframe>
     </mujoco>"""
     return mujoco.MjModel.from_xml_string(xml, assets)
 

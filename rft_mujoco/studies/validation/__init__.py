@@ -76,7 +76,8 @@ from rft_mujoco.studies.validation.protocol import (CENTRE_DEPTH, CONVERGENCE_AN
                                                     MIRROR_ANGLES_DEG, OVERLAP_TOL, QUICK_CONVERGENCE_SIZES,
                                                     QUICK_DIRECTIONS_DEG, QUICK_DRILL_DT, QUICK_DRILL_DURATION,
                                                     QUICK_MIRROR_ANGLES_DEG, QUICK_OVERLAP_CASES, QUICK_SHAPES,
-                                                    SAMPLES, SPEED, SYMMETRY_TOL, MESH_SYMMETRY_TOL, WINDOW, BODY, Check, Log,
+                                                    SAMPLES, SPEED, SYMMETRY_TOL, MESH_SYMMETRY_TOL, WINDOW, BODY,
+                                                    Check, Log,
                                                     Results, build_model, depth_forces, drill_rollout,
                                                     guard_change, mesh_forces, mirror_residual, sweep,
                                                     validation_shapes)
