@@ -43,7 +43,7 @@ def test_quick_bench_runs_every_section(tmp_path, capsys):
     res = bench.run(quick=True, out=tmp_path)
     text = capsys.readouterr().out
     for heading in ("1. Element throughput", "2a. Quadruped", "2b. Env steps per second", "2c. RK4 stages",
-                    "3. Bodies above the sand", "4. Speed-accuracy", "culling costs"):
+                    "3. Bodies above the sand", "4. Speed-accuracy", "culling costs", "5. Mesh robots"):
         assert heading in text, heading
     assert "default preset: worst error" in text and "%): met" in text      # the 2% accuracy target holds
     assert [f.name for f in res["files"]] == ["throughput.png", "overhead.png", "env_rates.png",
@@ -61,3 +61,5 @@ def test_quick_bench_runs_every_section(tmp_path, capsys):
         if native.support()[0]:                  # the phase timings need the native route
             assert "SandAnt-v0 standing, one evaluation's compiled phases" in text
     assert np.isfinite(res["above"]["per_body_ns"]) and res["above"]["fixed_us"] > 0.0
+    assert {r["name"] for r in res["robots"]} == {"mesh humanoid", "mesh quadruped"}
+    assert all(r["ratio"] > 1.0 and 1 / 1.5 <= r["count_ratio"] <= 1.5 for r in res["robots"])

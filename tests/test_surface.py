@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from scipy import special
 
 from rft_mujoco.geometry import occlusion
-from rft_mujoco.geometry import surface
+from rft_mujoco.geometry import meshes, surface
 from rft_mujoco.models import __file__ as _models_init
 from rft_mujoco.geometry.surface import Elements
 
@@ -240,35 +240,45 @@ def test_mesh_from_mjcf():
     assert model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
     exact_area = 8 * (0.01 * 0.02 + 0.02 * 0.03 + 0.01 * 0.03)
     exact_volume = 8 * 0.01 * 0.02 * 0.03
-    coarse = surface.geom_elements(model, g, 1.0)          # no subdivision needed: the 12 faces
-    assert len(coarse) == 12
+    coarse = surface.geom_elements(model, g, 1.0)          # one grid cell: one element per face
+    assert len(coarse) == 6
     for h in (0.01, 0.005):
         el = surface.geom_elements(model, g, h)
         assert el.area() == pytest.approx(exact_area, rel=1e-6)
         assert el.enclosed_volume() == pytest.approx(exact_volume, rel=1e-6)
         assert np.all(np.einsum("ij,ij->i", el.centroids, el.normals) > 0)
-        # every sub-triangle's edges are <= h: for these right triangles, area <= h^2 / 2
-        assert el.areas.max() <= 0.5 * h * h * (1 + 1e-6)
+        # every element is a cluster of pieces (<= PIECE_FRACTION h) whose centroids share a grid cell
+        assert el.areas.max() <= ((meshes.VOXEL_SCALE + meshes.PIECE_FRACTION) * h) ** 2 * (1 + 1e-6)
         # normals are the six axis directions
         assert np.allclose(np.abs(el.normals).max(1), 1)
 
 
-def test_mesh_subdivision_matches_plain_loop():
-    v = np.array([[0, 0, 0], [0.03, 0, 0], [0, 0.01, 0.0]])
+def test_mesh_pieces_match_plain_integration():
+    v = np.array([[0, 0, 0], [0.3, 0, 0], [0.29, 0.01, 0.0]])      # a sliver 0.3 m long, 1 cm wide
     # A lone triangle is an open mesh: it warns, and still gives elements.
-    with pytest.warns(UserWarning, match="'tri' is open"):
+    with pytest.warns(UserWarning, match="'tri' is used as given.*open"):
         el = surface.mesh(v, [[0, 1, 2]], size=0.01, name="tri")
-    k = 4    # longest edge 0.0316 / 0.01
-    assert len(el) == k * k
-    expected = []
-    for i in range(k):
-        for j in range(k - i):
-            expected.append(v[0] + ((i + 1 / 3) * (v[1] - v[0]) + (j + 1 / 3) * (v[2] - v[0])) / k)
-            if i + j <= k - 2:
-                expected.append(v[0] + ((i + 2 / 3) * (v[1] - v[0]) + (j + 2 / 3) * (v[2] - v[0])) / k)
-    assert np.allclose(np.sort(el.centroids, axis=0), np.sort(np.array(expected), axis=0))
-    assert el.area() == pytest.approx(0.5 * 0.03 * 0.01)
-    assert np.allclose(el.normals, [0, 0, 1])
+    assert el.area() == pytest.approx(0.5 * 0.3 * 0.01) and np.allclose(el.normals, [0, 0, 1])
+    # one element per grid cell the sliver crosses (a line of length L crosses at most sqrt(3) L / cell
+    # cells of the turned grid), not k^2 = 900 sub-triangles as by longest-edge cutting
+    assert len(el) <= math.ceil(math.sqrt(3) * 0.3 / (meshes.VOXEL_SCALE * 0.01)) + 2
+    c, a, tri = meshes._pieces(v[None], np.array([0.5 * 0.3 * 0.01]), 0.005)
+    assert a.sum() == pytest.approx(0.0015) and np.allclose((c * a[:, None]).sum(0) / a.sum(), v.mean(0))
+    # each piece against plain sampling: uniform points of the triangle binned by the (s, w) grid of the
+    # pieces (x = T + s ((P - T) + w (Q - P)), T = v0 opposite the shortest edge, 60 x 3 cells)
+    rng = np.random.default_rng(0)
+    u = rng.random((1_000_000, 2))
+    u[u.sum(1) > 1] = 1 - u[u.sum(1) > 1]
+    pts = v[0] + u[:, :1] * (v[1] - v[0]) + u[:, 1:] * (v[2] - v[0])
+    ab = np.linalg.lstsq(np.column_stack([v[1] - v[0], v[2] - v[1]])[:2], (pts - v[0])[:, :2].T, rcond=None)[0]
+    cell = np.minimum(np.floor(ab[0] * 60), 59).astype(int) * 3 + np.minimum(np.floor(ab[1] / ab[0] * 3), 2).astype(int)
+    assert len(a) == 180
+    sampled_area = np.bincount(cell, minlength=180) / len(pts) * 0.0015
+    assert np.allclose(sampled_area, a, rtol=0.2, atol=2e-7)
+    big = a > 5e-6                                            # pieces with enough samples for their centroid
+    sampled_c = np.stack([np.bincount(cell, pts[:, d], minlength=180) for d in range(3)], 1) \
+        / np.maximum(np.bincount(cell, minlength=180), 1)[:, None]
+    assert np.abs(sampled_c[big] - c[big]).max() <= 2e-4
 
 
 def test_mesh_drops_degenerate_faces():
@@ -280,20 +290,20 @@ def test_mesh_drops_degenerate_faces():
     assert len(el1) == len(el0) == 12
 
 
-def test_inverted_mesh_raises():
+def test_inverted_mesh_is_turned_outside_in():
     flipped = " ".join(" ".join(t[::-1]) for t in np.array(CUBE_F.split()).reshape(-1, 3))
     model = mesh_model(faces=flipped)
-    with pytest.raises(ValueError, match=r"mesh 'cube' of geom 'm' \(id 0\) is inverted.*reverse"):
-        surface.geom_elements(model, model.geom("m").id, 0.01)
-    with pytest.raises(ValueError, match="inverted"):
-        surface.body_elements(model, model.body("b").id, 0.01)
+    with pytest.warns(UserWarning, match=r"mesh 'cube' is used as given.*inside out"):
+        el = surface.geom_elements(model, model.geom("m").id, 0.01)
+    assert el.enclosed_volume() == pytest.approx(8 * 0.01 * 0.02 * 0.03, rel=1e-6)
 
 
-def test_inconsistent_winding_raises():
+def test_inconsistent_winding_is_repaired():
     f = np.array(CUBE_F.split(), dtype=int).reshape(-1, 3)
     f[0] = f[0, ::-1]
-    with pytest.raises(ValueError, match="inconsistently wound"):
-        surface.mesh(np.array(CUBE_V.split(), dtype=float).reshape(-1, 3), f, name="half")
+    with pytest.warns(UserWarning, match="1 faces were wound against their neighbours"):
+        el = surface.mesh(np.array(CUBE_V.split(), dtype=float).reshape(-1, 3), f, name="half")
+    assert el.enclosed_volume() == pytest.approx(8.0)
 
 
 def test_open_mesh_warns_once():

@@ -9,6 +9,9 @@ Each check reads the model (and the handles or the terrain) as it is now and eit
   point, carries them and the sand does nothing (warns); it reads ``geom_contype``/``geom_conaffinity``
   now, so run it after ``handle.replace_rigid`` had its chance (at the handle's first evaluation);
 * :func:`check_timestep` -- timesteps beyond what the stability study measured (warns);
+* :func:`check_sand_surfaces` -- bodies whose sand surface is their visual geoms, or whose collision geoms
+  cover far less than their visual ones (warns);
+* :func:`check_replaced_floor` -- a floor replaced by the sand that is not at the sand's height (warns);
 * :func:`check_actuation_flag` -- ``mjDSBL_ACTUATION`` makes MuJoCo skip ``mjcb_control``; the dispatcher
   then evaluates the sand from ``mjcb_passive``, which MuJoCo also skips once springs and dampers are
   disabled too: with all three flags there is no hook left (raises :data:`ACTUATION_DISABLED_MESSAGE`).
@@ -28,6 +31,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco.coupling.callers import user_stacklevel
+from rft_mujoco.geometry.elements import SandSetupWarning
 from rft_mujoco.physics.law import gravity_direction
 from rft_mujoco.physics.terrain import HeightfieldSurface, SandRegion, Terrain
 
@@ -50,10 +54,6 @@ ACTUATION_DISABLED_MESSAGE = (
 
 _PLANE = int(mujoco.mjtGeom.mjGEOM_PLANE)
 _HFIELD = int(mujoco.mjtGeom.mjGEOM_HFIELD)
-
-
-class SandSetupWarning(UserWarning):
-    """The scene runs, but its set-up keeps the sand from acting as intended (see :mod:`rft_mujoco.coupling.checks`)."""
 
 
 # --- one body, one sand -------------------------------------------------------------------------------
@@ -230,3 +230,137 @@ def check_actuation_flag(model) -> bool:
     flags, bit = int(model.opt.disableflags), mujoco.mjtDisableBit
     off = int(bit.mjDSBL_ACTUATION) | int(bit.mjDSBL_SPRING) | int(bit.mjDSBL_DAMPER)
     return flags & off == off
+
+
+# --- what the sand sees ----------------------------------------------------------------------------------
+VISUAL_COVERAGE_MIN = 0.25
+"""A body whose collision geoms' surface area is below this fraction of the surface area of the convex hull
+of its visual geoms gets a :class:`SandSetupWarning` from :func:`check_sand_surfaces` (measured on public
+models: a humanoid's 5 mm collision spheres under a visual sole, 0.03; capsule limbs under visual limb
+meshes, 0.5-1)."""
+FLOOR_MATCH_TOL = 1e-3
+"""m: a floor plane replaced by the sand (``handle.replace_rigid``) further than this from the sand's surface
+height gets a :class:`SandSetupWarning` from :func:`check_replaced_floor`."""
+
+
+def _collidable(model, g: int) -> bool:
+    return bool(model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0)
+
+
+def visual_hull_area(model, body_id: int) -> float:
+    """m^2: surface area of the convex hull of a body's visual geoms (contype = conaffinity = 0; meshes by
+    their vertices, primitives by their surface elements at 2 cm), in the body frame; 0 when it has none."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    from rft_mujoco.geometry import surface
+
+    pts = []
+    for g in np.flatnonzero(np.asarray(model.geom_bodyid) == int(body_id)):
+        t = int(model.geom_type[g])
+        if _collidable(model, g) or t in (_PLANE, _HFIELD) or t == int(mujoco.mjtGeom.mjGEOM_SDF):
+            continue
+        if t == int(mujoco.mjtGeom.mjGEOM_MESH):
+            m = int(model.geom_dataid[g])
+            local = np.asarray(model.mesh_vert[model.mesh_vertadr[m]:model.mesh_vertadr[m] + model.mesh_vertnum[m]],
+                               dtype=float)
+        else:
+            try:
+                local = surface.geom_elements(model, int(g), 0.02).centroids
+            except ValueError:
+                continue
+        mat = np.zeros(9)
+        mujoco.mju_quat2Mat(mat, np.asarray(model.geom_quat[g], dtype=float))
+        pts.append(model.geom_pos[g] + local @ mat.reshape(3, 3).T)
+    if not pts:
+        return 0.0
+    try:
+        return float(ConvexHull(np.concatenate(pts)).area)
+    except (QhullError, ValueError):
+        return 0.0
+
+
+def check_sand_surfaces(model, body_ids: Sequence[int], surface_area) -> dict:
+    """Warn (:class:`SandSetupWarning`, one warning per finding naming every body) when the sand surface of
+    an attached body is not what its collisions are: (a) the body has no collision geoms, so its visual
+    geoms are its sand surface; (b) its collision geoms' area is below :data:`VISUAL_COVERAGE_MIN` of its
+    visual geoms' hull area.
+
+    Args:
+        model: the MjModel.
+        body_ids: (B,) int, the attached bodies.
+        surface_area: (B,) m^2, each body's sand surface area (exposed plus culled at attach).
+    Returns:
+        ``{"visual": [names], "covered": [(name, collision m^2, visual hull m^2)]}``.
+    """
+    visual, covered = [], []
+    for b, area in zip(body_ids, surface_area):
+        b = int(b)
+        geoms = [g for g in np.flatnonzero(np.asarray(model.geom_bodyid) == b)
+                 if int(model.geom_type[g]) not in (_PLANE, _HFIELD)]
+        if not geoms:
+            continue
+        name = model.body(b).name or f"body {b}"
+        if not any(_collidable(model, g) for g in geoms):
+            visual.append(name)
+            continue
+        if not any(not _collidable(model, g) for g in geoms):
+            continue
+        hull = visual_hull_area(model, b)
+        if hull > 0 and float(area) < VISUAL_COVERAGE_MIN * hull:
+            covered.append((name, float(area), hull))
+    if visual:
+        warnings.warn(
+            f"rft_mujoco: bodies {visual} have no collision geoms (contype = conaffinity = 0 on every geom): "
+            "their sand surface is made of their visual geoms, which MuJoCo never collides with and which are "
+            "often fine meshes (handle.summary() lists each body's geoms, area and elements). Do: give them "
+            "collision geoms, or leave them out of bodies= if they never reach the sand; if the visual shape "
+            "is what the sand should see, filter SandSetupWarning.", SandSetupWarning, stacklevel=user_stacklevel())
+    if covered:
+        what = "; ".join(f"{n!r}: {a:.3g} m^2 of collision surface against {h:.3g} m^2 of visual hull "
+                         f"({a / h:.0%})" for n, a, h in covered)
+        warnings.warn(
+            f"rft_mujoco: the collision geoms of bodies {[c[0] for c in covered]} cover far less than their "
+            f"visual geoms ({what}; warned below {VISUAL_COVERAGE_MIN:.0%}): the sand sees only the collision "
+            "geoms (e.g. small spheres under a visual sole), so these bodies sink where their visual shape "
+            "would be held. Do: add a collision geom with the visual shape (a box or capsule for a sole), or "
+            "filter SandSetupWarning if the small collision shape is intended.",
+            SandSetupWarning, stacklevel=user_stacklevel())
+    return {"visual": visual, "covered": covered}
+
+
+def check_replaced_floor(model, geoms: Sequence[int], terrain: Terrain) -> list[tuple[str, float]]:
+    """Warn (:class:`SandSetupWarning`, once for all of them) when a horizontal plane that the sand replaces
+    (``handle.replace_rigid``) is not at the sand's surface height: what stood on that floor drops to the
+    sand (plane above it) or starts buried (plane below it). Flat sand only (a :class:`FlatSurface`, or a
+    region of one); tilted planes and heightfields are not compared.
+
+    Returns:
+        (name, height m) of each plane warned about.
+    """
+    surface = terrain.surface if isinstance(terrain, SandRegion) else terrain
+    if isinstance(surface, HeightfieldSurface):
+        return []
+    sand = float(terrain.max_height)
+    g_hat, _ = gravity_direction(model.opt.gravity)
+    up = -g_hat
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    found = []
+    for g in geoms:
+        g = int(g)
+        if int(model.geom_type[g]) != _PLANE:
+            continue
+        if float(data.geom_xmat[g].reshape(3, 3)[:, 2] @ up) < 1.0 - HORIZONTAL_TOL:
+            continue
+        height = float(data.geom_xpos[g] @ up)
+        if abs(height - sand) > FLOOR_MATCH_TOL:
+            found.append((model.geom(g).name or f"geom {g}", height))
+    if found:
+        what = "; ".join(f"{n!r} at {z:g} m ({'above' if z > sand else 'below'} it by {abs(z - sand):.3g} m)"
+                         for n, z in found)
+        warnings.warn(
+            f"rft_mujoco: the floor planes replaced by the sand are not at the sand's surface height {sand:g} m "
+            f"({what}): bodies placed on the floor drop onto the sand, or start buried in it. Do: attach with "
+            f"surface_height={found[0][1]:g} (the floor's height), or move the plane to {sand:g} m.",
+            SandSetupWarning, stacklevel=user_stacklevel())
+    return found

@@ -263,7 +263,9 @@ class SandHandle:
         self.attached = False
 
     def replace_rigid(self, geoms: Sequence[str | int]) -> None:
-        """Switch off collisions of rigid geoms the sand replaces (e.g. the floor plane) until detach."""
+        """Switch off collisions of rigid geoms the sand replaces (e.g. the floor plane) until detach; warns
+        (:func:`rft_mujoco.coupling.checks.check_replaced_floor`) when a replaced floor is not at the sand's height."""
+        new = []
         for g in geoms:
             gid = g if isinstance(g, (int, np.integer)) else mujoco.mj_name2id(
                 self.model, mujoco.mjtObj.mjOBJ_GEOM, g)
@@ -273,6 +275,8 @@ class SandHandle:
                                    int(self.model.geom_conaffinity[gid])))
             self.model.geom_contype[gid] = 0
             self.model.geom_conaffinity[gid] = 0
+            new.append(int(gid))
+        checks.check_replaced_floor(self.model, new, self._terrain)
 
     def diagnostics(self, data) -> Diagnostics:
         """Per-body force, torque, submerged element count, max depth and rest state of the latest
@@ -361,6 +365,16 @@ class SandHandle:
 
     def __exit__(self, *exc) -> None:
         self.detach()
+
+    def summary(self) -> str:
+        """What the sand sees, one row per attached body: the geoms used and whether they are collision or
+        visual geoms, the exposed area (m^2) and the area culled at attach, the element count and the
+        smallest geom dimension (m); ``print(handle)`` prints it (:func:`rft_mujoco.coupling.setup.describe`)."""
+        rows = setup.describe(self.model, self.body_ids, self.elem_body, self.areas, self.culled_area)
+        return f"{self!r}\n" + setup.summary_text(rows, self.element_size)
+
+    def __str__(self) -> str:
+        return self.summary()
 
     def __repr__(self) -> str:
         return (f"SandHandle(media={self.media.name!r}, bodies={self.body_names}, "
@@ -560,6 +574,8 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     if checks.check_actuation_flag(model):
         raise ValueError(checks.ACTUATION_DISABLED_MESSAGE)
     handle = SandHandle(model, media, ids, terrain, size, guards, stabilize, passive, monitor, backend, cull)
+    checks.check_sand_surfaces(model, handle.body_ids, np.bincount(handle.elem_body, handle.areas,
+                                                                   minlength=len(ids)) + handle.culled_area)
     handle.rk4_stages = rk4_stages
     handle.solve = solve
     DISPATCHER.register(handle)

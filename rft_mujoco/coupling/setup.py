@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import mujoco
 import numpy as np
 
+from rft_mujoco.coupling.callers import user_stacklevel
 from rft_mujoco.geometry import occlusion, surface
 
 MAX_ELEMENTS_PER_BODY = 1_000_000
@@ -108,10 +110,27 @@ def _check_element_count(model, body_id: int, name: str, size: float) -> None:
 
 
 def surfaces(model, body_ids, names, size: float, cull: bool = True) -> Surfaces:
-    """Elements of every attached body, culled (``cull``) inside its own geoms and inside geoms welded to it."""
+    """Elements of every attached body, culled (``cull``) inside its own geoms and inside geoms welded to it.
+
+    Raises one ValueError naming every body and geom that cannot be cut into elements (each with what to
+    do). The geometry's warnings (a mesh used as given, approximated: :class:`SandSetupWarning`) are
+    re-issued at the user's line.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = _surfaces(model, body_ids, names, size, cull)
+    seen = set()
+    for w in caught:                            # once per text: a mesh asset used by several geoms warns once
+        if (str(w.message), w.category) not in seen:
+            seen.add((str(w.message), w.category))
+            warnings.warn(w.message, w.category, stacklevel=user_stacklevel())
+    return out
+
+
+def _surfaces(model, body_ids, names, size: float, cull: bool) -> Surfaces:
     data = mujoco.MjData(model)                 # relative poses inside a weld group never change
     mujoco.mj_kinematics(model, data)
-    parts, culled = [], np.zeros(len(body_ids))
+    parts, culled, errors = [], np.zeros(len(body_ids)), []
     for i, (b, name) in enumerate(zip(body_ids, names)):
         _check_element_count(model, int(b), name, size)
         try:
@@ -121,9 +140,9 @@ def surfaces(model, body_ids, names, size: float, cull: bool = True) -> Surfaces
                 kept = surface.body_elements(model, int(b), size, cull=False)
                 cut = surface.Elements(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
         except ValueError as exc:
-            raise ValueError(f"cannot cut body {name!r} into surface elements: {exc}. Check the sizes of its "
-                             "geoms (each needs a surface with a non-zero area) or leave the body out of "
-                             "bodies=") from None
+            errors.append((name, str(exc)))
+            parts.append(surface.Elements.concatenate([]))
+            continue
         culled[i] = cut.area()
         # the other bodies of the same weld group, posed in this body's frame
         welded = [w for w in range(1, model.nbody) if w != b and model.body_weldid[w] == model.body_weldid[b]]
@@ -144,6 +163,11 @@ def surfaces(model, body_ids, names, size: float, cull: bool = True) -> Surfaces
             raise ValueError(f"body {name!r} has zero mass (mass of its weld group {mass}); sand forces on a "
                              "massless body have nothing to act on: give it a mass or leave it out of bodies=")
         parts.append(kept)
+    if errors:
+        bad = [n for n, _ in errors]
+        raise ValueError(f"cannot cut {len(errors)} bodies into surface elements: "
+                         + "; ".join(f"body {n!r}: {e}" for n, e in errors)
+                         + f". Fix each as said, or leave these bodies out of bodies= (failing: {bad})")
     counts = [len(p) for p in parts]
     if sum(counts) == 0:
         raise ValueError(f"bodies {list(names)} have no surface geoms (planes and heightfields are terrain, not "
@@ -183,3 +207,62 @@ def groups(model, body_ids: np.ndarray, centroids: np.ndarray, elem_body: np.nda
         far = float(np.linalg.norm(world - data.xipos[body_ids[ref[g]]], axis=1).max())
         radius[g] = max(radius[g], far + size)
     return Groups(of_body.astype(np.int64), ref, radius)
+
+
+def smallest_feature(model, geom: int) -> float:
+    """m: the smallest dimension of a geom (diameter of a sphere, capsule or cylinder, smallest full extent
+    of a box or ellipsoid, smallest extent of a mesh's bounding box in its frame); 0 for terrain."""
+    t, s = int(model.geom_type[geom]), np.asarray(model.geom_size[geom], dtype=float)
+    g = mujoco.mjtGeom
+    if t in (g.mjGEOM_SPHERE, g.mjGEOM_CAPSULE):
+        return 2.0 * float(s[0])
+    if t == g.mjGEOM_CYLINDER:
+        return 2.0 * float(min(s[0], s[1]))
+    if t in (g.mjGEOM_BOX, g.mjGEOM_ELLIPSOID):
+        return 2.0 * float(s[:3].min())
+    if t == g.mjGEOM_MESH:
+        m = int(model.geom_dataid[geom])
+        v = np.asarray(model.mesh_vert[model.mesh_vertadr[m]:model.mesh_vertadr[m] + model.mesh_vertnum[m]])
+        return float((v.max(axis=0) - v.min(axis=0)).min()) if v.size else 0.0
+    return 0.0
+
+
+def describe(model, body_ids, elem_body: np.ndarray, areas: np.ndarray, culled_area: np.ndarray) -> list[dict]:
+    """What the sand sees, per attached body: ``body``, ``geoms`` (names, or ``type#id``), ``source``
+    ("collision" or "visual": the rule of :func:`rft_mujoco.geometry.occlusion.surface_geoms`), ``area``
+    (m^2 exposed, after culling), ``culled`` (m^2 removed at attach), ``elements`` and ``smallest`` (m,
+    :func:`smallest_feature` over the geoms used)."""
+    n = len(body_ids)
+    count = np.bincount(elem_body, minlength=n)
+    area = np.bincount(elem_body, areas, minlength=n)
+    rows = []
+    for i, b in enumerate(body_ids):
+        used = occlusion.surface_geoms(model, int(b))
+        collide = [bool(model.geom_contype[g] or model.geom_conaffinity[g]) for g in used]
+        names = []
+        for g in used:
+            t = mujoco.mjtGeom(int(model.geom_type[g])).name.removeprefix("mjGEOM_").lower()
+            names.append(f"{model.geom(int(g)).name or t + '#' + str(int(g))}"
+                         + (f" ({t})" if model.geom(int(g)).name else ""))
+        rows.append(dict(body=model.body(int(b)).name or f"body {int(b)}", geoms=names,
+                         source="collision" if any(collide) else ("visual" if len(used) else "-"),
+                         area=float(area[i]), culled=float(culled_area[i]), elements=int(count[i]),
+                         smallest=min((smallest_feature(model, int(g)) for g in used), default=0.0)))
+    return rows
+
+
+def summary_text(rows: list[dict], size: float) -> str:
+    """:func:`describe`'s rows as a table, with the totals and the element size (m)."""
+    head = ["body", "source", "elements", "area m^2", "culled m^2", "smallest m", "geoms"]
+    body = [[r["body"], r["source"], str(r["elements"]), f"{r['area']:.4g}", f"{r['culled']:.3g}",
+             f"{r['smallest']:.3g}" + (" (< element)" if 0 < r["smallest"] < size else ""),
+             ", ".join(r["geoms"]) if len(r["geoms"]) <= 4
+             else ", ".join(r["geoms"][:3]) + f", ... ({len(r['geoms'])})"]
+            for r in rows]
+    width = [max(len(x) for x in col) for col in zip(head, *body)]
+    line = lambda cells: "  ".join(c.ljust(w) for c, w in zip(cells, width)).rstrip()  # noqa: E731
+    total_a = sum(r["area"] for r in rows)
+    total_n = sum(r["elements"] for r in rows)
+    return "\n".join([line(head)] + [line(r) for r in body]
+                     + [f"total: {total_n} elements over {total_a:.4g} m^2 at element size {size:g} m "
+                        f"({total_n / max(total_a / size**2, 1e-300):.2f} x area / size^2)"])

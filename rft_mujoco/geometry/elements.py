@@ -14,6 +14,13 @@ ROTATION_TOL = 1e-6
 """``mat`` in :meth:`Elements.transformed` must satisfy ``|mat^T mat - I| <= ROTATION_TOL``."""
 
 
+class SandSetupWarning(UserWarning):
+    """The scene runs, but its set-up keeps the sand from acting as intended, or approximates what was given
+    (an open or non-manifold mesh, a body whose sand surface is its visual geoms; see
+    :mod:`rft_mujoco.coupling.checks`). Defined here, the lowest module that warns with it; public as
+    ``rft_mujoco.SandSetupWarning``."""
+
+
 # --- elements --------------------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True, eq=False, repr=False)
 class Elements:

@@ -18,9 +18,10 @@ Constructions (each tested for convergence in tests/test_surface.py):
   quadrature of ``x_theta x x_phi``, centroid at the surface point with the mean normal.
 * box, cylinder: flat grid cells (cylinder sides: true normal at the mid angle; caps: polar annular
   sectors with their exact area centroids). Areas and volumes exact at every size.
-* mesh (:mod:`rft_mujoco.geometry.meshes`): each triangle is split into ``k^2`` congruent triangles
-  (``k = ceil(longest edge / size)``); degenerate triangles are dropped; inverted meshes raise, open ones
-  warn; :func:`load_mesh` reads mesh files through trimesh.
+* mesh (:mod:`rft_mujoco.geometry.meshes`): elements of about ``size^2`` whatever the triangulation
+  (triangles cut into small pieces, gathered on a grid of about the element size, split by normal
+  direction); degenerate triangles are dropped; winding repaired where it is unambiguous, open and
+  non-manifold meshes accepted with a SandSetupWarning; :func:`load_mesh` reads mesh files through trimesh.
 """
 
 from __future__ import annotations
@@ -299,7 +300,7 @@ def geom_elements(model, geom_id: int, size: float) -> Elements:
         fa, fn = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
         label = repr(model.mesh(m).name) if model.mesh(m).name else f"id {m}"
         return _mesh(model.mesh_vert[va:va + vn], model.mesh_face[fa:fa + fn], h,
-                     f"mesh {label} of {_geom_label(model, g)}")
+                     f"mesh {label} of {_geom_label(model, g)}", f"mesh {label}")
     try:
         type_name = _GEOM(t).name.removeprefix("mjGEOM_").lower()
     except ValueError:
@@ -356,16 +357,22 @@ def body_elements_with_culled(model, body_id: int, size: float) -> tuple[Element
 
 
 def _body_elements(model, body_id: int, size: float, cull: bool) -> tuple[Elements, Elements]:
-    parts, owners = [], []
+    parts, owners, errors = [], [], []
     for g in occlusion.surface_geoms(model, body_id):
         t = int(model.geom_type[g])
         if t == _GEOM.mjGEOM_SDF:
             warnings.warn(f"{_geom_label(model, int(g))} is an sdf geom; sdf surfaces are not supported and "
                           "it feels no sand; add a mesh or primitive geom for it", UserWarning, stacklevel=3)
             continue
-        el = geom_elements(model, int(g), size)
+        try:
+            el = geom_elements(model, int(g), size)
+        except ValueError as exc:                # every failing geom of the body in one error
+            errors.append(str(exc))
+            continue
         parts.append(el.transformed(model.geom_pos[g], _quat_to_mat(model.geom_quat[g])))
         owners.append(np.full(len(el), g, dtype=np.int64))
+    if errors:
+        raise ValueError("; ".join(errors))
     el = Elements.concatenate(parts)
     none = Elements.concatenate([])
     if not cull or len(parts) < 2:

@@ -15,6 +15,11 @@ numbers from one run, not across machines. Sections:
 4. **Speed-accuracy**: the force error of each element size against a converged reference, on the
    paper's validation shapes and a quadruped foot, and the cost of one evaluation (:mod:`.kernels`).
 
+5. **Mesh robots** (:mod:`.robots`, our own models with the features of public ones: non-manifold STL
+   links, slanted OBJ legs of long thin triangles, visual-only bodies): element counts against
+   ``area / size^2``, attach time, and the standing cost against the bare ``mj_step``. ``--robots`` runs
+   this section alone.
+
 ``--warp``: the batched MuJoCo Warp benchmark instead (:mod:`rft_mujoco.studies.bench_warp`).
 """
 
@@ -29,7 +34,8 @@ from rft_mujoco.studies.bench.coupling import (above_sand, env_rates, quadruped_
 from rft_mujoco.studies.bench.kernels import DIRECTIONS_DEG, TARGET_ERROR, speed_accuracy, throughput
 from rft_mujoco.studies.bench.timing import machine, table
 
-__all__ = ["run", "main", "throughput", "quadruped_overhead", "env_rates", "above_sand", "speed_accuracy"]
+__all__ = ["run", "main", "throughput", "quadruped_overhead", "env_rates", "above_sand", "speed_accuracy",
+           "mesh_robots"]
 
 SETTINGS = {"rest": dict(), "naive": dict(stabilize=False), "no culling": dict(cull=False),
             "numpy": dict(backend="numpy")}
@@ -37,6 +43,8 @@ SETTINGS = {"rest": dict(), "naive": dict(stabilize=False), "no culling": dict(c
 ``stabilize=False``, ``cull=False``, the numpy reference."""
 
 
+ROBOT_TARGET = 5.0
+"""Each mesh robot of section 5 standing (or lying) on sand at <= 5x its bare step, default settings."""
 QUADRUPED_TARGET, STANDING_TARGET, ANT_TARGET = 5.0, 0.8, 0.7
 """The speed targets of the rest design (docs/performance.md): the quadruped standing at <= 5x its bare
 step; zero-action env steps/s >= 0.8x random-action ones; SandAnt-v0 >= 0.7x Ant-v5 (random actions)."""
@@ -105,6 +113,26 @@ def _print_accuracy(acc, quick: bool) -> None:
           f"{'met' if worst <= TARGET_ERROR else 'NOT met'}")
 
 
+def mesh_robots(quick: bool = False) -> list[dict]:
+    """Section 5: the mesh robots at the default resolution (and coarse/fine unless ``quick``); prints a table."""
+    from rft_mujoco.studies.bench import robots
+
+    rows = []
+    for res in (["default"] if quick else ["coarse", "default", "fine"]):
+        for r in robots.standing_cost(resolution=res, steps=200 if quick else 500, repeats=3 if quick else 5):
+            rows.append(dict(r, resolution=res))
+    print(table(["robot", "resolution", "elements", "area m^2", "el. / (area/size^2)", "attach s", "bare us",
+                 "sand us", "ratio", "weight carried", "torso z m"],
+                [[r["name"], r["resolution"], r["elements"], f"{r['area']:.3f}", f"{r['count_ratio']:.2f}",
+                  f"{r['attach_s']:.2f}", f"{r['bare_us']:.1f}", f"{r['sand_us']:.1f}", f"{r['ratio']:.2f}x",
+                  f"{r['weight_carried']:.3f}", f"{r['height']:.3f}"] for r in rows]))
+    for r in rows:
+        if r["resolution"] == "default":
+            print(_verdict(f"{r['name']} on sand, default settings, sand step / bare step", r["ratio"],
+                           ROBOT_TARGET, "<=", "x"))
+    return rows
+
+
 def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = True) -> dict:
     """Every section; returns the tables (and ``files``: the plots written)."""
     from rft_mujoco import compiled
@@ -170,11 +198,16 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = Tru
     acc = speed_accuracy(quick)
     _print_accuracy(acc, quick)
 
+    print("\n5. Mesh robots (rft_mujoco.studies.bench.robots) on loose glass beads, every body attached, floor "
+          "replaced, servos holding home: us per mj_step after 1.5 s (alternating runs with the bare model)",
+          flush=True)
+    robot_rows = mesh_robots(quick)
+
     files = plots.all_plots(out, thr, quad, rates, acc) if plots_on else []
     if files:
         print("\nwrote " + ", ".join(str(f) for f in files))
     return dict(throughput=thr, quadruped=quad, rates=rates, stages=stages, above=above, accuracy=acc,
-                files=files)
+                robots=robot_rows, files=files)
 
 
 def main(argv: list[str] | None = None, command: str = "bench") -> int:
@@ -196,11 +229,20 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
                         help="N up to 1e5, default resolution only, fewer directions, 2 mm reference (~2 min)")
     parser.add_argument("--out", default="out/bench", help="output folder for plots (default: out/bench)")
     parser.add_argument("--no-plots", action="store_true", help="tables only")
+    parser.add_argument("--robots", action="store_true",
+                        help="section 5 alone: the mesh robots' element counts and standing cost (~1-3 min)")
     args = parser.parse_args(argv)
     from rft_mujoco import compiled
 
     if not compiled.AVAILABLE:
         print(f"numba is not available ({compiled.IMPORT_ERROR}): the benchmarks compare it with numpy")
         return 1
+    if args.robots:
+        print(machine())
+        compiled.ensure_compiled()
+        print("5. Mesh robots on loose glass beads, every body attached, floor replaced, servos holding home: "
+              "us per mj_step after 1.5 s (alternating runs with the bare model)", flush=True)
+        mesh_robots(args.quick)
+        return 0
     run(quick=args.quick, out=args.out, plots_on=not args.no_plots)
     return 0
