@@ -20,8 +20,21 @@ CASES += [("contact", 0.0005, "Euler"), ("weld", 0.005, "RK4"), ("joint_limit", 
 """Every scene at 2 ms, and the hardest cases (the frictionloss ones at 5 ms chattered without the locks of
 stuck dofs)."""
 
+ENERGY_GAIN_EXPLICIT = {("frictionloss", 0.002, "implicitfast"), ("frictionloss", 0.005, "Euler"),
+                        ("frictionloss", 0.005, "implicit")}
+"""Cases in which the explicit treatment's sand adds energy in a step (1.1e-4 J at 2 ms implicitfast),
+measured since the studies observe every evaluation on the default path (issue 26 item 4; before, the
+recorder saw 1 evaluation of 300 there and these passed with -inf). Strict: they must fail until fixed."""
 
-@pytest.mark.parametrize("name,dt,integrator", CASES)
+
+def _case(name, dt, integrator):
+    if (name, dt, integrator) in ENERGY_GAIN_EXPLICIT:
+        return pytest.param(name, dt, integrator, marks=pytest.mark.xfail(
+            strict=True, reason="the explicit treatment adds energy in a step here (frictionloss locks); issue 26"))
+    return (name, dt, integrator)
+
+
+@pytest.mark.parametrize("name,dt,integrator", [_case(*c) for c in CASES])
 def test_load_path_rests_and_the_sand_carries_the_load(name, dt, integrator):
     r = loadpaths.run_case(name, dt, integrator)
     assert not r.nan
@@ -51,3 +64,21 @@ def test_a_lock_that_holds_persists_so_dry_friction_carries_the_load_exactly(bac
     r = loadpaths.run_case("frictionloss", 0.001, "Euler", backend=backend)
     assert r.t_rest <= loadpaths.DEADLINE
     assert r.balance <= 1e-6
+
+
+def test_the_energy_recorder_sees_every_evaluation_on_the_default_path():
+    """The studies observe the sand through the public observer, which the native route honours: one
+    evaluation per step (Euler), four per RK4 step; a run that observed nothing is a failure, not a pass."""
+    for integrator, per_step in (("Euler", 1), ("RK4", 4)):
+        r = loadpaths.run_case("contact", 0.005, integrator)
+        assert r.observed == per_step * round(loadpaths.DURATION / 0.005)
+        assert np.isfinite(r.max_gain)
+
+
+def test_a_case_that_observed_nothing_fails(monkeypatch):
+    from rft_mujoco.studies import recorder
+
+    monkeypatch.setattr(recorder.StageRecorder, "__call__", lambda self, data, wrenches, stage: None)
+    r = loadpaths.run_case("contact", 0.005, "Euler")
+    assert r.observed == 0
+    assert any("energy not measured" in f for f in r.failures)
