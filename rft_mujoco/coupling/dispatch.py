@@ -14,7 +14,15 @@ one dispatcher installed with ``mujoco.set_mjcb_control``. It
   raised" whenever any Python callback is installed, so the compile entry points
   (``MjModel.from_xml_string / from_xml_path / from_binary_path``, ``MjSpec.compile / recompile``) are
   wrapped to suspend the callback for the duration of the call. The wrappers are removed when the last
-  handle detaches.
+  handle detaches;
+* keeps the sand's state with the simulation it belongs to while installed (docs/architecture.md, "State
+  and copies"): copies of an MjData for the same model (``copy.copy``, ``mj_copyData``) get its book and
+  the handles' workspaces; deep copies and pickles of an MjData, and copies, pickles and ``mj_saveModel``
+  of an MjModel, are made of the plain state (no sand in ``xfrc_applied``, the floors ``replace_rigid``
+  switched off colliding again); ``mj_resetData*`` makes a data new for the sand;
+  ``set_mjcb_control`` / ``set_mjcb_passive`` set the user callback it chains; ``model.opt.disableflags``
+  that would leave no callback for the sand are refused; and every evaluation compares the model's
+  timestep, gravity and geom sizes with what the handles last checked (:meth:`SandHandle._check_model`).
 
 Where it can (:func:`rft_mujoco.compiled.native.support`), the dispatcher installs native callbacks
 (:mod:`rft_mujoco.compiled.native`) in MuJoCo's place of its Python ones: the bindings still hold the
