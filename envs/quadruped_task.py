@@ -20,7 +20,11 @@ class CommandedQuadruped:
         """Servo targets ``home + action_scale * action`` (action clipped to [-1, 1]), ``frame_skip`` physics
         steps, then the task's reward (its ``_get_rew(action)`` -> (reward, named terms, heading-frame
         velocity (2,) m/s, yaw rate rad/s))."""
-        action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (self.model.nu,):
+            raise ValueError(f"action must have shape ({self.model.nu},) (one servo offset per actuator, in "
+                             f"[-1, 1]), got shape {action.shape}")
+        action = np.clip(action, -1.0, 1.0)
         target = np.clip(self._home_ctrl + self._action_scale * action, self._ctrl_low, self._ctrl_high)
         self.do_simulation(target, self.frame_skip)
         reward, rewards, v_xy, yaw_rate = self._get_rew(action)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import weakref
 from collections.abc import Sequence
 
 import mujoco
@@ -227,6 +228,9 @@ class SandBed:
         # per environment instance would be noise (the library's monitor is for scripted scenes).
         self.handle = rft_mujoco.attach(model, self.base_media, bodies=ids, surface_height=surface,
                                         resolution=resolution, stabilize=stabilize, monitor=False)
+        # A bed (an env) dropped without close() detaches its sand when collected: the library's dispatcher
+        # holds attached handles, and with them their models, until detach.
+        self._detach = weakref.finalize(self, self.handle.detach)
         self.body_ids = self.handle.body_ids
         self.body_names = [n or f"body{b}" for n, b in zip(self.handle.body_names, self.body_ids)]
         self.n_bodies = len(self.body_ids)
@@ -273,4 +277,4 @@ class SandBed:
 
     def close(self) -> None:
         """Detach the sand (idempotent)."""
-        self.handle.detach()
+        self._detach()

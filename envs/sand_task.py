@@ -43,6 +43,8 @@ class SandTaskEnv(MujocoEnv):
     def __init__(self, xml_file: str, frame_skip: int, *, media: Media | str, resolution: str | float,
                  sand_bodies: str | Sequence[str | int], bed_depth_m: float | None,
                  media_ranges: MediaRanges | None, include_sand_in_observation: bool, **kwargs):
+        if isinstance(frame_skip, bool) or not isinstance(frame_skip, (int, np.integer)) or frame_skip < 1:
+            raise ValueError(f"frame_skip must be an int >= 1 (physics steps per env step), got {frame_skip!r}")
         self.sand = None
         self._include_sand_in_observation = bool(include_sand_in_observation)
         self._bed_depth_m = bed_depth_m

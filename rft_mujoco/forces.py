@@ -17,14 +17,17 @@ from rft_mujoco import compiled
 from rft_mujoco.coupling.callers import user_stacklevel
 from rft_mujoco.physics import law
 from rft_mujoco.physics.law import PUBLISHED, Guards
-from rft_mujoco.physics.media import Media
+from rft_mujoco.physics.media import Media, get_media
 
 BACKENDS = ("auto", "numba", "numpy")
 """Values of ``element_forces(backend=...)``: "auto" (numba when it imports and compiles, else numpy),
 "numba" (compiled, an error without numba) or "numpy" (the reference)."""
+DIRECTION_SCALE_MAX = 1e150
+"""Rows of ``normals`` and ``velocities`` (whose length does not matter) with a component beyond this are
+scaled by a power of two first (exactly, the direction unchanged): their squared length would overflow."""
 
 
-def element_forces(centroids, normals, areas, velocities, media: Media, surface_height: float = 0.0,
+def element_forces(centroids, normals, areas, velocities, media: Media | str, surface_height: float = 0.0,
                    gravity=(0.0, 0.0, -9.81), *, guards: Guards = PUBLISHED, backend: str = "auto",
                    out: np.ndarray | None = None) -> np.ndarray:
     """3D-RFT force on each surface element, in newtons (world frame).
@@ -34,7 +37,7 @@ def element_forces(centroids, normals, areas, velocities, media: Media, surface_
         normals: (N, 3) float, outward normals, world frame; any positive length (normalized here).
         areas: (N,) float, element areas in m^2 (>= 0).
         velocities: (N, 3) float, element velocities in m/s, world frame (only the direction matters).
-        media: the granular medium (:class:`rft_mujoco.Media`).
+        media: the granular medium (:class:`rft_mujoco.Media`) or a preset name (``rft_mujoco.PRESETS``).
         surface_height: height of the flat free surface in m, measured against gravity (along -g).
         gravity: (3,) gravity vector in m/s^2; depth is measured along it.
         guards: artefact clean-ups (default: none, the published model).
@@ -49,6 +52,9 @@ def element_forces(centroids, normals, areas, velocities, media: Media, surface_
             :func:`rft_mujoco.physics.law.element_forces`), a bad ``out``, an unknown backend, or
             backend="numba" without numba.
     """
+    if isinstance(media, str):
+        media = get_media(media)
+    normals, velocities = _scaled_directions(normals), _scaled_directions(velocities)
     if _use_numba(backend):
         from rft_mujoco.compiled import law as fastlaw
 
@@ -64,6 +70,24 @@ def element_forces(centroids, normals, areas, velocities, media: Media, surface_
                          f"{out.dtype}")
     out[...] = forces
     return out
+
+
+def _scaled_directions(vectors):
+    """``vectors`` with rows beyond :data:`DIRECTION_SCALE_MAX` scaled exactly by a power of two (other
+    input unchanged, bad input left for the law's own checks)."""
+    try:
+        a = np.asarray(vectors, dtype=float)
+    except (TypeError, ValueError):
+        return vectors
+    if a.ndim != 2 or a.shape[1] != 3 or not np.all(np.isfinite(a)):
+        return vectors
+    big = np.abs(a).max(axis=1, initial=0.0) > DIRECTION_SCALE_MAX
+    if not big.any():
+        return vectors
+    a = a.copy()
+    _, exponent = np.frexp(np.abs(a[big]).max(axis=1))
+    a[big] = np.ldexp(a[big], -exponent[:, None])
+    return a
 
 
 def _use_numba(backend: str) -> bool:

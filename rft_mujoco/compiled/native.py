@@ -198,12 +198,13 @@ def _library():
     lib = ctypes.CDLL(names[0])
     glob_control = ctypes.c_void_p.in_dll(lib, "mjcb_control")
     probe = _CB(lambda m, d: None)
+    set_control = getattr(mujoco.set_mjcb_control, "__wrapped__", mujoco.set_mjcb_control)  # not the dispatcher's
     saved = mujoco.get_mjcb_control()
     try:
-        mujoco.set_mjcb_control(probe)
+        set_control(probe)
         same = glob_control.value == ctypes.cast(probe, ctypes.c_void_p).value
     finally:
-        mujoco.set_mjcb_control(saved)
+        set_control(saved)
     if not same:
         raise RuntimeError(f"{names[0]} is not the library the mujoco bindings use")
     return lib

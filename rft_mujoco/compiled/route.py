@@ -36,10 +36,11 @@ DONE, ACTUATE, CONTINUE, PYTHON, MONITOR = 0, 1, 2, 3, 4
 without actuation (no stabilized handle touches); nothing committed, run the Python path; committed, run
 the due monitor checks in Python."""
 BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"), ("user", "f2"),
-               ("sand", "f2"), ("state", "f1"))
+               ("sand", "f2"), ("state", "f1"), ("snapshot", "f1"), ("gravity", "f1"), ("geom_size", "f2"))
 """The dispatcher's per-MjData book (:class:`rft_mujoco.coupling.dispatch._DataBook`); ``state`` =
 (nonzero, sand_dirty, rk4 stage (1-4; 0: another integrator), rk4 stage time, TIME_RTOL, what the native
-callback left to Python)."""
+callback left to Python); ``snapshot``: the model's timestep, gravity and ``geom_size`` the dispatcher last
+checked (:func:`model_changed`), ``gravity`` and ``geom_size`` live views of the model's."""
 _HEADER = 4
 """Table header: number of handles, base of the book, base of md, base of the constraint rows; then one
 base per handle."""
@@ -62,6 +63,24 @@ def user_part(xfrc, written, added, rows, user):
         for k in range(6):
             if xfrc[r, k] == written[r, k] and (whole or written[r, k] != 0.0):
                 user[r, k] -= added[r, k]
+
+
+@njit(**JIT)
+def model_changed(snapshot, dt, gravity, geom_size):
+    """Whether ``dt`` (s), ``gravity`` (3,) m/s^2 or ``geom_size`` (ngeom, 3) m differ from ``snapshot``
+    ((4 + 3 ngeom,): timestep, gravity, geom_size as the dispatcher last checked them; NaN never equals)."""
+    if snapshot.shape[0] != 4 + 3 * geom_size.shape[0] or not dt == snapshot[0]:
+        return True
+    for k in range(3):
+        if not gravity[k] == snapshot[1 + k]:
+            return True
+    i = 4
+    for g in range(geom_size.shape[0]):
+        for k in range(3):
+            if not geom_size[g, k] == snapshot[i]:
+                return True
+            i += 1
+    return False
 
 
 @njit(**JIT)
@@ -190,7 +209,8 @@ def _ws(t, base):
 def _book(t, base):
     """The book's arrays (:data:`BOOK_FIELDS`)."""
     return (_f2(t, base), _f2(t, base + SLOT), _f2(t, base + 2 * SLOT), _i1(t, base + 3 * SLOT),
-            _f2(t, base + 4 * SLOT), _f2(t, base + 5 * SLOT), _f1(t, base + 6 * SLOT))
+            _f2(t, base + 4 * SLOT), _f2(t, base + 5 * SLOT), _f1(t, base + 6 * SLOT), _f1(t, base + 7 * SLOT),
+            _f1(t, base + 8 * SLOT), _f2(t, base + 9 * SLOT))
 
 
 _HC_SLOTS = len(ev.HANDLE_FIELDS) * SLOT
@@ -211,9 +231,11 @@ def all_first(t):
 @njit(**JIT)
 def phase1(t, time, dt):
     """User part and every handle's broadphase (see the module docstring); returns DONE, ACTUATE, CONTINUE
-    or PYTHON."""
+    or PYTHON (also when the model's timestep, gravity or geom sizes changed: :func:`model_changed`)."""
     n = t[0]
-    xfrc, written, added, rows, user, sand, state = _book(t, t[1])
+    xfrc, written, added, rows, user, sand, state, snapshot, gravity, geom_size = _book(t, t[1])
+    if model_changed(snapshot, dt, gravity, geom_size):
+        return PYTHON
     md = _md(t, t[2])
     user_part(xfrc, written, added, rows, user)
     total = 0
@@ -245,10 +267,11 @@ def phase1(t, time, dt):
 def phase2(t, time, dt):
     """Every touching handle's evaluation and the commit; returns DONE, MONITOR or PYTHON."""
     n = t[0]
-    xfrc, written, added, rows, user, sand, state = _book(t, t[1])
+    xfrc, written, added, rows, user, sand, state, _, _, _ = _book(t, t[1])
     md = _md(t, t[2])
     fr = _fr(t, t[3], md[6].shape[0])
     sand[:] = 0.0
+    state[1] = 1.0                                   # sand_dirty: the Python path zeroes ``sand`` before use
     nonzero = False
     for h in range(n):
         base = t[_HEADER + h]
@@ -427,7 +450,13 @@ def warm_up(model, data) -> None:
     """Compile both phases (a route over no handle)."""
     nbody = model.nbody
     book = dict(xfrc=np.zeros((nbody, 6)), written=np.zeros((nbody, 6)), added=np.zeros((nbody, 6)),
-                rows=np.zeros(0, np.int64), user=np.zeros((nbody, 6)), sand=np.zeros((nbody, 6)), state=np.zeros(4))
+                rows=np.zeros(0, np.int64), user=np.zeros((nbody, 6)), sand=np.zeros((nbody, 6)), state=np.zeros(6),
+                snapshot=snapshot(model), gravity=model.opt.gravity, geom_size=model.geom_size)
     route = Route(book, ev.mjdata_arrays(data), [], data)
     route.phase1(route.address, 0.0, 0.001)
     route.phase2(route.address, 0.0, 0.001)
+
+
+def snapshot(model) -> np.ndarray:
+    """(4 + 3 ngeom,) the model's timestep (s), gravity (m/s^2) and ``geom_size`` (m) now (:func:`model_changed`)."""
+    return np.concatenate([[model.opt.timestep], model.opt.gravity, model.geom_size.ravel()])

@@ -14,7 +14,15 @@ one dispatcher installed with ``mujoco.set_mjcb_control``. It
   raised" whenever any Python callback is installed, so the compile entry points
   (``MjModel.from_xml_string / from_xml_path / from_binary_path``, ``MjSpec.compile / recompile``) are
   wrapped to suspend the callback for the duration of the call. The wrappers are removed when the last
-  handle detaches.
+  handle detaches;
+* keeps the sand's state with the simulation it belongs to while installed (docs/architecture.md, "State
+  and copies"): copies of an MjData for the same model (``copy.copy``, ``mj_copyData``) get its book and
+  the handles' workspaces; deep copies and pickles of an MjData, and copies, pickles and ``mj_saveModel``
+  of an MjModel, are made of the plain state (no sand in ``xfrc_applied``, the floors ``replace_rigid``
+  switched off colliding again); ``mj_resetData*`` makes a data new for the sand;
+  ``set_mjcb_control`` / ``set_mjcb_passive`` set the user callback it chains; ``model.opt.disableflags``
+  that would leave no callback for the sand are refused; and every evaluation compares the model's
+  timestep, gravity and geom sizes with what the handles last checked (:meth:`SandHandle._check_model`).
 
 Where it can (:func:`rft_mujoco.compiled.native.support`), the dispatcher installs native callbacks
 (:mod:`rft_mujoco.compiled.native`) in MuJoCo's place of its Python ones: the bindings still hold the
@@ -27,6 +35,7 @@ before the first attach keeps both Python.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import logging
@@ -50,6 +59,16 @@ _COMPILE_ENTRY_POINTS = (
 )
 
 
+_DATA_COPIES = ((mujoco.MjData, "__copy__"), (mujoco, "mj_copyData"))
+"""Copies of an MjData for the same model: the copy gets the original's sand state (:meth:`Dispatcher.copy_state`)."""
+_PLAIN_COPIES = ((mujoco.MjData, "__deepcopy__"), (mujoco.MjData, "__getstate__"), (mujoco.MjModel, "__copy__"),
+                 (mujoco.MjModel, "__deepcopy__"), (mujoco.MjModel, "__getstate__"), (mujoco, "mj_saveModel"))
+"""Copies and saves that carry a model (a new MjModel, a pickle, an .mjb): made of the plain model and data,
+without the sand (:meth:`Dispatcher.plain`)."""
+_RESETS = ("mj_resetData", "mj_resetDataDebug", "mj_resetDataKeyframe")
+"""Resets of an MjData: it starts a new trajectory, without the sand state of the old one (:meth:`Dispatcher.forget`)."""
+_SET_CONTROL, _SET_PASSIVE = mujoco.set_mjcb_control, mujoco.set_mjcb_passive
+_DISABLEFLAGS = mujoco.MjOption.__dict__["disableflags"]
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
 _ACTUATION_OFF = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
 RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
@@ -74,7 +93,7 @@ def untouched_components(xfrc: np.ndarray, written: np.ndarray) -> np.ndarray:
 class _DataBook:
     """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
 
-    __slots__ = ("added", "written", "rows", "model", "sand", "user", "state", "native", "__weakref__")
+    __slots__ = ("added", "written", "rows", "model", "sand", "user", "state", "native", "snapshot", "__weakref__")
 
     def __init__(self, model, data) -> None:
         nbody = model.nbody
@@ -90,6 +109,9 @@ class _DataBook:
         self.state = np.zeros(6)
         self.state[4] = tol.TIME_RTOL
         self.native = None                    # (generation, Route) of this MjData's native route
+        # the model's timestep, gravity and geom sizes as the handles last checked them (None: not yet);
+        # the native route hands an evaluation to Python when they differ (compiled.route.model_changed)
+        self.snapshot = None
 
     @property
     def nonzero(self) -> bool:
@@ -176,10 +198,10 @@ class Dispatcher:
     def _install(self) -> None:
         current = mujoco.get_mjcb_control()
         self._chained = current if current is not self else None
-        mujoco.set_mjcb_control(self)
+        _SET_CONTROL(self)
         current = mujoco.get_mjcb_passive()
         self._chained_passive = current if current is not self._passive else None
-        mujoco.set_mjcb_passive(self._passive)
+        _SET_PASSIVE(self._passive)
         for owner, name, static in _COMPILE_ENTRY_POINTS:
             original = owner.__dict__[name] if name in owner.__dict__ else getattr(owner, name)
             self._originals[(owner, name)] = original
@@ -187,6 +209,21 @@ class Dispatcher:
             wrapped = self._suspending(func)
             setattr(owner, name, staticmethod(wrapped) if static else wrapped)
         self._install_native()
+        for owner, name in _DATA_COPIES:
+            self._wrap(owner, name, self._copying(getattr(owner, name), owner is mujoco))
+        for name in _RESETS:
+            self._wrap(mujoco, name, self._resetting(getattr(mujoco, name)))
+        for owner, name in _PLAIN_COPIES:
+            self._wrap(owner, name, self._plain_during(getattr(owner, name)))
+        self._wrap(mujoco, "set_mjcb_control", self._setting_callback(_SET_CONTROL, passive=False))
+        self._wrap(mujoco, "set_mjcb_passive", self._setting_callback(_SET_PASSIVE, passive=True))
+        self._wrap(mujoco.MjOption, "disableflags", property(_DISABLEFLAGS.fget, self._set_disableflags,
+                                                             doc=_DISABLEFLAGS.__doc__))
+
+    def _wrap(self, owner, name, replacement) -> None:
+        """Replace ``owner.name`` until the last handle detaches (:meth:`_uninstall` restores it)."""
+        self._originals[(owner, name)] = owner.__dict__[name] if name in owner.__dict__ else getattr(owner, name)
+        setattr(owner, name, replacement)
 
     def _install_native(self) -> None:
         """Put the native callbacks in MuJoCo's slots the dispatcher's Python callbacks hold (those not
@@ -236,9 +273,9 @@ class Dispatcher:
 
     def _uninstall(self) -> None:
         if mujoco.get_mjcb_control() is self:
-            mujoco.set_mjcb_control(self._chained)
+            _SET_CONTROL(self._chained)
         if mujoco.get_mjcb_passive() is self._passive:
-            mujoco.set_mjcb_passive(self._chained_passive)
+            _SET_PASSIVE(self._chained_passive)
         self._chained = None
         self._chained_passive = None
         self._native_slots = (False, False)
@@ -248,6 +285,131 @@ class Dispatcher:
             setattr(owner, name, original)
         self._originals.clear()
 
+    # --- what users do around a running simulation: copies, saves, callbacks, flags ---------------------
+    def _copying(self, func, module_function: bool):
+        """``MjData.__copy__`` / ``mujoco.mj_copyData``, then the copy gets the original's sand state."""
+        if module_function:
+            @functools.wraps(func)
+            def copy_data(dest, m, src):
+                func(dest, m, src)
+                self.copy_state(src, dest)
+            return copy_data
+
+        @functools.wraps(func)
+        def copy(src):
+            out = func(src)
+            self.copy_state(src, out)
+            return out
+        return copy
+
+    def _resetting(self, func):
+        """``mujoco.mj_resetData*``, then the data forgets its sand state (a reset data is a new one)."""
+        @functools.wraps(func)
+        def reset(m, d, *args, **kwargs):
+            func(m, d, *args, **kwargs)
+            self.forget(d)
+        return reset
+
+    def _plain_during(self, func):
+        """A copy or save that carries a model, made while the sand is out (:meth:`plain`)."""
+        @functools.wraps(func)
+        def call(obj=None, *args, **kwargs):
+            if obj is None:                          # mj_saveModel(m=...)
+                obj = kwargs.pop("m")
+            with self.plain(obj):
+                return func(obj, *args, **kwargs)
+        return call
+
+    @contextlib.contextmanager
+    def plain(self, obj):
+        """While in the block, ``obj`` (an MjModel, or an MjData with its model) is as without sand: the
+        floors ``replace_rigid`` switched off collide again and an MjData's ``xfrc_applied`` holds the
+        user's part only; both are put back bit for bit after."""
+        with self._lock:
+            data = obj if isinstance(obj, mujoco.MjData) else None
+            model = obj.model if data is not None else obj
+            undo = []
+            if data is not None and self._books.get(data) is not None:
+                book = self._books[data]
+                owner = book.model()
+                if owner is not None and book.rows.size:
+                    saved = data.xfrc_applied.copy()
+                    data.xfrc_applied[:] = self.user_xfrc(owner, data)
+                    undo.append(lambda: data.xfrc_applied.__setitem__(slice(None), saved))
+            address = getattr(model, "_address", None)
+            for h in self._handles:
+                if h.model._address == address and h._replaced:
+                    saved_type, saved_aff = model.geom_contype.copy(), model.geom_conaffinity.copy()
+                    for gid, contype, conaffinity in h._replaced:
+                        model.geom_contype[gid] = contype
+                        model.geom_conaffinity[gid] = conaffinity
+                    undo.append(lambda t=saved_type, a=saved_aff: (model.geom_contype.__setitem__(slice(None), t),
+                                                                  model.geom_conaffinity.__setitem__(slice(None), a)))
+            try:
+                yield
+            finally:
+                for u in reversed(undo):
+                    u()
+
+    def copy_state(self, src, dst) -> None:
+        """``dst`` was made a copy of ``src`` (same model): it continues with ``src``'s sand state (what the
+        sand added to ``xfrc_applied``, the handles' workspaces), so that both step on identically; a ``src``
+        without sand state makes ``dst`` forget its own."""
+        with self._lock:
+            self.forget(dst)
+            book = self._books.get(src)
+            owner = book.model() if book is not None else None
+            if owner is None or dst.xfrc_applied.shape != src.xfrc_applied.shape:
+                return
+            new = self._books[dst] = _DataBook(owner, dst)
+            for name in ("added", "written", "state"):
+                np.copyto(getattr(new, name), getattr(book, name))
+            new.state[5] = 0.0
+            new.rows = book.rows.copy()
+            new.snapshot = None if book.snapshot is None else book.snapshot.copy()
+            for h in self._handles:
+                if h.model is owner:
+                    h._copy_workspace(src, dst)
+
+    def forget(self, data) -> None:
+        """Drop what the dispatcher and the handles keep for ``data`` (its contents were replaced)."""
+        with self._lock:
+            self._books.pop(data, None)
+            for h in self._handles:
+                h._work.pop(data, None)
+            if self._registry is not None:
+                self._registry.drop_data(data._address)
+
+    def _setting_callback(self, setter, passive: bool):
+        """``mujoco.set_mjcb_control`` / ``set_mjcb_passive`` while sand is attached: the dispatcher keeps the
+        slot and chains the new callback (None: none); passing the dispatcher's own callback changes nothing."""
+        @functools.wraps(setter)
+        def set_callback(callback):
+            with self._lock:
+                mine = self._passive if passive else self
+                if callback is mine:
+                    return
+                if passive:
+                    self._chained_passive = callback
+                else:
+                    self._chained = callback
+                _SET_CONTROL(self)                   # both slots Python again, then native where nothing is chained
+                _SET_PASSIVE(self._passive)
+                self._install_native()
+        return set_callback
+
+    def _set_disableflags(self, opt, value) -> None:
+        """``model.opt.disableflags = value`` while sand is attached: refused (ValueError, the flags left as
+        they were) when it would leave MuJoCo no callback to evaluate the sand of that model from."""
+        old = _DISABLEFLAGS.fget(opt)
+        _DISABLEFLAGS.fset(opt, value)
+        from rft_mujoco.coupling import checks
+        for h in self._handles:
+            if h._opt is opt and checks.check_actuation_flag(h.model):
+                _DISABLEFLAGS.fset(opt, old)
+                raise ValueError(f"model.opt.disableflags = {value} refused while sand is attached (kept "
+                                 f"{old}): {checks.ACTUATION_DISABLED_MESSAGE} Or detach the sand first.")
+
     def _suspending(self, func):
         @functools.wraps(func)
         def call(*args, **kwargs):
@@ -255,13 +417,13 @@ class Dispatcher:
                 return func(*args, **kwargs)     # the native callbacks leave models without sand alone
             with self._lock:
                 current, passive = mujoco.get_mjcb_control(), mujoco.get_mjcb_passive()
-                mujoco.set_mjcb_control(None)
-                mujoco.set_mjcb_passive(None)
+                _SET_CONTROL(None)
+                _SET_PASSIVE(None)
                 try:
                     return func(*args, **kwargs)
                 finally:
-                    mujoco.set_mjcb_control(current)
-                    mujoco.set_mjcb_passive(passive)
+                    _SET_CONTROL(current)
+                    _SET_PASSIVE(passive)
                     self._reinstall_native()
         return call
 
@@ -313,6 +475,8 @@ class Dispatcher:
         book = self._books.get(data)
         if book is None or book.added.shape[0] != model.nbody:
             book = self.book(model, data)
+        if book.snapshot is None or self._model_changed(model, book):
+            self._check_model(model, book, handles)
         pending = book.state[5]
         if pending:                          # left to Python by the native callback (this very evaluation)
             book.state[5] = 0.0
@@ -338,6 +502,25 @@ class Dispatcher:
         if self._registry is not None and book.native is not None and book.native[0] == self._generation \
                 and not self._registry.routed(model, data):
             self._registry.add(model, data, book.native[1])
+
+    @staticmethod
+    def _model_changed(model, book) -> bool:
+        """Whether the model's timestep, gravity or geom sizes changed since the handles last checked them."""
+        if compiled.ready():
+            return _ROUTE.model_changed(book.snapshot, model.opt.timestep, model.opt.gravity, model.geom_size)
+        return not np.array_equal(book.snapshot, _ROUTE.snapshot(model))
+
+    @staticmethod
+    def _check_model(model, book, handles) -> None:
+        """Each handle checks the model's edits since attach (raising on those it cannot follow); then the
+        snapshot that the native route compares against is updated in place."""
+        for h in handles:
+            h._check_model()
+        now = _ROUTE.snapshot(model)
+        if book.snapshot is None or book.snapshot.shape != now.shape:
+            book.snapshot = now
+        else:
+            book.snapshot[:] = now
 
     def _native_call(self, model, data, route) -> bool:
         """One evaluation through the native route; False when the Python path must run instead (nothing
@@ -369,7 +552,9 @@ class Dispatcher:
         for h in handles:
             h._refresh()
         route = _ROUTE.Route(dict(xfrc=data.xfrc_applied, written=book.written, added=book.added, rows=rows,
-                                  user=book.user, sand=book.sand, state=book.state),
+                                  user=book.user, sand=book.sand, state=book.state, snapshot=book.snapshot,
+                                  gravity=handles[0].model.opt.gravity,
+                                  geom_size=handles[0].model.geom_size),
                              handles[0]._workspace(data).md,
                              [(h._hc, h._workspace(data).tuple) for h in handles], data)
         route.handles = handles

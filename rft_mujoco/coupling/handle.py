@@ -33,6 +33,7 @@ the design and its alternatives are measured in docs/rest.md).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import warnings
 import weakref
@@ -186,6 +187,11 @@ class SandHandle:
         self.groups = setup.groups(model, self.body_ids, self.local_centroids, self.elem_body, size)
         from rft_mujoco.compiled.elements import Occluders, occluders
         self._occluders = occluders(model, self.body_ids) if self.cull else Occluders.none(n)
+        # the geoms whose sizes the elements and occluders were built from (model edits: _check_model)
+        self._geoms = np.union1d(np.flatnonzero(np.isin(model.geom_bodyid, self.body_ids)),
+                                 self._occluders.geom).astype(np.int64)
+        self._geom_size0 = model.geom_size[self._geoms].copy()
+        self._timestep_checked = float(model.opt.timestep)
         self._work: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
         self._root = np.ascontiguousarray(model.body_rootid[self.body_ids], dtype=np.int64)
         self.attached = False
@@ -262,11 +268,19 @@ class SandHandle:
             DISPATCHER.remove_sand(self.model, data, self.body_ids)
         self.attached = False
 
-    def replace_rigid(self, geoms: Sequence[str | int]) -> None:
+    def replace_rigid(self, geoms: str | int | Sequence[str | int]) -> None:
         """Switch off collisions of rigid geoms the sand replaces (e.g. the floor plane) until detach; warns
-        (:func:`rft_mujoco.coupling.checks.check_replaced_floor`) when a replaced floor is not at the sand's height."""
+        (:func:`rft_mujoco.coupling.checks.check_replaced_floor`) when a replaced floor is not at the sand's height.
+
+        ``geoms``: a geom name or id, or a sequence of them. Copies and saves of the model (``copy``,
+        ``deepcopy``, pickle, ``mj_saveModel``) keep the geoms' own collision flags (docs/architecture.md,
+        "State and copies")."""
+        if isinstance(geoms, (str, int, np.integer)):
+            geoms = [geoms]
         new = []
         for g in geoms:
+            if not isinstance(g, (str, int, np.integer)):
+                raise TypeError(f"replace_rigid takes geom names (str) or ids (int), got {g!r}")
             gid = g if isinstance(g, (int, np.integer)) else mujoco.mj_name2id(
                 self.model, mujoco.mjtObj.mjOBJ_GEOM, g)
             if gid < 0 or gid >= self.model.ngeom:
@@ -289,7 +303,8 @@ class SandHandle:
         return self._terrain
 
     @terrain.setter
-    def terrain(self, value: Terrain) -> None:
+    def terrain(self, value: Terrain | float) -> None:
+        value = _checked_terrain(value)
         self._max_height = float(value.max_height)
         self._select_backend(value)
         self._terrain = value
@@ -406,7 +421,7 @@ class SandHandle:
 
     # --- per evaluation -----------------------------------------------------------------------------
     def _workspace(self, data) -> _Workspace:
-        work = self._work.get(data)
+        work = self._work.get(data) if isinstance(data, mujoco.MjData) else None
         if work is None:
             if not isinstance(data, mujoco.MjData) or data.xpos.shape[0] != self.model.nbody \
                     or data.qvel.shape[0] != self.model.nv:
@@ -416,6 +431,16 @@ class SandHandle:
                                     if isinstance(data, mujoco.MjData) else ""))
             work = self._work[data] = _Workspace(self, data)
         return work
+
+    def _copy_workspace(self, src, dst) -> None:
+        """``dst`` continues from ``src``'s per-MjData state (the dispatcher's :meth:`copy_state`)."""
+        work = self._work.get(src)
+        if work is None:
+            return
+        new = self._workspace(dst)
+        for name, a in work.arrays.items():
+            np.copyto(new.arrays[name], a)
+        new.keep = copy.deepcopy(work.keep)
 
     def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, stage: int = 0) -> bool:
         """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero (the
@@ -488,6 +513,37 @@ class SandHandle:
             k = touch.size
             a = work.arrays
             self.monitor.check(self, data, touch, a["v_com"][:k], a["omega"][:k], work.diag.max_depth[touch])
+
+    def _check_model(self) -> None:
+        """Raise ValueError on a model edit since attach that the sand cannot follow: a timestep that is not
+        finite and > 0, a zero or non-finite gravity (or one off -z under a heightfield or region), a geom of
+        the sand's bodies or of their occluders resized (the elements were built from the sizes at attach).
+        A new positive timestep is checked as at attach (:func:`checks.check_timestep`). The dispatcher calls
+        this at the first evaluation of each MjData and whenever the model's timestep, gravity or geom sizes
+        change (:func:`rft_mujoco.compiled.route.model_changed`)."""
+        dt = float(self._opt.timestep)
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"model.opt.timestep is {dt!r} s, set after attach; the sand needs a finite timestep "
+                             "> 0 s (its rest treatment stops bodies within one step). Set a positive timestep, "
+                             f"e.g. the {self._timestep_checked:g} s of before")
+        if dt != self._timestep_checked:
+            checks.check_timestep(self.model)
+            self._timestep_checked = dt
+        try:
+            self._gravity()
+        except ValueError as exc:
+            raise ValueError(f"model.opt.gravity is {self._opt_gravity.tolist()} m/s^2, set after attach: {exc}") \
+                from None
+        sizes = self.model.geom_size[self._geoms]
+        if not np.array_equal(sizes, self._geom_size0):
+            i = int(np.flatnonzero(np.any(sizes != self._geom_size0, axis=1))[0])
+            g = int(self._geoms[i])
+            name = self.model.geom(g).name or f"#{g}"
+            body = self.model.body(int(self.model.geom_bodyid[g])).name or f"#{int(self.model.geom_bodyid[g])}"
+            raise ValueError(f"geom {name!r} (body {body!r}) was resized after attach: geom_size "
+                             f"{self._geom_size0[i].tolist()} -> {sizes[i].tolist()} m, but the sand's surface "
+                             "elements and occluders were built from the sizes at attach. Detach and attach the "
+                             "sand again after resizing geoms (or set geom_size back)")
 
     def _gravity(self) -> np.ndarray:
         """Unit gravity direction (3,), recomputed only when ``model.opt.gravity`` changed."""
@@ -564,10 +620,13 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
                          "pass backend='numpy'")
     if rk4_stages not in RK4_STAGES:
         raise ValueError(f"rk4_stages must be one of {RK4_STAGES}, got {rk4_stages!r}")
+    if not isinstance(guards, Guards):
+        raise TypeError(f"guards must be a rft_mujoco.Guards (default: rft_mujoco.PUBLISHED, no clean-ups), got "
+                        f"{guards!r}; e.g. rft_mujoco.Guards(no_tension=True)")
     media = get_media(media)
-    terrain = as_terrain(surface_height)
+    terrain = _checked_terrain(surface_height)
     size = surface.element_size(resolution)
-    ids = setup.body_ids(model, bodies)
+    ids = _movable(model, bodies, _body_ids(model, bodies))
     gravity_direction(model.opt.gravity)  # raises on zero gravity
     checks.check_not_attached(model, ids, DISPATCHER.handles, terrain=terrain)
     checks.check_timestep(model)
@@ -581,6 +640,56 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     DISPATCHER.register(handle)
     handle.attached = True
     return handle
+
+
+SURFACE_HEIGHT_MAX = 1e6
+"""m: the highest free surface (in absolute value) :func:`attach` takes; beyond it the stresses (rho_c |g|
+depth) overflow or a unit was mistaken."""
+
+
+def _checked_terrain(surface) -> Terrain:
+    """:func:`as_terrain`, refusing a surface height beyond :data:`SURFACE_HEIGHT_MAX`."""
+    terrain = as_terrain(surface)
+    if not abs(float(terrain.max_height)) <= SURFACE_HEIGHT_MAX:
+        raise ValueError(f"surface height {terrain.max_height!r} m is beyond +-{SURFACE_HEIGHT_MAX:g} m: the sand's "
+                         "stresses would overflow. Give the height in m of the sand surface (e.g. 0.0)")
+    return terrain
+
+
+def _body_ids(model, bodies) -> list[int]:
+    """:func:`setup.body_ids`, with the mistakes it would misreport said plainly."""
+    if bodies is not None and not isinstance(bodies, (str, int, np.integer)):
+        try:
+            bodies = list(bodies)
+        except TypeError:
+            raise TypeError(f"bodies must be None (every body), a body name or id, or a sequence of them; got "
+                            f"{type(bodies).__name__}") from None
+        if not bodies:
+            raise ValueError("bodies is empty: name the bodies that touch the sand, or pass None for every body "
+                             "with surface geoms")
+        bad = [b for b in bodies if not isinstance(b, (str, int, np.integer))]
+        if bad:
+            raise TypeError(f"bodies must hold body names (str) or ids (int), got {bad!r}")
+    return setup.body_ids(model, bodies)
+
+
+def _movable(model, bodies, ids: list[int]) -> list[int]:
+    """The bodies of ``ids`` that sand forces can move: not welded to the world (static) and not mocap.
+    Those are dropped when ``bodies`` is None and refused when named (they would feel nothing)."""
+    fixed = [b for b in ids if model.body_weldid[b] == 0 or model.body_mocapid[b] >= 0]
+    if not fixed:
+        return ids
+    if bodies is not None:
+        names = [model.body(b).name or f"#{b}" for b in fixed]
+        raise ValueError(f"bodies {names} are static or mocap (welded to the world or moved by mocap_pos): forces "
+                         "in xfrc_applied cannot move them, so they would feel nothing. Give them a joint "
+                         "(e.g. <freejoint/>) to let the sand act on them, or use rft_mujoco.coupling.rollout to "
+                         "record the sand force along a prescribed motion")
+    ids = [b for b in ids if b not in fixed]
+    if not ids:
+        raise ValueError("no movable body with surface geoms to attach sand to: every body with geoms is static "
+                         "or mocap; give a body a joint (e.g. <freejoint/>)")
+    return ids
 
 
 def detach_all() -> None:

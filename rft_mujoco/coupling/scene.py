@@ -60,6 +60,16 @@ def _media(value, where: str) -> Media:
     return Media(float(value[0]), float(value[1]), float(value[2]) if value.size == 3 else None)
 
 
+def _one_number(value, where: str, unit: str) -> float:
+    """The single number of a ``<numeric>`` field (ValueError naming the field for any other count)."""
+    if isinstance(value, str):
+        raise ValueError(f"{where} must be a <numeric> with one number in {unit}, got the text {value!r}")
+    values = np.atleast_1d(value)
+    if values.size != 1:
+        raise ValueError(f"{where} must hold one number in {unit}, got {values.tolist()}")
+    return float(values[0])
+
+
 def attach_scene(model, **kwargs) -> list[SandHandle]:
     """Attach every sand declared in the model's ``<custom>`` fields; returns one handle per sand.
 
@@ -81,15 +91,14 @@ def attach_scene(model, **kwargs) -> list[SandHandle]:
             if "heightfield" in f:
                 surf = HeightfieldSurface.from_model(model, f["heightfield"])
             else:
-                h = f.get("surface_height", np.zeros(1))
-                surf = FlatSurface(float(np.atleast_1d(h)[0]))
+                surf = FlatSurface(_one_number(f.get("surface_height", 0.0), f"{where}: rft/surface_height", "m"))
             if "region" in f:
                 r = np.atleast_1d(f["region"])
                 if r.size != 4:
                     raise ValueError(f"{where}: rft/region must be 'xmin xmax ymin ymax', got {r.tolist()}")
                 surf = SandRegion(surf, (r[0], r[1]), (r[2], r[3]))
             res = f.get("resolution", "default")
-            res = res if isinstance(res, str) else float(np.atleast_1d(res)[0])
+            res = res if isinstance(res, str) else _one_number(res, f"{where}: rft/resolution", "m")
             handle = attach(model, media, bodies, surf, res, **kwargs)
             if "replaces" in f:
                 handle.replace_rigid(f["replaces"].split())
