@@ -371,6 +371,27 @@ def constrained_free_motion(model, data, qfrc: np.ndarray):
     return mass + jq.T @ (dq[:, None] * jq), qfrc + jq.T @ (dq * aref[quad]) + rows.T @ const
 
 
+_IMPLICIT = (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
+
+
+def velocity_damping(model) -> np.ndarray:
+    """(nv,) the damping (N s/m, N m s/rad) that MuJoCo's implicit integrators treat implicitly, on the diagonal:
+    joint damping plus the velocity gain of affine actuators on a joint (a position servo's ``kv``, times the
+    gear squared); zeros with Euler and RK4. The step's velocity is then ``(M + dt D) qacc = f``, as MuJoCo's
+    ``implicitfast`` integrates it (a servo's ``kv`` on a light link is far beyond an explicit step:
+    ``dt kv / I`` is 100 on the swimmer at the animal's density). Tendon and fluid damping are left out."""
+    out = np.zeros(model.nv)
+    if int(model.opt.integrator) not in _IMPLICIT:
+        return out
+    out += model.dof_damping
+    for a in range(model.nu):
+        if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and \
+                model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE:
+            dof = model.jnt_dofadr[model.actuator_trnid[a, 0]]
+            out[dof] += -model.actuator_biasprm[a, 2] * model.actuator_gear[a, 0] ** 2
+    return out
+
+
 def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str):
     """Jacobians (G, 6, nv), free twists (G, 6), twists now (G, 6) and the mobility (6G, 6G) of the groups'
     reference points for the implicit solve: with ``constraints="linearized"`` through this step's constraint
@@ -391,6 +412,7 @@ def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str):
     flat = jac.reshape(-1, m.nv)
     if constraints == "linearized":
         h, f = constrained_free_motion(m, data, qfrc)
+        h = h + dt * np.diag(velocity_damping(m))
         chol = np.linalg.cholesky(h)
         solve = lambda b: np.linalg.solve(chol.T, np.linalg.solve(chol, b))       # noqa: E731
         qacc = solve(f)
