@@ -1,6 +1,6 @@
-"""Tests of ``python -m rft_mujoco.train`` (``train/`` installed as ``rft_mujoco.train``; ``python -m train``
-from the repository root is an alias): CLI help from any directory, config resolution and round trip, and
-smoke runs that train, save, reload from ``config.yaml`` alone and evaluate.
+"""Tests of ``python -m rft_mujoco.train`` (``rft_mujoco/train/``; the same from the repository root): CLI
+help from any directory, config resolution and round trip, and smoke runs that train, save, reload from
+``config.yaml`` alone and evaluate.
 
 The main smoke run uses ``rft_mujoco/SandSwimmer-v0`` when it is registered (100-step episodes through the
 ``max_episode_steps`` env kwarg of ``gymnasium.make``), else ``Pendulum-v1`` with a warning; a second one
@@ -60,17 +60,17 @@ def test_help_from_any_directory(command, tmp_path):
     assert not list(tmp_path.iterdir())
 
 
-def test_console_script_and_repository_alias(tmp_path):
+def test_console_script_and_repository_root(tmp_path):
     script = shutil.which("rft-mujoco-train", path=str(Path(sys.executable).parent))
     if script is None:
         pytest.skip("the rft-mujoco-train console script is not installed beside this Python")
     result = subprocess.run([script, "train", "--help"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("usage: rft-mujoco-train train")
-    alias = subprocess.run([sys.executable, "-m", "train", "--help"], cwd=ROOT, capture_output=True, text=True,
-                           timeout=60)
-    assert alias.returncode == 0, alias.stderr
-    assert alias.stdout.startswith("usage: python -m train")
+    at_root = subprocess.run([sys.executable, "-m", "rft_mujoco.train", "--help"], cwd=ROOT, capture_output=True,
+                             text=True, timeout=60)
+    assert at_root.returncode == 0, at_root.stderr
+    assert at_root.stdout.startswith(f"usage: {PROG}")
 
 
 def test_hyperparameters_are_package_data():
@@ -329,7 +329,7 @@ def test_quadruped_v1_smoke_train_save_load_evaluate(tmp_path):
     print(f"SandQuadruped-v1 smoke: training {trained_s:.1f} s, evaluation {time.perf_counter() - start:.1f} s")
 
 
-PRETRAINED = Path(__file__).resolve().parent.parent / "train" / "pretrained" / "SandQuadruped-v1"
+PRETRAINED = Path(__file__).resolve().parent.parent / "rft_mujoco" / "train" / "pretrained" / "SandQuadruped-v1"
 
 
 def test_the_shipped_policy_loads_and_walks_forward_on_sand():

@@ -1,9 +1,7 @@
 """Training and evaluation of stable-baselines3 agents on the sand tasks (and any gymnasium id).
 
-Installed as ``rft_mujoco.train`` (this folder, ``train/`` in the repository; hyperparameter YAMLs shipped
-as package data). A thin command line (``python -m rft_mujoco.train {train,evaluate,plot} --help``, or
-the console script ``rft-mujoco-train``; ``python -m train`` from the repository root is the same) over
-a few modules:
+Hyperparameter YAMLs ship as package data. A thin command line (``python -m rft_mujoco.train
+{train,evaluate,plot} --help``, or the console script ``rft-mujoco-train``) over a few modules:
 
 - ``config``       the run configuration: YAML hyperparameters keyed by env id, CLI overrides, and the
                    ``config.yaml`` saved beside every model (the one source ``evaluate`` rebuilds from);

@@ -1,5 +1,5 @@
 """Command line: ``python -m rft_mujoco.train {train,evaluate,gap,plot}`` (``--help`` on each), also installed
-as ``rft-mujoco-train``; ``python -m train`` is the same from the repository root.
+as ``rft-mujoco-train``.
 
 Examples (from any directory; runs go to ./runs)::
 
