@@ -332,19 +332,19 @@ def test_quadruped_v1_smoke_train_save_load_evaluate(tmp_path):
 PRETRAINED = Path(__file__).resolve().parent.parent / "rft_mujoco" / "train" / "pretrained" / "SandQuadruped-v1"
 
 
-def test_the_shipped_policy_loads_and_walks_forward_on_sand():
-    """train/pretrained/SandQuadruped-v1 (the README's policy): rebuilt from its config.yaml, it moves the
-    robot forward at a 0.4 m/s command (a short rollout; no speed asserted beyond "forward")."""
-    from rft_mujoco.train.environments import make_env
-    from rft_mujoco.train.evaluate import load_policy
+def test_the_shipped_policy_loads_by_name_and_walks_forward_on_sand(tmp_path, monkeypatch):
+    """rft_mujoco/train/pretrained/SandQuadruped-v1 (the README's policy), found by its name from any
+    directory and rebuilt from its config.yaml, moves the robot forward at a 0.4 m/s command (a short
+    rollout; no speed asserted beyond "forward")."""
+    import rft_mujoco.train
 
-    config = cfg.load_config(PRETRAINED)
-    assert config.env_id == QUADRUPED_V1
     for name in ("model.zip", "vecnormalize.pkl", "config.yaml"):
         assert (PRETRAINED / name).stat().st_size < 5_000_000, name          # small files
-    env = make_env(config.env_id, config.env_kwargs)
+    monkeypatch.chdir(tmp_path)
+    assert rft_mujoco.train.find_run("SandQuadruped-v1").resolve() == PRETRAINED.resolve()
+    act, env, config = rft_mujoco.train.load_run("SandQuadruped-v1")
+    assert config.env_id == QUADRUPED_V1
     try:
-        act, _ = load_policy(config, PRETRAINED, env)
         obs, _ = env.reset(seed=123, options={"command": (0.4, 0.0, 0.0)})
         x0 = env.unwrapped.data.qpos[0]
         for _ in range(150):                                                  # 3 s
