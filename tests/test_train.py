@@ -276,7 +276,8 @@ def test_ppo_smoke_run_evaluates_from_config_alone(ppo_run, tmp_path):
     print(f"evaluation on {env_id}: {seconds:.1f} s")
 
 
-def test_sac_smoke_run_on_pendulum(tmp_path, capsys):
+def test_sac_smoke_run_on_pendulum(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     code = main(["train", "--algo", "sac", "--env", "Pendulum-v1", "--timesteps", "300",
                  "--hyperparams", "learning_starts=100", "batch_size=32", "policy_kwargs.net_arch=[32,32]",
                  "--save-freq", "0", "--runs-dir", str(tmp_path), "--run-name", "sac", "--no-progress-bar",
@@ -288,7 +289,11 @@ def test_sac_smoke_run_on_pendulum(tmp_path, capsys):
     assert main(["evaluate", "--run", str(run), "--episodes", "1", "--no-video"]) == 0
     out = capsys.readouterr().out
     assert "trained" in out and "zero" in out and "no forward speed" in out
-    assert json.loads((run / "eval" / "eval.json").read_text())["speed_key"] is None
+    assert json.loads((tmp_path / "out" / "eval" / "sac" / "eval.json").read_text())["speed_key"] is None
+    assert not (run / "eval").exists()                       # outputs never go into the run folder
+    with pytest.raises(SystemExit) as exit_info:             # and are not overwritten without --overwrite
+        main(["evaluate", "--run", str(run), "--episodes", "1", "--no-video"])
+    assert exit_info.value.code == 2 and "pass --overwrite" in capsys.readouterr().err
 
 
 @pytest.mark.slow

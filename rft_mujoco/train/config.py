@@ -116,7 +116,7 @@ def parse_overrides(items: Sequence[str], *, what: str = "--hyperparams") -> dic
     for item in items:
         match = _OVERRIDE.match(item)
         if not match:
-            raise ValueError(f"{what} entries must look like key=value (or key:value), got {item!r}")
+            raise ValueError(f"{what} entries must look like key=value, got {item!r} (rl-zoo3's key:value works too)")
         key, value = match.groups()
         *parents, leaf = key.strip().split(".")
         node = result
