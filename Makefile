@@ -2,19 +2,27 @@
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed-$(shell cksum pyproject.toml | cut -d' ' -f1)
+KEY := $(shell cksum pyproject.toml | cut -d' ' -f1)
+STAMP := $(VENV)/.installed-$(KEY)
+DEMO_STAMP := $(VENV)/.installed-demo-$(KEY)
 export MUJOCO_GL ?= egl
 
-.PHONY: demo test view validate bench stability train clean
+.PHONY: demo test view validate bench stability train first-use clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q torch==2.13.0   # the CPU wheel, before stable-baselines3
 	$(BIN)/python -m pip install -q -e '.[studies,envs,train,test]'
-	rm -f $(VENV)/.installed-* && touch $@
+	rm -f $(VENV)/.installed-* && touch $@ $(DEMO_STAMP)
 
-demo: $(STAMP)          ## quadruped trotting on sand (headless): summary, plot and video in out/
+# the demo needs only the studies extra (no torch, no warp): a shorter first install
+$(DEMO_STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q -e '.[studies]'
+	touch $@
+
+demo: $(DEMO_STAMP)     ## quadruped trotting on sand (headless): summary, plot and video in out/
 	$(BIN)/python -m rft_mujoco demo
 
 test: $(STAMP)          ## the test suite (what CI runs)
@@ -34,6 +42,9 @@ stability: $(STAMP)     ## drop/drag/rotate stability study: table and map in ou
 
 train: $(STAMP)         ## PPO on SandQuadruped-v1 for 60 min, the README's training run
 	$(BIN)/python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandQuadruped-v1 --max-minutes 60
+
+first-use: $(STAMP)     ## time first use in a new venv (empty numba cache, then the user's) and the warm demo
+	$(BIN)/python -m rft_mujoco.studies.first_use
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

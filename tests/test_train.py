@@ -1,6 +1,6 @@
-"""Tests of ``python -m rft_mujoco.train`` (``train/`` installed as ``rft_mujoco.train``; ``python -m train``
-from the repository root is an alias): CLI help from any directory, config resolution and round trip, and
-smoke runs that train, save, reload from ``config.yaml`` alone and evaluate.
+"""Tests of ``python -m rft_mujoco.train`` (``rft_mujoco/train/``; the same from the repository root): CLI
+help from any directory, config resolution and round trip, and smoke runs that train, save, reload from
+``config.yaml`` alone and evaluate.
 
 The main smoke run uses ``rft_mujoco/SandSwimmer-v0`` when it is registered (100-step episodes through the
 ``max_episode_steps`` env kwarg of ``gymnasium.make``), else ``Pendulum-v1`` with a warning; a second one
@@ -60,17 +60,17 @@ def test_help_from_any_directory(command, tmp_path):
     assert not list(tmp_path.iterdir())
 
 
-def test_console_script_and_repository_alias(tmp_path):
+def test_console_script_and_repository_root(tmp_path):
     script = shutil.which("rft-mujoco-train", path=str(Path(sys.executable).parent))
     if script is None:
         pytest.skip("the rft-mujoco-train console script is not installed beside this Python")
     result = subprocess.run([script, "train", "--help"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("usage: rft-mujoco-train train")
-    alias = subprocess.run([sys.executable, "-m", "train", "--help"], cwd=ROOT, capture_output=True, text=True,
-                           timeout=60)
-    assert alias.returncode == 0, alias.stderr
-    assert alias.stdout.startswith("usage: python -m train")
+    at_root = subprocess.run([sys.executable, "-m", "rft_mujoco.train", "--help"], cwd=ROOT, capture_output=True,
+                             text=True, timeout=60)
+    assert at_root.returncode == 0, at_root.stderr
+    assert at_root.stdout.startswith(f"usage: {PROG}")
 
 
 def test_hyperparameters_are_package_data():
@@ -276,7 +276,8 @@ def test_ppo_smoke_run_evaluates_from_config_alone(ppo_run, tmp_path):
     print(f"evaluation on {env_id}: {seconds:.1f} s")
 
 
-def test_sac_smoke_run_on_pendulum(tmp_path, capsys):
+def test_sac_smoke_run_on_pendulum(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     code = main(["train", "--algo", "sac", "--env", "Pendulum-v1", "--timesteps", "300",
                  "--hyperparams", "learning_starts=100", "batch_size=32", "policy_kwargs.net_arch=[32,32]",
                  "--save-freq", "0", "--runs-dir", str(tmp_path), "--run-name", "sac", "--no-progress-bar",
@@ -288,7 +289,11 @@ def test_sac_smoke_run_on_pendulum(tmp_path, capsys):
     assert main(["evaluate", "--run", str(run), "--episodes", "1", "--no-video"]) == 0
     out = capsys.readouterr().out
     assert "trained" in out and "zero" in out and "no forward speed" in out
-    assert json.loads((run / "eval" / "eval.json").read_text())["speed_key"] is None
+    assert json.loads((tmp_path / "out" / "eval" / "sac" / "eval.json").read_text())["speed_key"] is None
+    assert not (run / "eval").exists()                       # outputs never go into the run folder
+    with pytest.raises(SystemExit) as exit_info:             # and are not overwritten without --overwrite
+        main(["evaluate", "--run", str(run), "--episodes", "1", "--no-video"])
+    assert exit_info.value.code == 2 and "pass --overwrite" in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -329,22 +334,22 @@ def test_quadruped_v1_smoke_train_save_load_evaluate(tmp_path):
     print(f"SandQuadruped-v1 smoke: training {trained_s:.1f} s, evaluation {time.perf_counter() - start:.1f} s")
 
 
-PRETRAINED = Path(__file__).resolve().parent.parent / "train" / "pretrained" / "SandQuadruped-v1"
+PRETRAINED = Path(__file__).resolve().parent.parent / "rft_mujoco" / "train" / "pretrained" / "SandQuadruped-v1"
 
 
-def test_the_shipped_policy_loads_and_walks_forward_on_sand():
-    """train/pretrained/SandQuadruped-v1 (the README's policy): rebuilt from its config.yaml, it moves the
-    robot forward at a 0.4 m/s command (a short rollout; no speed asserted beyond "forward")."""
-    from rft_mujoco.train.environments import make_env
-    from rft_mujoco.train.evaluate import load_policy
+def test_the_shipped_policy_loads_by_name_and_walks_forward_on_sand(tmp_path, monkeypatch):
+    """rft_mujoco/train/pretrained/SandQuadruped-v1 (the README's policy), found by its name from any
+    directory and rebuilt from its config.yaml, moves the robot forward at a 0.4 m/s command (a short
+    rollout; no speed asserted beyond "forward")."""
+    import rft_mujoco.train
 
-    config = cfg.load_config(PRETRAINED)
-    assert config.env_id == QUADRUPED_V1
     for name in ("model.zip", "vecnormalize.pkl", "config.yaml"):
         assert (PRETRAINED / name).stat().st_size < 5_000_000, name          # small files
-    env = make_env(config.env_id, config.env_kwargs)
+    monkeypatch.chdir(tmp_path)
+    assert rft_mujoco.train.find_run("SandQuadruped-v1").resolve() == PRETRAINED.resolve()
+    act, env, config = rft_mujoco.train.load_run("SandQuadruped-v1")
+    assert config.env_id == QUADRUPED_V1
     try:
-        act, _ = load_policy(config, PRETRAINED, env)
         obs, _ = env.reset(seed=123, options={"command": (0.4, 0.0, 0.0)})
         x0 = env.unwrapped.data.qpos[0]
         for _ in range(150):                                                  # 3 s

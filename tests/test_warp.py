@@ -44,7 +44,7 @@ def _device():
 @pytest.fixture(scope="module")
 def quadruped():
     """The bundled quadruped with its floor replaced by sand, and its MuJoCo Warp model."""
-    path = os.path.join(os.path.dirname(rft_mujoco.__file__), os.pardir, "models", "quadruped.xml")
+    path = os.path.join(os.path.dirname(rft_mujoco.__file__), "models", "quadruped.xml")
     model = mujoco.MjModel.from_xml_path(os.path.abspath(path))
     model.geom_contype[0] = model.geom_conaffinity[0] = 0
     return model, mjw.put_model(model)

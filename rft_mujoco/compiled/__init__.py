@@ -11,13 +11,16 @@ Modules, each importing only those before it (no cycles):
 * :mod:`~rft_mujoco.compiled.route`: every handle of a model as one native call per evaluation.
 
 The rest of the package uses :data:`AVAILABLE`, :func:`ensure_compiled`, :func:`require` and the modules above.
-The first use on a machine compiles (about :data:`~rft_mujoco.compiled.jit.COMPILE_SECONDS`) and caches the
-machine code; :func:`ensure_compiled` says so on stderr only when it actually compiles.
+The first use of these sources and versions by a user compiles (about
+:data:`~rft_mujoco.compiled.jit.COMPILE_SECONDS` on a 2-core machine) and caches the machine code per user
+(:func:`~rft_mujoco.compiled.jit.cache_dir`); while numba compiles, a progress line on stderr says what
+happens and for how long (:class:`_Progress`); nothing is printed when the cache has everything.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import sys
 import threading
 import time
@@ -27,6 +30,94 @@ from rft_mujoco.compiled.jit import AVAILABLE, COMPILE_SECONDS, IMPORT_ERROR
 _log = logging.getLogger("rft_mujoco")
 _compiled = False
 _lock = threading.Lock()
+
+
+class _Progress:
+    """Says on stderr (and the "rft_mujoco" logger) that numba compiles the package's kernels, with the time
+    so far every :data:`TICK_S` s, and the total when it is done. numba reports each compile as an event;
+    compiles of the package's functions (at import, the native callbacks; later, :func:`ensure_compiled`)
+    start the reporter, and :data:`IDLE_S` s without one end it."""
+
+    TICK_S = 15.0
+    IDLE_S = 2.0
+
+    def __init__(self, stream=None):
+        self.stream = stream
+        self.depth = 0
+        self.started = None           # perf_counter of the first compile of this burst
+        self.last = 0.0               # perf_counter of the last compile event
+        self.total = 0.0              # s compiled in earlier bursts
+        self.thread = None
+        self.cond = threading.Condition()
+
+    def _say(self, msg: str) -> None:
+        _log.info(msg)
+        print(msg, file=self.stream or sys.stderr, flush=True)
+
+    def start(self) -> None:
+        with self.cond:
+            self.depth += 1
+            self.last = time.perf_counter()
+            if self.started is not None:
+                return
+            self.started = self.last
+        from rft_mujoco.compiled import jit
+
+        where = jit.cache_dir() if jit.PER_USER_CACHE else "numba's cache"
+        if self.total == 0.0:
+            self._say(f"rft_mujoco: compiling the numba kernels, once for this user and version (about "
+                      f"{COMPILE_SECONDS // 60} min on a 2-core machine, more on a busy one); cached in {where}")
+        else:
+            self._say(f"rft_mujoco: compiling more numba kernels ({self.total:.0f} s so far)")
+        self.thread = threading.Thread(target=self._run, name="rft_mujoco-compile-progress", daemon=True)
+        self.thread.start()
+
+    def end(self) -> None:
+        with self.cond:
+            self.depth = max(self.depth - 1, 0)
+            self.last = time.perf_counter()
+            self.cond.notify_all()
+
+    def _run(self) -> None:
+        next_tick = self.started + self.TICK_S
+        with self.cond:
+            while True:
+                now = time.perf_counter()
+                if self.depth == 0 and now - self.last >= self.IDLE_S:
+                    break
+                if now >= next_tick:
+                    self._say(f"rft_mujoco: still compiling ({self.total + now - self.started:.0f} s so far)")
+                    next_tick += self.TICK_S
+                self.cond.wait(min(next_tick - now, self.IDLE_S, 1.0))
+            seconds = self.last - self.started
+            self.total += seconds
+            self.started, self.thread = None, None
+        self._say(f"rft_mujoco: numba kernels compiled ({self.total:.0f} s); later runs load them from the cache")
+
+
+def _install_progress() -> _Progress | None:
+    if not AVAILABLE:
+        return None
+    from numba.core import event
+
+    progress = _Progress()
+
+    class _Listener(event.Listener):
+        def on_start(self, ev):
+            func = getattr(ev.data.get("dispatcher"), "py_func", None)
+            if getattr(func, "__module__", "").startswith("rft_mujoco."):
+                progress.start()
+
+        def on_end(self, ev):
+            func = getattr(ev.data.get("dispatcher"), "py_func", None)
+            if getattr(func, "__module__", "").startswith("rft_mujoco."):
+                progress.end()
+
+    event.register("numba:compile", _Listener())
+    return progress
+
+
+_PROGRESS = _install_progress()
 
 __all__ = ["AVAILABLE", "IMPORT_ERROR", "ensure_compiled", "ready", "require"]
 
@@ -54,29 +145,13 @@ def ensure_compiled(verbose: bool = True) -> float:
     with _lock:
         if _compiled:
             return 0.0
-        from numba.core import event
-
         from rft_mujoco.compiled import jit, warmup
 
-        shown = []
-
-        class _Notice(event.Listener):
-            def on_start(self, ev):
-                if not shown and verbose:
-                    shown.append(True)
-                    msg = f"rft_mujoco: compiling the numba kernels (first use, ~{COMPILE_SECONDS} s; cached afterwards)"
-                    _log.info(msg)
-                    print(msg, file=sys.stderr, flush=True)
-
-            def on_end(self, ev):
-                pass
-
         t0 = time.perf_counter()
-        jit.drop_stale_cache()
-        with event.install_listener("numba:compile", _Notice()):
-            warmup.run()
+        if not jit.PER_USER_CACHE:
+            jit.drop_stale_cache()
+        if _PROGRESS is not None and not verbose:
+            _PROGRESS.stream = open(os.devnull, "w")  # noqa: SIM115 (kept for the process)
+        warmup.run()
         _compiled = True
-        seconds = time.perf_counter() - t0
-        if shown:
-            _log.info("rft_mujoco: numba kernels compiled in %.1f s", seconds)
-        return seconds
+        return time.perf_counter() - t0

@@ -4,8 +4,12 @@ numba is an optional import: :data:`AVAILABLE` is False when it cannot be import
 runs the numpy reference). Every kernel is ``@njit(cache=True)``; numba keys each function's cache entry
 on its own source file only, so a compiled function calling into another module would keep stale machine
 code after that module alone changed, and a cache written by another numba, mujoco or numpy version
-would be reused. :func:`drop_stale_cache` therefore stamps the cache folder with a key of every kernel
-source and of those versions, and removes the cache files when the key differs.
+would be reused. The machine code is therefore cached per user, in a folder named by :func:`cache_key`
+(a hash of every kernel source and of those versions): :func:`cache_dir`, by default
+``~/.cache/rft_mujoco/numba/<key>`` (``$RFT_MUJOCO_CACHE_DIR/<key>`` when set). Every install of the
+same sources and versions (a new venv, a read-only site-packages, a wheel) finds the machine code there
+and compiles nothing. With ``NUMBA_CACHE_DIR`` set numba's own locations are used instead, and
+:func:`drop_stale_cache` guards the in-tree cache.
 """
 
 from __future__ import annotations
@@ -39,8 +43,8 @@ JIT_LAW = dict(JIT, fastmath={"contract"})
 """The two element loops: multiply-add fusion (FMA), nothing else; measured 5-7% fewer ns per element,
 results within round-off of the numpy law (tests), deterministic run to run."""
 
-COMPILE_SECONDS = 30
-"""Rough first-use compile time in s on a 2-core machine, for the notice."""
+COMPILE_SECONDS = 270
+"""First-use compile time in s on a quiet 2-core machine (273 s measured for issue 29), for the notice."""
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",
@@ -62,6 +66,94 @@ def cache_key() -> str:
                 platform.python_version(), platform.machine())
     digest.update(repr(versions).encode())
     return digest.hexdigest()
+
+
+CACHE_ENV = "RFT_MUJOCO_CACHE_DIR"
+"""Environment variable: parent folder of the per-user cache (default: the user's cache folder)."""
+
+
+def cache_root() -> str:
+    """``$RFT_MUJOCO_CACHE_DIR``, else the user's cache folder + ``rft_mujoco/numba``
+    (``~/.cache/rft_mujoco/numba`` on Linux)."""
+    if os.environ.get(CACHE_ENV):
+        return os.path.abspath(os.path.expanduser(os.environ[CACHE_ENV]))
+    from numba.misc.appdirs import AppDirs
+
+    return os.path.join(AppDirs(appname="rft_mujoco", appauthor=False).user_cache_dir, "numba")
+
+
+_KEY: list[str] = []
+
+
+def cache_dir() -> str:
+    """The folder of this install's machine code: :func:`cache_root` / first 16 hex digits of :func:`cache_key`."""
+    if not _KEY:
+        _KEY.append(cache_key()[:16])
+    return os.path.join(cache_root(), _KEY[0])
+
+
+def _package_cache_locator():
+    """A numba cache locator for the package's own kernels: :func:`cache_dir`, sources stamped by content
+    (so that copies of the same file at other paths, in other venvs, share the entries); None when
+    numba's internals differ from what it needs (numba's own locators are then used)."""
+    try:
+        from numba.core import caching
+        base = (caching._CacheLocator,)
+    except (ImportError, AttributeError):
+        return None
+    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+    class PackageCacheLocator(*base):
+        def __init__(self, py_func, py_file):
+            self._py_file = py_file
+            self._lineno = py_func.__code__.co_firstlineno
+            sub = os.path.relpath(os.path.dirname(os.path.abspath(py_file)), package)
+            self._cache_path = os.path.join(cache_dir(), sub.replace(os.sep, "_"))
+
+        def get_cache_path(self):
+            return self._cache_path
+
+        def get_source_stamp(self):
+            with open(self._py_file, "rb") as f:
+                return hashlib.sha256(f.read()).hexdigest()
+
+        def get_disambiguator(self):
+            return str(self._lineno)
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if numba.config.CACHE_DIR or not os.path.isfile(py_file):
+                return None
+            if os.path.commonpath([package, os.path.abspath(py_file)]) != package:
+                return None
+            self = cls(py_func, py_file)
+            try:
+                self.ensure_cache_path()
+            except OSError:          # no writable cache folder: numba's own locators decide
+                return None
+            return self
+
+    return PackageCacheLocator
+
+
+def _install_locator() -> bool:
+    """Put :func:`_package_cache_locator` first in numba's list (only the package's files use it)."""
+    if not AVAILABLE:
+        return False
+    locator = _package_cache_locator()
+    from numba.core import caching
+
+    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)  # numba >= 0.62 / older
+    classes = getattr(impl, "_locator_classes", None)
+    if locator is None or not isinstance(classes, list):
+        return False
+    if not any(getattr(c, "__name__", "") == locator.__name__ for c in classes):
+        classes.insert(0, locator)
+    return True
+
+
+PER_USER_CACHE = _install_locator()
+"""Whether the package's kernels are cached in :func:`cache_dir` (False: numba's own locations)."""
 
 
 def drop_stale_cache() -> None:

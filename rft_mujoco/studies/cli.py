@@ -22,14 +22,32 @@ STUDY_DEPENDENCIES = ("matplotlib", "imageio", "imageio_ffmpeg", "gymnasium")
 """Packages of the ``studies`` (and ``envs``) extras: a missing one gives an install hint, not a traceback."""
 
 
+def version_line() -> str:
+    """``rft_mujoco <version> (mujoco <version>, numba <version>, python <version>)``."""
+    import platform
+
+    import mujoco
+
+    import rft_mujoco
+    from rft_mujoco.compiled import jit
+
+    numba = getattr(jit.numba, "__version__", "not available")
+    return (f"rft_mujoco {rft_mujoco.__version__} (mujoco {mujoco.__version__}, numba {numba}, "
+            f"python {platform.python_version()})")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(prog="python -m rft_mujoco", description=__doc__)
     parser.add_argument("command", choices=sorted(COMMANDS), help="; ".join(
         f"{k}: {v[1]}" for k, v in COMMANDS.items()))
+    parser.add_argument("--version", action="version", version=version_line())
     if not argv or argv[0] in ("-h", "--help"):
         parser.print_help()
         return 0 if argv else 2
+    if argv[0] == "--version":
+        print(version_line())
+        return 0
     args, rest = parser.parse_known_args(argv[:1])
     try:
         module = importlib.import_module(COMMANDS[args.command][0])

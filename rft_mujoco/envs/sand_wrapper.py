@@ -170,14 +170,46 @@ def make_sand_env(env_id: str, **kwargs) -> gymnasium.Env:
     """``gymnasium.make`` of a registered MuJoCo env id (e.g. ``"Ant-v5"``), on sand.
 
     ``kwargs`` are the sand arguments of :func:`sand_env_class`'s classes and the base env's own; the
-    result has the base id's time limit and the usual Gymnasium wrappers.
+    result has the base id's time limit and the usual Gymnasium wrappers. Its ``spec.id`` is a registered
+    id that ``gymnasium.make`` rebuilds exactly: the package's own (``"Ant-v5"`` ->
+    ``rft_mujoco/SandAnt-v0``, the same env as ``gymnasium.make("rft_mujoco/SandAnt-v0")``) when one is
+    registered on the same base class and arguments, else one that this call registers (:func:`sand_id`).
     """
+    return gymnasium.make(sand_id(env_id), **kwargs)
+
+
+def _sand_base(spec) -> tuple[type, dict] | None:
+    """(base MujocoEnv class, base kwargs) of a registered sand spec, None for any other spec."""
+    entry = spec.entry_point
+    cls = load_env_creator(entry) if isinstance(entry, str) else entry
+    if not (isinstance(cls, type) and issubclass(cls, _SandEnv)):
+        return None
+    return cls.__mro__[cls.__mro__.index(_SandEnv) + 1], dict(spec.kwargs)
+
+
+def sand_id(env_id: str) -> str:
+    """The registered sand id of the Gymnasium MuJoCo env ``env_id``, registering one when needed.
+
+    ``rft_mujoco/Sand<Name>-v0`` when it exists on the same base class and base arguments (``Ant-v5`` ->
+    ``rft_mujoco/SandAnt-v0``); otherwise ``rft_mujoco/Sand<Name>_v<version>-v0`` (``Ant-v4`` ->
+    ``rft_mujoco/SandAnt_v4-v0``), registered here with the base's time limit, arguments and the default
+    element size ``"coarse"``. ValueError for an id that is not a MuJoCo env."""
     spec = gymnasium.spec(env_id)
     entry = spec.entry_point
     base = load_env_creator(entry) if isinstance(entry, str) else entry
     if not (isinstance(base, type) and issubclass(base, MujocoEnv)):
         raise ValueError(f"{env_id!r} is not a MuJoCo env (entry point {entry!r}); make_sand_env needs a "
                          "gymnasium MujocoEnv such as 'Ant-v5', 'HalfCheetah-v5', 'Hopper-v5'")
-    sand_spec = dataclasses.replace(spec, id=f"rft_mujoco/Sand{spec.name}-v0", entry_point=sand_env_class(base),
-                                    kwargs=dict(spec.kwargs), vector_entry_point=None)
-    return gymnasium.make(sand_spec, **kwargs)
+    if issubclass(base, _SandEnv):
+        return spec.id
+    wanted = (base, dict(spec.kwargs))
+    for candidate in (f"rft_mujoco/Sand{spec.name}-v0", f"rft_mujoco/Sand{spec.name}_v{spec.version}-v0"):
+        if candidate not in gymnasium.registry:
+            break
+        if _sand_base(gymnasium.registry[candidate]) == wanted:
+            return candidate
+    else:
+        raise ValueError(f"cannot register a sand id for {env_id!r}: {candidate!r} is taken by another env")
+    gymnasium.registry[candidate] = dataclasses.replace(
+        spec, id=candidate, entry_point=sand_env_class(base), kwargs=dict(spec.kwargs), vector_entry_point=None)
+    return candidate

@@ -1,11 +1,12 @@
 """Command line: ``python -m rft_mujoco.train {train,evaluate,gap,plot}`` (``--help`` on each), also installed
-as ``rft-mujoco-train``; ``python -m train`` is the same from the repository root.
+as ``rft-mujoco-train``.
 
 Examples (from any directory; runs go to ./runs)::
 
     python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandQuadruped-v1 --seed 0
     python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandSwimmer-v0 --timesteps 200000 --n-envs 4
     python -m rft_mujoco.train train --algo sac --env Pendulum-v1 --timesteps 20000 --hyperparams learning_rate=1e-3
+    python -m rft_mujoco.train evaluate --run SandQuadruped-v1          # the shipped policy, by name
     python -m rft_mujoco.train evaluate --run runs/rft_mujoco-SandSwimmer-v0_ppo_0_20250101-120000 --episodes 10
     python -m rft_mujoco.train gap --sand runs/SAND_RUN --rigid runs/RIGID_RUN --speed 0.4
     python -m rft_mujoco.train plot runs/*SandSwimmer* --out swimmer_curves.png
@@ -63,6 +64,10 @@ def _parser(prog: str = PROG) -> argparse.ArgumentParser:
     tr.add_argument("--device", default="auto", help="torch device: auto, cpu, cuda (default auto)")
     tr.add_argument("--num-threads", type=int, default=1,
                     help="torch CPU threads; 0: torch's default (default 1, the fastest for small MLPs)")
+    tr.add_argument("--eval-freq", type=int, default=0,
+                    help="evaluate the policy every this many total steps on a separate env (rl-zoo3's "
+                    "--eval-freq; best_model.zip and evaluations.npz in the run folder); 0: never (default)")
+    tr.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation (default 5)")
     tr.add_argument("--no-progress-bar", action="store_true", help="no tqdm/rich progress bar")
     tr.add_argument("--verbose", type=int, default=1, choices=(0, 1, 2), help="SB3 verbosity (default 1)")
 
@@ -71,13 +76,15 @@ def _parser(prog: str = PROG) -> argparse.ArgumentParser:
                         "standard deviation of the return over N episodes for the trained policy and for "
                         "random and zero-action baselines on the same seeds, plus the mean forward speed when "
                         "the env's info has 'x_velocity' or 'forward_speed'. Writes eval.json, eval.png "
-                        "(bar charts and learning curve) and video.mp4 into RUN/eval/.")
-    ev.add_argument("--run", required=True, help="run directory (holding config.yaml and model.zip)")
+                        "(bar charts and learning curve) and video.mp4 into out/eval/<run name>/ (--out).")
+    ev.add_argument("--run", required=True, help="run directory (holding config.yaml and model.zip), or the name of a "
+                    "shipped run (SandQuadruped-v1, SandQuadruped-v1-rigid)")
     ev.add_argument("--episodes", type=int, default=10, help="episodes per policy (default 10)")
     ev.add_argument("--seed", type=int, default=None,
                     help="episode i resets with seed + i (default: the training seed + 10000)")
     ev.add_argument("--model", default=None, help="a checkpoint to evaluate instead of RUN/model.zip")
-    ev.add_argument("--out", default=None, help="output folder (default RUN/eval)")
+    ev.add_argument("--out", default=None, help="output folder (default out/eval/<run name>)")
+    ev.add_argument("--overwrite", action="store_true", help="replace existing eval.json, eval.png, video.mp4")
     ev.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic policy")
     ev.add_argument("--no-video", action="store_true", help="do not render a video")
     ev.add_argument("--video-frames", type=int, default=1000, help="frame cap of the video (default 1000)")
@@ -89,18 +96,21 @@ def _parser(prog: str = PROG) -> argparse.ArgumentParser:
                         description="Evaluate the run trained on sand and the run trained on rigid ground "
                         "(env_kwargs ground=rigid) each on sand and on rigid ground at one forward command: "
                         "forward speed, falls, sinkage, return.")
-    gp.add_argument("--sand", required=True, help="run directory of the policy trained on sand")
-    gp.add_argument("--rigid", required=True, help="run directory of the policy trained on rigid ground")
+    gp.add_argument("--sand", required=True, help="run directory (or shipped run name) of the policy trained on sand")
+    gp.add_argument("--rigid", required=True,
+                    help="run directory (or shipped run name) of the policy trained on rigid ground")
     gp.add_argument("--speed", type=float, default=0.4, help="commanded forward speed, m/s (default 0.4)")
     gp.add_argument("--episodes", type=int, default=3, help="episodes per cell (default 3)")
     gp.add_argument("--out", default=None, help="JSON file of the table (default: none)")
+    gp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
 
     pl = sub.add_parser("plot", help="learning curves (episode return vs steps) from Monitor CSVs",
                         description="Plot episode return vs environment steps from the Monitor CSVs of one "
                         "or more runs (RUN/monitor/*.monitor.csv), one curve per run.")
-    pl.add_argument("runs", nargs="+", help="run directories, monitor folders or monitor CSV files")
-    pl.add_argument("--out", default=None, help="image path (default RUN/learning_curve.png for one run, "
-                    "else learning_curves.png)")
+    pl.add_argument("runs", nargs="+", help="run directories, shipped run names, monitor folders or monitor CSV files")
+    pl.add_argument("--out", default=None, help="image path (default out/plot/<run name>.png for one run, "
+                    "else out/plot/learning_curves.png)")
+    pl.add_argument("--overwrite", action="store_true", help="replace an existing image")
     pl.add_argument("--window", type=int, default=10, help="moving-average window (default 10)")
     return parser
 
@@ -128,28 +138,32 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
             )
             train(config, new_run_dir(config, args.runs_dir, args.run_name),
                   progress_bar=not args.no_progress_bar, verbose=args.verbose, prog=prog,
-                  max_minutes=args.max_minutes)
+                  max_minutes=args.max_minutes, eval_freq=args.eval_freq, eval_episodes=args.eval_episodes)
         elif args.command == "evaluate":
             from .evaluate import evaluate
 
             evaluate(args.run, episodes=args.episodes, seed=args.seed, model_path=args.model,
                      out_dir=args.out, deterministic=not args.stochastic, video=not args.no_video,
-                     max_video_frames=args.video_frames, window=args.window, commands=not args.no_commands)
+                     max_video_frames=args.video_frames, window=args.window, commands=not args.no_commands,
+                     overwrite=args.overwrite)
         elif args.command == "gap":
             from .commands import format_gap, gap_table
 
             rows = gap_table(args.sand, args.rigid, command=(args.speed, 0.0, 0.0), episodes=args.episodes,
-                             out=args.out)
+                             out=args.out, overwrite=args.overwrite)
             print(format_gap(rows))
         else:
             from pathlib import Path
 
             from .plot import plot
+            from .runs import OUT_DIR, check_free, find_run
 
-            out = args.out or (Path(args.runs[0]) / "learning_curve.png" if len(args.runs) == 1
-                               and Path(args.runs[0]).is_dir() else "learning_curves.png")
-            print(f"wrote {plot(args.runs, out, window=args.window)}")
-    except (ValueError, FileNotFoundError) as err:
+            runs = [r if Path(r).exists() else find_run(r) for r in args.runs]
+            out = args.out or OUT_DIR / "plot" / (f"{Path(runs[0]).resolve().name}.png" if len(runs) == 1
+                                                  else "learning_curves.png")
+            check_free([out], overwrite=args.overwrite)
+            print(f"wrote {plot(runs, out, window=args.window)}")
+    except (ValueError, FileNotFoundError, FileExistsError) as err:
         parser.exit(2, f"{prog} {args.command}: error: {err}\n")
     return 0
 

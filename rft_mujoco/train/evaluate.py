@@ -36,6 +36,7 @@ from .config import (
 )
 from .environments import check_env_id, make_env
 from .experiment import CHECKPOINT_PREFIX
+from .runs import check_free, default_out, find_run
 
 SPEED_KEYS = ("x_velocity", "forward_speed")
 EVAL_SEED_OFFSET = 10_000  # default episode seeds start at the training seed + this (unseen resets)
@@ -82,6 +83,23 @@ def load_policy(config: RunConfig, run_dir: str | Path, env, *, model_path: str 
         return model.predict(normalize(obs), deterministic=deterministic)[0]
 
     return act, path
+
+
+def load_run(run: str | Path, *, deterministic: bool = True, **env_kwargs) -> tuple[Policy, Any, RunConfig]:
+    """A run's policy and a fresh env of its task: ``(act, env, config)``; ``act(obs) -> action``.
+
+    ``run`` is a run folder or a shipped run's name (``load_run("SandQuadruped-v1")``, :func:`.runs.find_run`);
+    ``env_kwargs`` update the run's own (e.g. ``render_mode="rgb_array"``, ``ground="rigid"``). Close the env."""
+    run_dir = find_run(run)
+    config = load_config(run_dir)
+    check_env_id(config.env_id)
+    env = make_env(config.env_id, {**config.env_kwargs, **env_kwargs})
+    try:
+        act, _ = load_policy(config, run_dir, env, deterministic=deterministic)
+    except BaseException:
+        env.close()
+        raise
+    return act, env, config
 
 
 def zero_action(space) -> Any | None:
@@ -228,31 +246,36 @@ def format_table(results: dict) -> str:
 def evaluate(run_dir: str | Path, *, episodes: int = 10, seed: int | None = None,
              model_path: str | Path | None = None, out_dir: str | Path | None = None,
              deterministic: bool = True, video: bool = True, max_video_frames: int = 1000,
-             window: int = 10, commands: bool = True) -> dict[str, Any]:
+             window: int = 10, commands: bool = True, overwrite: bool = False) -> dict[str, Any]:
     """Evaluate the run in ``run_dir`` against random and zero-action baselines; returns the results dict.
 
     Args:
-        run_dir: run directory holding ``config.yaml`` and ``model.zip``.
+        run_dir: run directory holding ``config.yaml`` and ``model.zip``, or the name of a shipped run
+            (``"SandQuadruped-v1"``, :func:`.runs.find_run`).
         episodes: episodes per policy.
         seed: episode ``i`` resets with ``seed + i``; default: training seed + :data:`EVAL_SEED_OFFSET`.
         model_path: a checkpoint instead of ``run_dir/model.zip``.
-        out_dir: where to write eval.json, eval.png and the video; default ``run_dir/eval``.
+        out_dir: where to write eval.json, eval.png and the video; default ``./out/eval/<run name>``
+            (never the run folder).
         deterministic: act with the policy's mean/mode action.
         video: render one trained episode (seed ``seed``) to ``out_dir/video.mp4``.
         max_video_frames: frame cap of the video.
         window: moving-average window of the learning curve.
         commands: for an env with a velocity command (SandQuadruped-v1), also the command-tracking table
             of :func:`.commands.command_table` (forward speed against command, falls, sinkage).
+        overwrite: replace existing eval.json, eval.png and video in ``out_dir`` (FileExistsError otherwise).
     """
     from tqdm.auto import tqdm
 
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    run_dir = Path(run_dir)
+    run_dir = find_run(run_dir)
     config = load_config(run_dir)
     check_env_id(config.env_id)
     set_num_threads(config)
-    out = Path(out_dir) if out_dir is not None else run_dir / "eval"
+    out = Path(out_dir) if out_dir is not None else default_out("eval", run_dir)
+    check_free([out / JSON_FILENAME, out / PLOT_FILENAME] + ([out / VIDEO_FILENAME] if video else []),
+               overwrite=overwrite)
     out.mkdir(parents=True, exist_ok=True)
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else int(seed)
     seeds = [seed + i for i in range(episodes)]

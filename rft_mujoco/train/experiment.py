@@ -64,14 +64,39 @@ def _wall_clock_limit(minutes: float):
     return WallClockLimit()
 
 
+def _eval_callback(config: RunConfig, run_dir: Path, eval_freq: int, episodes: int, env, verbose: int):
+    """rl-zoo3's evaluation during training: SB3's EvalCallback on one separate env every ``eval_freq``
+    total steps, the best model to ``run_dir/best_model.zip``, results to ``run_dir/evaluations.npz``;
+    the eval env shares the training env's VecNormalize statistics (synced by the callback)."""
+    from stable_baselines3.common.callbacks import EvalCallback
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from .environments import make_env
+
+    eval_env = DummyVecEnv([lambda: make_env(config.env_id, config.env_kwargs)])
+    if isinstance(env, VecNormalize):
+        eval_env = VecNormalize(eval_env, training=False, norm_reward=False,
+                                **{k: v for k, v in config.normalize.items() if k not in ("norm_reward",)})
+    eval_env.seed(config.seed + 10_000)
+    return EvalCallback(eval_env, n_eval_episodes=episodes, eval_freq=max(eval_freq // config.n_envs, 1),
+                        best_model_save_path=str(run_dir), log_path=str(run_dir), deterministic=True,
+                        verbose=verbose)
+
+
 def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, verbose: int = 1,
-          prog: str = DEFAULT_PROG, max_minutes: float | None = None) -> Path:
+          prog: str = DEFAULT_PROG, max_minutes: float | None = None, eval_freq: int = 0,
+          eval_episodes: int = 5) -> Path:
     """Train ``config.algo`` on ``config.env_id`` for ``config.n_timesteps`` steps, or until ``max_minutes``
     of wall-clock time (min) have passed; returns the model path.
 
-    ``prog`` is the command named in the hints it prints and writes (``config.yaml``'s header)."""
+    Every run logs the env's reward terms to TensorBoard (:class:`.callbacks.RewardTermsCallback`); with
+    ``eval_freq`` > 0 it evaluates ``eval_episodes`` episodes every ``eval_freq`` total steps (rl-zoo3's
+    ``--eval-freq``). ``prog`` is the command named in the hints it prints and writes (``config.yaml``'s
+    header)."""
     from stable_baselines3.common.callbacks import CheckpointCallback
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from .callbacks import RewardTermsCallback
 
     if max_minutes is not None and not max_minutes > 0:
         raise ValueError(f"max_minutes must be > 0 (minutes of wall-clock time), got {max_minutes!r}")
@@ -90,7 +115,9 @@ def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, 
     try:
         model = cls(env=env, seed=config.seed, device=config.device, verbose=verbose,
                     tensorboard_log=str(run_dir / "tb"), **kwargs)
-        callbacks = []
+        callbacks = [RewardTermsCallback()]
+        if eval_freq > 0:
+            callbacks.append(_eval_callback(config, run_dir, eval_freq, eval_episodes, env, verbose))
         if config.save_freq > 0:
             callbacks.append(CheckpointCallback(
                 save_freq=max(config.save_freq // config.n_envs, 1),  # counted in calls to env.step

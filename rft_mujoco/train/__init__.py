@@ -1,9 +1,7 @@
 """Training and evaluation of stable-baselines3 agents on the sand tasks (and any gymnasium id).
 
-Installed as ``rft_mujoco.train`` (this folder, ``train/`` in the repository; hyperparameter YAMLs shipped
-as package data). A thin command line (``python -m rft_mujoco.train {train,evaluate,plot} --help``, or
-the console script ``rft-mujoco-train``; ``python -m train`` from the repository root is the same) over
-a few modules:
+Hyperparameter YAMLs ship as package data. A thin command line (``python -m rft_mujoco.train
+{train,evaluate,plot} --help``, or the console script ``rft-mujoco-train``) over a few modules:
 
 - ``config``       the run configuration: YAML hyperparameters keyed by env id, CLI overrides, and the
                    ``config.yaml`` saved beside every model (the one source ``evaluate`` rebuilds from);
@@ -21,7 +19,10 @@ A run directory ``runs/<env>_<algo>_<seed>_<timestamp>/`` holds::
     checkpoints/         model_<steps>_steps.zip (+ model_vecnormalize_<steps>_steps.pkl)
     monitor/             <rank>.monitor.csv, one per training env (episode return, length, time)
     tb/                  TensorBoard logs (``tensorboard --logdir runs``)
-    eval/                written by ``evaluate``: eval.json, eval.png, video.mp4
+
+``evaluate`` writes into ``./out/eval/<run name>/`` (never into a run folder). The shipped runs
+(``pretrained/``, package data) are found by name: ``--run SandQuadruped-v1``, or in Python
+``act, env, config = rft_mujoco.train.load_run("SandQuadruped-v1")``.
 """
 
 from __future__ import annotations
@@ -33,3 +34,20 @@ import sys
 # and only fails when a GL context is actually created, so this default is harmless elsewhere.
 if sys.platform.startswith("linux"):
     os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def find_run(run):
+    """The folder of a run: a run folder, or a shipped run by name (``find_run("SandQuadruped-v1")``)."""
+    from .runs import find_run as _find
+
+    return _find(run)
+
+
+def load_run(run, **kwargs):
+    """``(act, env, config)`` of a run folder or shipped run name: see :func:`.evaluate.load_run`."""
+    from .evaluate import load_run as _load
+
+    return _load(run, **kwargs)
+
+
+__all__ = ["find_run", "load_run"]

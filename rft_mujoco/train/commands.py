@@ -24,6 +24,7 @@ import numpy as np
 from .config import load_config, set_num_threads
 from .environments import make_env
 from .evaluate import EVAL_SEED_OFFSET, load_policy, zero_action
+from .runs import check_free, find_run
 
 COMMANDS = ((0.2, 0.0, 0.0), (0.4, 0.0, 0.0), (0.6, 0.0, 0.0), (0.3, 0.0, 0.4))
 """Default commands (vx m/s, vy m/s, yaw rate rad/s): three forward speeds and a turn."""
@@ -70,7 +71,7 @@ def command_table(run_dir: str | Path, *, commands: Sequence[Sequence[float]] = 
                   baselines: bool = True) -> list[dict[str, Any]]:
     """Rows (policy, command, vx, yaw, falls, sinkage, return) of the run in ``run_dir`` (see the module
     docstring); ``ground`` overrides the env's ``ground`` argument. Prints progress per row."""
-    run_dir = Path(run_dir)
+    run_dir = find_run(run_dir)
     config = load_config(run_dir)
     set_num_threads(config)
     kwargs = dict(config.env_kwargs)
@@ -120,9 +121,12 @@ def format_rows(rows: Sequence[dict], header: bool = True) -> str:
 
 
 def gap_table(sand_run: str | Path, rigid_run: str | Path, *, command=(0.4, 0.0, 0.0), episodes: int = 3,
-              steps: int = STEPS, out: str | Path | None = None) -> list[dict[str, Any]]:
+              steps: int = STEPS, out: str | Path | None = None, overwrite: bool = False) -> list[dict[str, Any]]:
     """The sand gap: the policy trained on sand and the one trained on rigid ground, each evaluated on
-    both grounds at one command; rows with ``trained_on``. Writes ``out`` (JSON) when given."""
+    both grounds at one command; rows with ``trained_on``. Writes ``out`` (JSON) when given (an existing
+    file only with ``overwrite``)."""
+    if out is not None:
+        check_free([out], overwrite=overwrite)
     rows = []
     for trained_on, run in (("sand", sand_run), ("rigid", rigid_run)):
         for ground in ("sand", "rigid"):

@@ -5,16 +5,19 @@ Resolution order, lowest to highest precedence (rl-zoo3's scheme):
 1. the ``default`` entry of ``hyperparams/<algo>.yml`` (package data of ``rft_mujoco.train``,
    :data:`HYPERPARAMS_DIR`);
 2. the entry named by the env id, which replaces default keys one by one (so an env's ``policy_kwargs``
-   replaces the default's whole mapping);
-3. ``--hyperparams key=value`` overrides; dotted keys reach inside mappings
+   replaces the default's whole mapping); the shipped files are in rl-zoo3's format, where each env
+   entry is already complete (``<<: *default``), so that rl-zoo3 reads the same hyperparameters;
+3. ``--hyperparams key=value`` (or rl-zoo3's ``key:value``) overrides; dotted keys reach inside mappings
    (``policy_kwargs.net_arch=[64,64]``); values are parsed as YAML (``1e-3`` is a float);
 4. the explicit flags ``--timesteps``, ``--n-envs`` and ``--env-kwargs key=value``.
 
 Besides algorithm constructor arguments an entry may hold the experiment keys ``n_timesteps``,
 ``n_envs``, ``normalize`` (``true``/``false`` or a mapping of ``VecNormalize`` arguments) and
-``env_kwargs`` (a mapping passed to ``gymnasium.make``). ``policy_kwargs.activation_fn`` is a name
-(``relu``, ``tanh``, ...) and ``learning_rate``/``clip_range`` may be ``lin_<value>`` for a linear
-decay to zero, so that every entry stays plain YAML.
+``env_kwargs`` (a mapping passed to ``gymnasium.make``), and rl-zoo3's ``callback`` (ignored here: our
+trainer always logs the reward terms, :mod:`.callbacks`). ``policy_kwargs`` is a mapping or rl-zoo3's
+string ``"dict(..., activation_fn=nn.ELU)"`` (read here without ``eval``: :func:`parse_policy_kwargs`);
+``policy_kwargs.activation_fn`` is a name (``relu``, ``nn.ReLU``, ...) and ``learning_rate``/``clip_range``
+may be ``lin_<value>`` for a linear decay to zero, so that every entry stays plain YAML.
 
 The resolved :class:`RunConfig` is saved as ``config.yaml`` in the run directory; it is the only input
 ``evaluate`` needs to rebuild the env and reload the model.
@@ -45,7 +48,7 @@ MODEL_FILENAME = "model.zip"
 VECNORMALIZE_FILENAME = "vecnormalize.pkl"
 VEC_ENVS = ("dummy", "subproc")
 # keys of a hyperparameter entry that configure the experiment, not the algorithm constructor
-EXPERIMENT_KEYS = ("n_timesteps", "n_envs", "normalize", "env_kwargs")
+EXPERIMENT_KEYS = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "callback")
 # VecNormalize arguments written out in full into config.yaml (gamma defaults to the algorithm's gamma)
 NORMALIZE_DEFAULTS = {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, "clip_reward": 10.0,
                       "epsilon": 1e-8}
@@ -103,13 +106,18 @@ def parse_value(text: str) -> Any:
         raise ValueError(f"cannot parse value {text!r} as YAML: {err}") from None
 
 
+_OVERRIDE = re.compile(r"^\s*([\w.]+)\s*[=:](.*)$", re.S)
+
+
 def parse_overrides(items: Sequence[str], *, what: str = "--hyperparams") -> dict[str, Any]:
-    """``["a=1", "b.c=[1,2]"]`` -> ``{"a": 1, "b": {"c": [1, 2]}}`` (dotted keys nest)."""
+    """``["a=1", "b.c=[1,2]", "d:2"]`` -> ``{"a": 1, "b": {"c": [1, 2]}, "d": 2}`` (dotted keys nest;
+    ``key:value`` is rl-zoo3's form)."""
     result: dict[str, Any] = {}
     for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ValueError(f"{what} entries must look like key=value, got {item!r}")
+        match = _OVERRIDE.match(item)
+        if not match:
+            raise ValueError(f"{what} entries must look like key=value, got {item!r} (rl-zoo3's key:value works too)")
+        key, value = match.groups()
         *parents, leaf = key.strip().split(".")
         node = result
         for part in parents:
@@ -118,6 +126,33 @@ def parse_overrides(items: Sequence[str], *, what: str = "--hyperparams") -> dic
                 raise ValueError(f"{what}: {key!r} sets a key inside a value that is not a mapping")
         node[leaf] = parse_value(value)
     return result
+
+
+def parse_policy_kwargs(text: str) -> dict[str, Any]:
+    """rl-zoo3's ``policy_kwargs`` string, e.g. ``"dict(log_std_init=-1.0, activation_fn=nn.ELU,
+    net_arch=dict(pi=[256, 256], vf=[256, 256]))"``, as a plain mapping (``nn.ELU`` -> ``"nn.ELU"``), read
+    with :mod:`ast` (literals, ``dict(...)`` and ``nn.<name>`` only; no ``eval``)."""
+    import ast
+
+    def value(node):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
+            return {kw.arg: value(kw.value) for kw in node.keywords}
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
+            return f"nn.{node.attr}"
+        if isinstance(node, ast.Dict):
+            return {value(k): value(v) for k, v in zip(node.keys, node.values)}
+        if isinstance(node, (ast.List, ast.Tuple)):
+            return [value(v) for v in node.elts]
+        return ast.literal_eval(node)
+
+    try:
+        parsed = value(ast.parse(text.strip(), mode="eval").body)
+    except (SyntaxError, ValueError) as err:
+        raise ValueError(f"policy_kwargs {text!r}: expected a mapping or rl-zoo3's 'dict(key=value, ...)' with "
+                         f"literals and nn.<Activation> ({err})") from None
+    if not isinstance(parsed, dict):
+        raise ValueError(f"policy_kwargs must be a mapping or 'dict(...)', got {text!r}")
+    return parsed
 
 
 def deep_update(base: Mapping[str, Any], updates: Mapping[str, Any]) -> dict[str, Any]:
@@ -152,6 +187,8 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
         if not isinstance(entry, dict):
             raise ValueError(f"{file}: entry {name!r} must be a mapping, got {entry!r}")
         merged.update(copy.deepcopy(entry))
+    if isinstance(merged.get("policy_kwargs"), str):
+        merged["policy_kwargs"] = parse_policy_kwargs(merged["policy_kwargs"])
     return merged, entries
 
 
@@ -184,7 +221,8 @@ class RunConfig:
         device: torch device (``"auto"``, ``"cpu"``, ``"cuda"``).
         num_threads: torch CPU threads (``torch.set_num_threads``); 0 keeps torch's default. One thread
             is the fastest for the small MLPs here (several threads contend with the env stepping).
-        hyperparams_file: YAML file the hyperparameters came from.
+        hyperparams_file: YAML file the hyperparameters came from (a shipped one as
+            ``rft_mujoco/train/hyperparams/<algo>.yml``, no machine path).
         hyperparams_entries: its entries used, in order (``["default", env_id]`` or ``["default"]``).
         overrides: the ``--hyperparams`` and ``--env-kwargs`` items as given.
         versions: python and package versions.
@@ -271,6 +309,8 @@ def resolve_config(
     file = hyperparams_path(algo, hyperparams_file)
     merged, entries = load_hyperparams(algo, env_id, file)
     merged = deep_update(merged, parse_overrides(hyperparams))
+    if isinstance(merged.get("policy_kwargs"), str):
+        merged["policy_kwargs"] = parse_policy_kwargs(merged["policy_kwargs"])
     n_timesteps = timesteps if timesteps is not None else merged.get("n_timesteps")
     if n_timesteps is None:
         raise ValueError(f"no n_timesteps in {file} entries {entries}: pass --timesteps")
@@ -293,7 +333,7 @@ def resolve_config(
         save_freq=int(save_freq),
         device=str(device),
         num_threads=int(num_threads),
-        hyperparams_file=str(file),
+        hyperparams_file=_shown_path(file),
         hyperparams_entries=entries,
         overrides=[f"--hyperparams {item}" for item in hyperparams]
         + [f"--env-kwargs {item}" for item in env_kwargs],
@@ -301,6 +341,14 @@ def resolve_config(
         command=command if command is not None else "",
         created=datetime.datetime.now().isoformat(timespec="seconds"),
     )
+
+
+def _shown_path(file: Path) -> str:
+    """``file`` as recorded in ``config.yaml``: a shipped YAML relative to the package's parent folder."""
+    try:
+        return str(Path("rft_mujoco", "train", "hyperparams") / file.resolve().relative_to(HYPERPARAMS_DIR))
+    except ValueError:
+        return str(file)
 
 
 def command_line(argv: Sequence[str], prog: str = DEFAULT_PROG) -> str:

@@ -1,4 +1,4 @@
-"""``python -m rft_mujoco.train`` (installed) or ``python -m train`` (the repository root): see :mod:`.cli`."""
+"""``python -m rft_mujoco.train``: see :mod:`.cli`."""
 
 import sys
 
