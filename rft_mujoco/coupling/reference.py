@@ -69,16 +69,22 @@ def occluded_mask(handle, data, touch, sel, b_of_sel) -> np.ndarray:
     return out
 
 
+def _touching_elements(handle, data, touch):
+    """The elements (n,) of the touching bodies, their rows (n,) in ``touch``, and which are inside a run-time
+    occluder (n,) bool."""
+    sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in touch])
+    remap = np.empty(len(handle.body_ids), dtype=np.int64)
+    remap[touch] = np.arange(touch.size)
+    b = remap[handle.elem_body[sel]]
+    return sel, b, occluded_mask(handle, data, touch, sel, b)
+
+
 def rft(handle, data, work, touch, v_com, omega, g_hat):
     """RFT wrenches (k, 6) about each touching body's COM for body twists (v_com, omega) (k, 3), the loaded
     element counts (k,), deepest loaded depths (k,) m and the submerged area inside occluders (k,) m^2."""
     k = touch.size
     a = work.arrays
-    sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in touch])
-    remap = np.empty(len(handle.body_ids), dtype=np.int64)
-    remap[touch] = np.arange(k)
-    b = remap[handle.elem_body[sel]]
-    hidden = occluded_mask(handle, data, touch, sel, b)
+    sel, b, hidden = _touching_elements(handle, data, touch)
     pos = a["body_pos"][:k][b] + np.einsum("eij,ej->ei", a["body_mat"][:k].reshape(k, 3, 3)[b],
                                            handle.local_centroids[sel])
     submerged = handle.terrain.depth(pos, g_hat) > 0.0
@@ -194,6 +200,20 @@ def free_twists(handle, data, user_xfrc, ref, dt, lagged):
     the user's xfrc_applied) plus, when ``lagged``, the constraint forces of MuJoCo's previous solve.
     """
     m = handle.model
+    jac, qfrc = _jacobians_and_forces(m, data, user_xfrc, ref)
+    if lagged:
+        qfrc = qfrc + data.qfrc_constraint
+    qacc = np.empty(m.nv)
+    mujoco.mj_solveM(m, data, qacc.reshape(1, -1), qfrc.reshape(1, -1))
+    _check_acceleration(m, ref, qacc)
+    twist = jac @ data.qvel
+    return jac, twist + dt * (jac @ qacc), twist, qacc
+
+
+def _jacobians_and_forces(m, data, user_xfrc, ref):
+    """Jacobians (G, 6, nv) of the reference bodies' COMs and the smooth generalized force (nv,) of this
+    evaluation: passive, bias, actuators (``mj_fwdActuation`` is run: MuJoCo computes them after
+    ``mjcb_control``), ``qfrc_applied`` and the user's ``xfrc_applied``."""
     jac = np.empty((ref.size, 6, m.nv))
     jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
     for i, b in enumerate(ref):
@@ -202,21 +222,19 @@ def free_twists(handle, data, user_xfrc, ref, dt, lagged):
         jac[i, 3:] = jacr
     mujoco.mj_fwdActuation(m, data)
     qfrc = data.qfrc_passive - data.qfrc_bias + data.qfrc_actuator + data.qfrc_applied
-    if lagged:
-        qfrc = qfrc + data.qfrc_constraint
     for b in np.flatnonzero(np.any(user_xfrc[1:] != 0.0, axis=1)) + 1:
         mujoco.mj_applyFT(m, data, user_xfrc[b, :3].copy(), user_xfrc[b, 3:].copy(), data.xipos[b].copy(),
                           int(b), qfrc)
-    qacc = np.empty(m.nv)
-    mujoco.mj_solveM(m, data, qacc.reshape(1, -1), qfrc.reshape(1, -1))
+    return jac, qfrc
+
+
+def _check_acceleration(m, ref, qacc) -> None:
     if not np.all(np.isfinite(qacc)):
         names = [m.body(int(b)).name for b in ref]
         raise FloatingPointError(
             f"non-finite acceleration without sand while computing sand forces on bodies {names}: "
             "data.ctrl, data.qfrc_applied or data.xfrc_applied holds NaN/inf (or the model's "
             "actuators produce it); fix the input before stepping")
-    twist = jac @ data.qvel
-    return jac, twist + dt * (jac @ qacc), twist, qacc
 
 
 def stuck_dofs(handle, data, ref):
@@ -398,17 +416,7 @@ def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str):
     rows (:func:`constrained_free_motion`), with ``"lagged"`` through the mass matrix and MuJoCo's previous
     constraint forces (as :func:`free_twists`)."""
     m = handle.model
-    jac = np.empty((ref.size, 6, m.nv))
-    jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
-    for i, b in enumerate(ref):
-        mujoco.mj_jacBodyCom(m, data, jacp, jacr, int(b))
-        jac[i, :3] = jacp
-        jac[i, 3:] = jacr
-    mujoco.mj_fwdActuation(m, data)
-    qfrc = data.qfrc_passive - data.qfrc_bias + data.qfrc_actuator + data.qfrc_applied
-    for b in np.flatnonzero(np.any(user_xfrc[1:] != 0.0, axis=1)) + 1:
-        mujoco.mj_applyFT(m, data, user_xfrc[b, :3].copy(), user_xfrc[b, 3:].copy(), data.xipos[b].copy(),
-                          int(b), qfrc)
+    jac, qfrc = _jacobians_and_forces(m, data, user_xfrc, ref)
     flat = jac.reshape(-1, m.nv)
     if constraints == "linearized":
         h, f = constrained_free_motion(m, data, qfrc)
@@ -425,11 +433,7 @@ def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str):
         minv_jt = np.empty_like(flat)
         mujoco.mj_solveM(m, data, minv_jt, flat)
         minv_jt = minv_jt.T
-    if not np.all(np.isfinite(qacc)):
-        names = [m.body(int(b)).name for b in ref]
-        raise FloatingPointError(
-            f"non-finite acceleration without sand while computing sand forces on bodies {names}: "
-            "data.ctrl, data.qfrc_applied or data.xfrc_applied holds NaN/inf; fix the input before stepping")
+    _check_acceleration(m, ref, qacc)
     twist = jac @ data.qvel
     return jac, twist + dt * (jac @ qacc), twist, flat @ minv_jt
 
@@ -438,11 +442,7 @@ def rft_jacobian(handle, data, work, touch, v_com, omega, g_hat, speed_scale):
     """As :func:`rft` with the regularized law and its derivative (k, 6, 6) in each body's COM twist."""
     k = touch.size
     a = work.arrays
-    sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in touch])
-    remap = np.empty(len(handle.body_ids), dtype=np.int64)
-    remap[touch] = np.arange(k)
-    b = remap[handle.elem_body[sel]]
-    hidden = occluded_mask(handle, data, touch, sel, b)
+    sel, b, hidden = _touching_elements(handle, data, touch)
     return elements.body_wrench_jacobians(
         handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
         a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, handle.terrain, g_hat,

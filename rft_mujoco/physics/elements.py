@@ -36,6 +36,19 @@ def element_states(local_centroids, local_normals, elem_body, body_pos, body_mat
     return pos, nrm, arm, vel
 
 
+def loaded_elements(depth, normals, velocities, active=None):
+    """The elements that carry stress: submerged (``depth`` (E,) m > 0), ``active`` (E,) bool or None, moving
+    (speed above :data:`rft_mujoco.physics.law.ZERO_SPEED`) and leading (``n . v >= -LEADING_TOL``).
+    Returns their indices (n,) and speeds (n,) m/s."""
+    live = depth > 0.0 if active is None else (depth > 0.0) & active
+    sub = np.flatnonzero(live)
+    speed = np.linalg.norm(velocities[sub], axis=1)
+    moving = speed > law.ZERO_SPEED
+    sub, speed = sub[moving], speed[moving]
+    leading = np.einsum("ij,ij->i", normals[sub], velocities[sub] / speed[:, None]) >= -law.LEADING_TOL
+    return sub[leading], speed[leading]
+
+
 def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, body_pos, body_mat, body_com,
                   v_com, omega, terrain, g_hat, gravity, media: Media, guards: Guards, active=None):
     """3D-RFT wrench about each body's centre of mass.
@@ -55,13 +68,8 @@ def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, bo
     wrench = np.zeros((n_bodies, 6))
     count = np.zeros(n_bodies, dtype=np.int64)
     max_depth = np.zeros(n_bodies)
-    live = depth > 0.0 if active is None else (depth > 0.0) & active
-    sub = np.flatnonzero(live)
-    speed = np.linalg.norm(vel[sub], axis=1)
-    moving = speed > law.ZERO_SPEED
-    sub, v_hat = sub[moving], vel[sub[moving]] / speed[moving, None]
-    leading = np.einsum("ij,ij->i", nrm[sub], v_hat) >= -law.LEADING_TOL
-    sub, v_hat = sub[leading], v_hat[leading]
+    sub, speed = loaded_elements(depth, nrm, vel, active)
+    v_hat = vel[sub] / speed[:, None]
     if sub.size == 0:
         return wrench, count, max_depth
     f = law.stress_per_depth(nrm[sub], v_hat, media, gravity, guards) * (depth[sub] * areas[sub])[:, None]
@@ -100,14 +108,7 @@ def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bo
     jac = np.zeros((n_bodies, 6, 6))
     count = np.zeros(n_bodies, dtype=np.int64)
     max_depth = np.zeros(n_bodies)
-    live = depth > 0.0 if active is None else (depth > 0.0) & active
-    sub = np.flatnonzero(live)
-    speed = np.linalg.norm(vel[sub], axis=1)
-    moving = speed > law.ZERO_SPEED
-    sub, speed = sub[moving], speed[moving]
-    v_hat = vel[sub] / speed[:, None]
-    leading = np.einsum("ij,ij->i", nrm[sub], v_hat) >= -law.LEADING_TOL
-    sub, speed = sub[leading], speed[leading]
+    sub, speed = loaded_elements(depth, nrm, vel, active)
     if sub.size == 0:
         return wrench, jac, count, max_depth
     n, v, scale = nrm[sub], vel[sub], (depth[sub] * areas[sub])
