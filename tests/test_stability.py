@@ -164,8 +164,10 @@ def test_non_finite_state_and_inputs_name_the_body():
 def test_massless_bodies():
     static = mujoco.MjModel.from_xml_string(
         "<mujoco><worldbody><body name='plate'><geom size='.1' mass='0'/></body></worldbody></mujoco>")
-    with pytest.raises(ValueError, match="'plate' has zero mass"):
+    with pytest.raises(ValueError, match="static or mocap"):   # a body without a joint: nothing to move
         rft_mujoco.attach(static, MEDIA)
+    with pytest.raises(ValueError, match=r"\['plate'\] are static"):
+        rft_mujoco.attach(static, MEDIA, bodies=["plate"])
     # A massless body welded to a massive one is fine: the sand acts on the weld group.
     welded = mujoco.MjModel.from_xml_string(
         "<mujoco><worldbody><body name='leg'><freejoint/><geom size='.05' mass='1'/>"

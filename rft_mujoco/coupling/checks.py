@@ -279,10 +279,14 @@ def visual_hull_area(model, body_id: int) -> float:
         return 0.0
 
 
+_MESH = int(mujoco.mjtGeom.mjGEOM_MESH)
+
+
 def check_sand_surfaces(model, body_ids: Sequence[int], surface_area) -> dict:
     """Warn (:class:`SandSetupWarning`, one warning per finding naming every body) when the sand surface of
-    an attached body is not what its collisions are: (a) the body has no collision geoms, so its visual
-    geoms are its sand surface; (b) its collision geoms' area is below :data:`VISUAL_COVERAGE_MIN` of its
+    an attached body is not what its collisions are: (a) the body has no collision geoms and some of its geoms
+    are meshes, so its visual meshes are its sand surface (non-colliding primitives alone are taken as meant
+    for the sand); (b) its collision geoms' area is below :data:`VISUAL_COVERAGE_MIN` of its
     visual geoms' hull area.
 
     Args:
@@ -301,8 +305,9 @@ def check_sand_surfaces(model, body_ids: Sequence[int], surface_area) -> dict:
             continue
         name = model.body(b).name or f"body {b}"
         if not any(_collidable(model, g) for g in geoms):
-            visual.append(name)
-            continue
+            if any(int(model.geom_type[g]) == _MESH for g in geoms):
+                visual.append(name)          # visual meshes; a body of non-colliding primitives (the bundled
+            continue                         # swimmer's capsules) is a sand body made so on purpose
         if not any(not _collidable(model, g) for g in geoms):
             continue
         hull = visual_hull_area(model, b)

@@ -430,6 +430,10 @@ SPEED_SCALE = 1e-3
 ``|v| / sqrt(|v|^2 + c^2)``, :func:`rft_mujoco.physics.elements.body_wrench_jacobians`): the published force
 to within 0.5% above 10 c = 1 cm/s. Rest is not regularized: a group the sand can hold is held exactly."""
 
+REST_RETRY = 10.0
+"""A group that starts an evaluation in flow (it flowed at the last one) is tried at rest when the flow solve
+ends its step slower than this many :data:`SPEED_SCALE` (twist speed): the capacity test then decides."""
+
 NEWTON_ITERATIONS = 40
 """The most Newton iterations of one implicit flow solve."""
 
@@ -489,6 +493,7 @@ def implicit_wrenches(free_twist: np.ndarray, mobility: np.ndarray, law, twist: 
     if flowing is not None:
         flow = rest & np.asarray(flowing, dtype=bool)
         rest &= ~flow
+    untried = flow.copy()                    # started in flow: tried at rest once they are slow (see below)
     weight_all = np.einsum("ij,ij->i", cap, cap)
     u_flow = None
     iterations = 0
@@ -510,6 +515,15 @@ def implicit_wrenches(free_twist: np.ndarray, mobility: np.ndarray, law, twist: 
             u_flow, w_f, its = _newton_flow(law, flow, a_eff, v_eff, start, sv, sw, n)
             iterations += its
             w[f_idx] = w_f
+            end_f = np.zeros((n, 6))
+            end_f[flow] = u_flow.reshape(-1, 6) / sv[flow]
+            slow = untried & flow & (twist_speed(end_f, radius) < REST_RETRY * SPEED_SCALE)
+            if slow.any():                   # a group started in flow that the step brings to (near) rest
+                untried &= ~slow
+                flow &= ~slow
+                rest |= slow
+                u_flow = None
+                continue
         if r_idx.size:
             w[r_idx] = -p @ (v[r_idx] + a[np.ix_(r_idx, f_idx)] @ w[f_idx])
             wr = w.reshape(n, 6)

@@ -168,5 +168,7 @@ def as_terrain(surface) -> Terrain:
         return surface
     if isinstance(surface, (int, float, np.floating, np.integer)):
         return FlatSurface(float(surface))
-    raise ValueError(f"surface must be a height in m or a FlatSurface / HeightfieldSurface / SandRegion, "
-                     f"got {type(surface).__name__}")
+    if callable(getattr(surface, "depth", None)) and hasattr(surface, "max_height"):
+        return surface                       # a user's terrain (``depth(points, g_hat)``, ``max_height``): numpy backend
+    raise ValueError(f"surface must be a height in m, a FlatSurface / HeightfieldSurface / SandRegion, or an object "
+                     f"with depth(points, g_hat) and max_height, got {type(surface).__name__}")
