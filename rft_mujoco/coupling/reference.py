@@ -438,11 +438,13 @@ def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str):
     return jac, twist + dt * (jac @ qacc), twist, flat @ minv_jt
 
 
-def rft_jacobian(handle, data, work, touch, v_com, omega, g_hat, speed_scale):
-    """As :func:`rft` with the regularized law and its derivative (k, 6, 6) in each body's COM twist."""
+def rft_jacobian(handle, data, work, touch, v_com, omega, g_hat, speed_scale, elements_=None):
+    """As :func:`rft` with the regularized law and its derivative (k, 6, 6) in each body's COM twist.
+    ``elements_``: :func:`_touching_elements` of this pose, if already computed (the poses do not change
+    while a step's solve calls the law again and again)."""
     k = touch.size
     a = work.arrays
-    sel, b, hidden = _touching_elements(handle, data, touch)
+    sel, b, hidden = _touching_elements(handle, data, touch) if elements_ is None else elements_
     return elements.body_wrench_jacobians(
         handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
         a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, handle.terrain, g_hat,
@@ -472,11 +474,12 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
     arm = work.arrays["body_com"][:touch.size] - data.xipos[ref[slot]]
     shift = _shift(arm)
     last = {}
+    touching = _touching_elements(handle, data, touch)
 
     def law(u, groups):
         ub = np.einsum("kij,kj->ki", shift, u[slot])
         w_b, j_b, count, max_depth = rft_jacobian(handle, data, work, touch, ub[:, :3], ub[:, 3:], g_hat,
-                                                  rest.SPEED_SCALE)
+                                                  rest.SPEED_SCALE, touching)
         f = np.zeros((active.size, 6))
         np.add.at(f, slot, np.einsum("kji,kj->ki", shift, w_b))
         df = np.zeros((active.size, 6, 6))

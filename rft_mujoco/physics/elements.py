@@ -13,6 +13,12 @@ from rft_mujoco.physics.law import Guards
 from rft_mujoco.physics.media import Media
 
 
+FD_STEP = 1e-7
+"""The law's derivative in :func:`body_wrench_jacobians`: forward differences over this fraction of an element's
+speed (or of the regularization speed, whichever is larger). Newton's method only needs the derivative to a
+few digits; the wrench itself is exact."""
+
+
 def element_states(local_centroids, local_normals, elem_body, body_pos, body_mat, body_com, v_com, omega):
     """World positions, unit normals and velocities of elements attached to rigid bodies.
 
@@ -98,8 +104,8 @@ def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bo
     Returns:
         wrench (B, 6) [N, N m about each COM], jacobian (B, 6, 6) d wrench / d (v_com, omega) in
         (N s/m, N s, N m s/m, N m s), submerged leading element count (B,) int, maximum depth (B,) m. The
-        derivative holds the leading set fixed and differentiates the law's direction dependence by central
-        differences (relative step 1e-6 of the element's speed).
+        derivative holds the leading set fixed and differentiates the law's direction dependence by forward
+        differences (a step of :data:`FD_STEP` times the element's speed or ``c``, whichever is larger).
     """
     pos, nrm, arm, vel = element_states(local_centroids, local_normals, elem_body, body_pos, body_mat,
                                         body_com, v_com, omega)
@@ -113,22 +119,21 @@ def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bo
         return wrench, jac, count, max_depth
     n, v, scale = nrm[sub], vel[sub], (depth[sub] * areas[sub])
 
-    # the law at v and at v +- h e_k (k = x, y, z), in one call
-    h = 1e-6 * np.maximum(speed, speed_scale)
+    # the law at v and at v + h e_k (k = x, y, z), in one call
+    h = FD_STEP * np.maximum(speed, speed_scale)
     e = sub.size
-    vv = np.repeat(v[None], 7, axis=0)
+    vv = np.repeat(v[None], 4, axis=0)
     for k in range(3):
-        vv[1 + 2 * k, :, k] += h
-        vv[2 + 2 * k, :, k] -= h
+        vv[1 + k, :, k] += h
     vv = vv.reshape(-1, 3)
     s = np.linalg.norm(vv, axis=1)
     phi = s / np.sqrt(s * s + speed_scale * speed_scale)
-    forces = (law.stress_per_depth(np.tile(n, (7, 1)), vv / s[:, None], media, gravity, guards)
-              * (np.tile(scale, 7) * phi)[:, None]).reshape(7, e, 3)
+    forces = (law.stress_per_depth(np.tile(n, (4, 1)), vv / s[:, None], media, gravity, guards)
+              * (np.tile(scale, 4) * phi)[:, None]).reshape(4, e, 3)
     f = forces[0]
     dfdv = np.empty((e, 3, 3))
     for k in range(3):
-        dfdv[:, :, k] = (forces[1 + 2 * k] - forces[2 + 2 * k]) / (2.0 * h)[:, None]
+        dfdv[:, :, k] = (forces[1 + k] - f) / h[:, None]
     b = elem_body[sub]
     r = arm[sub]
     cross = np.zeros((sub.size, 3, 3))                   # [r]x, so that [r]x a = r x a
@@ -137,12 +142,13 @@ def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bo
     # element velocity v = v_com - [r]x omega; element wrench about the COM: (f, [r]x f)
     dv = np.concatenate([np.broadcast_to(np.eye(3), (sub.size, 3, 3)), -cross], axis=2)      # (E, 3, 6)
     lever = np.concatenate([np.broadcast_to(np.eye(3), (sub.size, 3, 3)), cross], axis=1)    # (E, 6, 3)
-    je = np.einsum("eij,ejk,ekl->eil", lever, dfdv, dv)
+    je = np.matmul(np.matmul(lever, dfdv), dv)
     tau = np.cross(r, f)
     for k in range(3):
         wrench[:, k] = np.bincount(b, weights=f[:, k], minlength=n_bodies)
         wrench[:, 3 + k] = np.bincount(b, weights=tau[:, k], minlength=n_bodies)
-    np.add.at(jac, b, je)
+    flat = (b[:, None] * 36 + np.arange(36)[None, :]).reshape(-1)
+    jac[:] = np.bincount(flat, weights=je.reshape(-1), minlength=36 * n_bodies).reshape(n_bodies, 6, 6)
     count[:] = np.bincount(b, minlength=n_bodies)
     np.maximum.at(max_depth, b, depth[sub])
     return wrench, jac, count, max_depth

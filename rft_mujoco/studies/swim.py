@@ -77,11 +77,27 @@ def _model(density_scale: float = 1.0, timestep: float | None = None) -> mujoco.
         model.actuator_forcelimited[a] = 0
         model.actuator_ctrlrange[a] = [-JOINT_RANGE, JOINT_RANGE]
     if density_scale != 1.0:
-        model.body_mass[1:] *= density_scale
-        model.body_inertia[1:] *= density_scale
+        scale_density(model, density_scale)
     if timestep is not None:
         model.opt.timestep = timestep
     return model
+
+
+def scale_density(model: mujoco.MjModel, factor: float) -> None:
+    """Scale the swimmer's density by ``factor`` in place: every body's mass and inertia, and the body joints'
+    armature and damping (the model's header scales them with the density), then recompute the constants
+    derived from the masses (``mj_setConst``: ``body_subtreemass``, hence ``subtree_com``). Without that last
+    step MuJoCo's ``subtree_com`` stays weighted by the old subtree masses and is off by ``factor``: every
+    speed measured from it is too (the swim study's mass check gave eta 0.002 at the animal's density that way)."""
+    if not factor > 0.0:
+        raise ValueError(f"density factor must be > 0, got {factor!r}")
+    body_dofs = np.array([model.jnt_dofadr[j] for j in range(model.njnt)
+                          if model.joint(j).name not in ("root_x", "root_y", "root_yaw")], dtype=int)
+    model.body_mass[1:] *= factor
+    model.body_inertia[1:] *= factor
+    model.dof_armature[body_dofs] *= factor
+    model.dof_damping[body_dofs] *= factor
+    mujoco.mj_setConst(model, mujoco.MjData(model))
 
 
 def wave_shape(amplitude: float, phases: int = 16) -> tuple[float, float, float]:
@@ -109,12 +125,15 @@ def wave_shape(amplitude: float, phases: int = 16) -> tuple[float, float, float]
 
 
 def swim(amplitude: float, frequency: float, *, cull: bool = True, density_scale: float = 1.0,
-         timestep: float | None = None, cycles: int = CYCLES) -> dict:
-    """One kinematic run; returns speeds (m/s), eta, body lengths per cycle, tracking error (rad), wall s."""
+         timestep: float | None = None, cycles: int = CYCLES, resolution: str | float = "default",
+         **attach_kwargs) -> dict:
+    """One kinematic run; returns speeds (m/s), eta, body lengths per cycle, tracking error (rad), wall s.
+    ``density_scale`` multiplies the bundled model's density (:func:`scale_density`); ``resolution`` and
+    ``attach_kwargs`` (e.g. ``solve``, ``backend``) go to :func:`rft_mujoco.attach`."""
     model = _model(density_scale, timestep)
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, 0)
-    sand = attach(model, MALADEN_GLASS_BEADS, None, 0.0, "default", cull=cull, monitor=False)
+    sand = attach(model, MALADEN_GLASS_BEADS, None, 0.0, resolution, cull=cull, monitor=False, **attach_kwargs)
     sand.replace_rigid(["floor"])
     head = model.body("head").id
     dt = model.opt.timestep
@@ -143,7 +162,8 @@ def swim(amplitude: float, frequency: float, *, cull: bool = True, density_scale
     speed = float(np.linalg.norm(disp) / span)
     forward = float(disp[0] / span)
     return dict(amplitude_rad=amplitude, frequency_hz=frequency, cull=cull, density_scale=density_scale,
-                timestep_s=dt, a_over_lambda=ratio, wavelength_m=lam, speed_mps=speed, forward_mps=forward,
+                timestep_s=dt, resolution=resolution, solve=attach_kwargs.get("solve", "explicit"),
+                a_over_lambda=ratio, wavelength_m=lam, speed_mps=speed, forward_mps=forward,
                 eta=speed / (frequency * lam), body_lengths_per_cycle=speed / (frequency * length),
                 tracking_rms_rad=math.sqrt(err2 / max(n_err, 1)), yaw_drift_rad=float(data.qpos[2]) - yaw0,
                 wall_s=time.perf_counter() - t0)
