@@ -83,3 +83,16 @@ def test_a_case_that_observed_nothing_fails(monkeypatch):
     r = loadpaths.run_case("contact", 0.005, "Euler")
     assert r.observed == 0
     assert any("energy not measured" in f for f in r.failures)
+
+
+def test_every_scene_is_checked_against_its_quasi_static_depth(monkeypatch):
+    """The depth a body rests at is part of the answer (issue 26, item 2): reported beside the law's own
+    rest depth, and a failure beyond DEPTH_FACTOR times it."""
+    r = loadpaths.run_case("joint_limit", 0.005, "implicitfast")
+    assert r.failures == ()
+    assert r.rest_depth == pytest.approx(0.0649, abs=5e-4)            # the law alone: the foot 65 mm down
+    assert r.rest_depth < r.sinkage <= loadpaths.DEPTH_FACTOR * r.rest_depth
+    monkeypatch.setattr(loadpaths, "quasi_static_depth", lambda name: 0.01)
+    deep = loadpaths.run_case("joint_limit", 0.005, "implicitfast")
+    assert deep.sinkage == pytest.approx(r.sinkage)
+    assert any("quasi-static 10.0 mm" in f for f in deep.failures), deep.failures

@@ -1,4 +1,4 @@
-"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic}`` (``--help`` on each)."""
+"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass}`` (``--help`` on each)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ COMMANDS = {
     "swim": ("rft_mujoco.studies.swim", "sand-swimming: wave efficiency against A/lambda, against experiments"),
     "quasistatic": ("rft_mujoco.studies.quasistatic", "quasi-static references: the swimmer's inertia-free limit, "
                     "rest depths of the load-path scenes"),
+    "anymass": ("rft_mujoco.studies.anymass", "the swimmer at the animal's density and at 100x: each sand solve "
+                "against the quasi-static limit"),
 }
 
 

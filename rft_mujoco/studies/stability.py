@@ -454,20 +454,23 @@ def run_load_paths(*, quick: bool = False, out: Path, stream=sys.stdout) -> list
         results.append(r)
         print(f"[{k:3d}/{len(todo)} {time.perf_counter() - t0:6.0f}s] load path {r.label} t_rest={_fmt(r.t_rest, '.3g')} "
               f"final speed={_fmt(r.final_speed, '.1e')} balance={_fmt(r.balance, '.1e')} "
+              f"depth={_fmt(r.sinkage * 1e3, '.1f')} mm (quasi-static {r.rest_depth * 1e3:.1f}) "
               f"{'FAIL: ' + '; '.join(r.failures) if r.failures else ''}", file=stream, flush=True)
     with open(out / "loadpaths.csv", "w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(["scene", "dt_ms", "integrator", "nan", "max_gain_J", "t_rest_s", "final_speed", "balance",
-                         "sinkage_m", "wall_s", "failures"])
+                         "sinkage_m", "quasi_static_depth_m", "wall_s", "failures"])
         for r in results:
             writer.writerow([r.scene, r.dt * 1e3, r.integrator, r.nan, f"{r.max_gain:.4g}", f"{r.t_rest:.4g}",
-                             f"{r.final_speed:.4g}", f"{r.balance:.4g}", f"{r.sinkage:.5g}", f"{r.wall:.2f}",
+                             f"{r.final_speed:.4g}", f"{r.balance:.4g}", f"{r.sinkage:.5g}", f"{r.rest_depth:.5g}",
+                             f"{r.wall:.2f}",
                              "; ".join(r.failures)])
     print(f"\nLoad paths: rest within {loadpaths.DEADLINE:g} s (every body < {loadpaths.REST_SPEED * 1e3:g} mm/s and "
-          f"mrad/s), sand force against the load (balance), largest energy added by the sand in a step",
-          file=stream)
+          f"mrad/s), sand force against the load (balance), largest energy added by the sand in a step, the "
+          f"deepest rest against the quasi-static depth (at most {loadpaths.DEPTH_FACTOR:g}x)", file=stream)
     print(f"{'scene':16s} {'cases':>5s} {'NaN':>3s} {'at rest':>8s} {'t_rest max':>10s} {'final speed max':>15s} "
-          f"{'balance max':>11s} {'max dE (J)':>10s} {'fail':>4s}", file=stream)
+          f"{'balance max':>11s} {'max dE (J)':>10s} {'depth max mm':>12s} {'q-s mm':>7s} {'fail':>4s}",
+          file=stream)
     for name in dict.fromkeys(r.scene for r in results):
         rs = [r for r in results if r.scene == name]
         ok = [r for r in rs if not r.nan]
@@ -476,7 +479,9 @@ def run_load_paths(*, quick: bool = False, out: Path, stream=sys.stdout) -> list
               f"{_fmt(max((r.t_rest for r in ok), default=math.nan), '.3g'):>10s} "
               f"{_fmt(max((r.final_speed for r in ok), default=math.nan), '.1e'):>15s} "
               f"{_fmt(max((r.balance for r in ok), default=math.nan), '.1e'):>11s} "
-              f"{_fmt(max(r.max_gain for r in rs), '.1e'):>10s} {sum(bool(r.failures) for r in rs):4d}", file=stream)
+              f"{_fmt(max(r.max_gain for r in rs), '.1e'):>10s} "
+              f"{_fmt(max((r.sinkage * 1e3 for r in ok), default=math.nan), '.1f'):>12s} "
+              f"{rs[0].rest_depth * 1e3:7.1f} {sum(bool(r.failures) for r in rs):4d}", file=stream)
     return results
 
 

@@ -1,0 +1,220 @@
+"""Any mass: the swimmer's wave efficiency from each sand solve against the quasi-static limit.
+
+``python -m rft_mujoco anymass [--quick] [--workers N] [--out DIR]``. 3D-RFT is rate-independent and
+quasi-static: a kinematically driven swimmer must swim as its inertia-free limit
+(:func:`rft_mujoco.studies.quasistatic.swimmer_limit`) says, whatever it weighs. This study drives the bundled
+swimmer as the swim study does (:func:`rft_mujoco.studies.swim.swim`: stiff position servos, the serpenoid at
+1 Hz, 4 cycles, speed over the last 2) at the animal's density (:data:`ANIMAL`: 1,100 kg/m^3, 22 g; armature
+and joint damping scaled with it, :func:`rft_mujoco.studies.swim.scale_density`) and at the bundled model's
+100x, at several timesteps and joint amplitudes, with each sand solve (``attach(solve=...)``), at an element
+size where the limit is converged (:data:`ELEMENT_SIZE`), and reports each eta's error against the limit at
+the same element size.
+
+Cost: the implicit solve runs on the numpy backend (about 0.07 s a step at 3 mm on one core of a 2-core
+machine): the full grid is about 2 CPU hours; ``--quick`` two amplitudes at dt 2 ms, about 15 min on 2 workers.
+Units: SI (s, m, rad); eta is dimensionless.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import multiprocessing
+import os
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+AMPLITUDES = (0.3, 0.5, 0.7, 0.9, 1.1, 1.3)
+"""rad: the swim study's amplitudes from 0.3 to 1.3 rad."""
+TIMESTEPS = (0.002, 0.001, 0.0005)
+"""s."""
+ANIMAL = 0.01
+"""The animal's density over the bundled model's (which is 100x the animal's; see the model's header)."""
+DENSITIES = (ANIMAL, 1.0)
+SOLVES = ("explicit", "implicit")
+ELEMENT_SIZE = 0.003
+"""m: where the swimmer's quasi-static limit is converged (docs/rest.md, "Quasi-static references")."""
+FREQUENCY = 1.0
+"""Hz."""
+TOLERANCE = 0.05
+"""The target: |eta / eta_limit - 1| at most this (issue 26, item 1)."""
+BACKENDS = {"explicit": {}, "implicit": {"solve": "implicit", "backend": "numpy"}}
+"""attach() options of each solve (the implicit solve exists on the numpy backend only)."""
+
+
+def _limit(amplitude: float, element_size: float, frequency: float, cycles: int) -> dict:
+    from rft_mujoco.studies.quasistatic import swimmer_limit
+
+    r = swimmer_limit(amplitude, frequency, element_size=element_size, cycles=cycles)
+    return dict(kind="limit", amplitude_rad=amplitude, element_size_m=element_size, eta=r["eta"],
+                wall_s=r["wall_s"])
+
+
+def _run(amplitude: float, density_scale: float, timestep: float, solve: str, element_size: float,
+         frequency: float, cycles: int) -> dict:
+    from rft_mujoco.studies.swim import swim
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = swim(amplitude, frequency, density_scale=density_scale, timestep=timestep, cycles=cycles,
+                 resolution=element_size, **BACKENDS[solve])
+    return dict(kind="run", amplitude_rad=amplitude, density_scale=density_scale, timestep_s=timestep,
+                solve=solve, element_size_m=element_size, eta=r["eta"], tracking_rms_rad=r["tracking_rms_rad"],
+                wall_s=r["wall_s"])
+
+
+def _single_thread() -> None:
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+        os.environ[var] = "1"
+
+
+def measure(amplitudes=AMPLITUDES, timesteps=TIMESTEPS, densities=DENSITIES, solves=SOLVES,
+            element_size: float = ELEMENT_SIZE, frequency: float = FREQUENCY, cycles: int = 4,
+            workers: int = 1, progress=None) -> dict:
+    """Every (density, timestep, amplitude, solve) run and the limit at each amplitude, on ``workers``
+    processes. Returns dict(limits={amplitude: eta}, rows=[...]): each row a run with ``eta_limit`` and
+    ``error`` (eta / eta_limit - 1) added, sorted by density, timestep, amplitude, solve."""
+    jobs = [(_limit, (a, element_size, frequency, cycles)) for a in amplitudes]
+    jobs += [(_run, (a, rho, dt, s, element_size, frequency, cycles))
+             for rho in densities for dt in timesteps for a in amplitudes for s in solves]
+    if not jobs:
+        raise ValueError("nothing to measure: give at least one amplitude, timestep, density and solve")
+    results, t0 = [], time.perf_counter()
+    progress = progress or (lambda line: print(line, flush=True))
+
+    def note(r: dict) -> None:
+        results.append(r)
+        what = "limit" if r["kind"] == "limit" else \
+            f"{r['solve']:<8} density x{r['density_scale']:g} dt {r['timestep_s'] * 1e3:g} ms"
+        progress(f"[anymass {len(results)}/{len(jobs)}, {time.perf_counter() - t0:.0f} s] {what} "
+                 f"a={r['amplitude_rad']:.1f} rad: eta {r['eta']:.4f} ({r['wall_s']:.0f} s)")
+
+    if workers <= 1:
+        for fn, args in jobs:
+            note(fn(*args))
+    else:
+        _single_thread()
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_single_thread) as pool:
+            # the longest first (small timesteps, the implicit solve) so that the pool ends together
+            order = sorted(jobs, key=lambda j: -(1.0 / j[1][2] * (20 if j[1][3] == "implicit" else 1))
+                           if j[0] is _run else 0.0)
+            for fut in as_completed([pool.submit(fn, *args) for fn, args in order]):
+                note(fut.result())
+    limits = {r["amplitude_rad"]: r["eta"] for r in results if r["kind"] == "limit"}
+    rows = [r for r in results if r["kind"] == "run"]
+    if len(rows) + len(limits) != len(jobs):
+        raise RuntimeError(f"measured {len(rows) + len(limits)} of {len(jobs)} cases")
+    for r in rows:
+        r["eta_limit"] = limits[r["amplitude_rad"]]
+        r["error"] = r["eta"] / r["eta_limit"] - 1.0
+    rows.sort(key=lambda r: (r["density_scale"], -r["timestep_s"], r["amplitude_rad"], r["solve"]))
+    return dict(limits=limits, rows=rows, element_size_m=element_size, frequency_hz=frequency, cycles=cycles)
+
+
+def table(result: dict) -> list[str]:
+    """One line per (density, timestep, amplitude): the limit and each solve's eta and error."""
+    solves = sorted({r["solve"] for r in result["rows"]})
+    head = f"{'density':>8} {'dt ms':>6} {'a rad':>6} {'limit':>8}" + "".join(
+        f" {s + ' eta':>14} {'error':>8}" for s in solves)
+    lines = [head, "-" * len(head)]
+    keyed = {(r["density_scale"], r["timestep_s"], r["amplitude_rad"], r["solve"]): r for r in result["rows"]}
+    for rho, dt, a in sorted({k[:3] for k in keyed}, key=lambda k: (k[0], -k[1], k[2])):
+        line = f"{'x' + format(rho, 'g'):>8} {dt * 1e3:>6g} {a:>6.1f} {result['limits'][a]:>8.4f}"
+        for s in solves:
+            r = keyed.get((rho, dt, a, s))
+            line += f" {r['eta']:>14.4f} {r['error'] * 100:>7.1f}%" if r else f" {'-':>14} {'-':>8}"
+        lines.append(line)
+    return lines
+
+
+def worst(result: dict) -> dict:
+    """{solve: largest |error|} over the rows."""
+    out: dict = {}
+    for r in result["rows"]:
+        out[r["solve"]] = max(out.get(r["solve"], 0.0), abs(r["error"]))
+    return out
+
+
+def plot(result: dict, out: Path) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    amps = sorted(result["limits"])
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    ax.plot(amps, [result["limits"][a] for a in amps], "k-", lw=2.5, label="quasi-static limit")
+    styles = {"explicit": "--", "implicit": "-"}
+    groups = sorted({(r["solve"], r["density_scale"], r["timestep_s"]) for r in result["rows"]})
+    for i, (s, rho, dt) in enumerate(groups):
+        sel = sorted((r for r in result["rows"] if (r["solve"], r["density_scale"], r["timestep_s"]) == (s, rho, dt)),
+                     key=lambda r: r["amplitude_rad"])
+        ax.plot([r["amplitude_rad"] for r in sel], [r["eta"] for r in sel], styles.get(s, ":"), marker="o",
+                ms=4, color=f"C{i % 10}", label=f"{s}, density x{rho:g}, dt {dt * 1e3:g} ms")
+    ax.set_xlabel("joint amplitude (rad)")
+    ax.set_ylabel("wave efficiency eta")
+    ax.set_title(f"the swimmer at any mass ({result['element_size_m'] * 1e3:g} mm elements, "
+                 f"{result['frequency_hz']:g} Hz)", fontsize=10)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = out / "anymass.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def run(quick: bool = False, workers: int = 2, out: str | Path = "out/anymass", plots: bool = True,
+        **grid) -> dict:
+    """The study; ``grid`` overrides :func:`measure`'s amplitudes, timesteps, densities or solves."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    kw = dict(amplitudes=(0.5, 0.9), timesteps=(0.002,)) if quick else {}
+    result = measure(workers=workers, **{**kw, **{k: v for k, v in grid.items() if v}})
+    print("\nwave efficiency against the quasi-static limit "
+          f"({result['element_size_m'] * 1e3:g} mm elements, {result['frequency_hz']:g} Hz)")
+    print("\n".join(table(result)))
+    for s, e in sorted(worst(result).items()):
+        print(f"{s}: largest |error| {e * 100:.1f}% (target {TOLERANCE * 100:g}%)")
+    path = out / "anymass.csv"
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(result["rows"][0]))
+        w.writeheader()
+        w.writerows(result["rows"])
+    (out / "anymass.json").write_text(json.dumps(
+        {**result, "limits": {str(k): v for k, v in result["limits"].items()}}, indent=2))
+    files = [path, out / "anymass.json"] + ([plot(result, out)] if plots else [])
+    print("wrote " + ", ".join(str(f) for f in files))
+    return dict(result, files=files)
+
+
+def main(argv: list[str] | None = None, command: str = "anymass") -> int:
+    parser = argparse.ArgumentParser(prog=f"python -m rft_mujoco {command}",
+                                     description="The swimmer at the animal's density and at 100x, each sand "
+                                                 "solve against the quasi-static limit.")
+    parser.add_argument("--quick", action="store_true", help="amplitudes 0.5 and 0.9 rad at dt 2 ms only")
+    parser.add_argument("--workers", type=int, default=2, help="processes (default 2)")
+    parser.add_argument("--out", default="out/anymass", help="output folder (default out/anymass)")
+    parser.add_argument("--no-plots", action="store_true", help="tables and CSV only")
+    parser.add_argument("--amplitudes", type=float, nargs="+", help="rad (default 0.3 0.5 ... 1.3)")
+    parser.add_argument("--timesteps", type=float, nargs="+", help="s (default 0.002 0.001 0.0005)")
+    parser.add_argument("--densities", type=float, nargs="+",
+                        help="density over the bundled model's (default 0.01, the animal, and 1)")
+    parser.add_argument("--solves", nargs="+", choices=SOLVES, help="default both")
+    args = parser.parse_args(argv)
+    if args.workers < 1:
+        parser.error(f"--workers must be >= 1, got {args.workers}")
+    for name in ("amplitudes", "timesteps", "densities"):
+        bad = [v for v in getattr(args, name) or () if not v > 0.0]
+        if bad:
+            parser.error(f"--{name} must be > 0, got {bad}")
+    run(quick=args.quick, workers=args.workers, out=args.out, plots=not args.no_plots,
+        amplitudes=args.amplitudes, timesteps=args.timesteps, densities=args.densities, solves=args.solves)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,61 @@
+"""The swimmer at any mass (issue 26, item 1): the implicit solve reaches the quasi-static limit at the animal's
+density; the explicit one does not; the density scaling keeps MuJoCo's subtree COM right."""
+
+import math
+import warnings
+
+import mujoco
+import numpy as np
+import pytest
+
+from rft_mujoco.studies import anymass, quasistatic, swim
+
+
+def test_scaling_the_density_keeps_the_subtree_com_the_mass_weighted_mean():
+    model = swim._model(anymass.ANIMAL)
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, 0)
+    data.qpos[0] = 0.05
+    mujoco.mj_forward(model, data)
+    mass = model.body_mass[1:]
+    com = (mass[:, None] * data.xipos[1:]).sum(axis=0) / mass.sum()
+    np.testing.assert_allclose(data.subtree_com[1], com, atol=1e-12)
+    assert mass.sum() == pytest.approx(0.0219, rel=0.01)                     # the animal: 22 g
+    bundled = swim._model()
+    joints = [bundled.joint(f"j{i}").dofadr[0] for i in range(1, 7)]
+    np.testing.assert_allclose(model.dof_armature[joints], bundled.dof_armature[joints] * anymass.ANIMAL)
+    np.testing.assert_allclose(model.dof_damping[joints], bundled.dof_damping[joints] * anymass.ANIMAL)
+    assert model.dof_armature[:3].tolist() == bundled.dof_armature[:3].tolist()   # the planar root: none
+    with pytest.raises(ValueError, match="density factor"):
+        swim.scale_density(bundled, 0.0)
+
+
+@pytest.mark.slow
+def test_the_animal_swims_at_the_quasi_static_limit_with_the_implicit_solve():
+    """2 Hz and 3 cycles (the law is rate-independent: the limit does not depend on the frequency), 10 mm
+    elements for the limit and the runs alike: the implicit solve within 5%, the explicit one far off (the
+    test tells the two apart)."""
+    amplitude, f, cycles, size = 0.7, 2.0, 3, 0.01
+    limit = quasistatic.swimmer_limit(amplitude, f, element_size=size, cycles=cycles)["eta"]
+    assert limit > 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        implicit = swim.swim(amplitude, f, density_scale=anymass.ANIMAL, cycles=cycles, resolution=size,
+                             solve="implicit", backend="numpy")
+        explicit = swim.swim(amplitude, f, density_scale=anymass.ANIMAL, cycles=cycles, resolution=size)
+    assert implicit["solve"] == "implicit" and explicit["solve"] == "explicit"
+    assert abs(implicit["eta"] / limit - 1.0) < anymass.TOLERANCE, (implicit["eta"], limit)
+    assert abs(explicit["eta"] / limit - 1.0) > 0.3, (explicit["eta"], limit)
+    assert implicit["tracking_rms_rad"] < 0.05 * amplitude * math.sqrt(0.5) * 2
+
+
+def test_the_table_and_worst_error_report_every_solve():
+    result = dict(limits={0.5: 0.1}, element_size_m=0.003, frequency_hz=1.0, rows=[
+        dict(density_scale=0.01, timestep_s=0.002, amplitude_rad=0.5, solve="explicit", eta=0.25, error=1.5),
+        dict(density_scale=0.01, timestep_s=0.002, amplitude_rad=0.5, solve="implicit", eta=0.102, error=0.02)])
+    lines = anymass.table(result)
+    assert "explicit eta" in lines[0] and "implicit eta" in lines[0]
+    assert "150.0%" in lines[2] and "2.0%" in lines[2] and "0.1000" in lines[2]
+    assert anymass.worst(result) == {"explicit": 1.5, "implicit": 0.02}
+    with pytest.raises(ValueError, match="nothing to measure"):
+        anymass.measure(amplitudes=(), timesteps=(), workers=1)
