@@ -282,3 +282,28 @@ def test_the_sand_acts_with_mjdsbl_actuation():
         mujoco.mj_step(model, data)
     assert abs(data.qvel[0]) < 1e-3
     rft_mujoco.detach_all()
+
+
+def test_bodies_thinner_than_two_elements_get_a_notice():
+    """Issue 26, item 1: the default resolution on small bodies says so (the swimmer's links, 8-14 mm, at
+    10 mm elements), and names a resolution that fits; the bundled quadruped (26 mm shins) is not warned."""
+    from rft_mujoco.models import path
+    from rft_mujoco.studies import swim
+
+    model = swim._model()
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        sand = rft_mujoco.attach(model, "li_loose_glass_beads")
+    sand.detach()
+    found = [w for w in record if "thinner than" in str(w.message)]
+    assert len(found) == 1 and issubclass(found[0].category, rft_mujoco.SandSetupWarning)
+    text = str(found[0].message)
+    assert "'link6' 8 mm" in text and "resolution=0.002" in text
+    assert found[0].filename == __file__
+    thin = checks.check_resolution(model, [model.body("link6").id], 0.003)
+    assert thin == []
+    quad = mujoco.MjModel.from_xml_path(str(path("quadruped.xml")))
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        rft_mujoco.attach(quad, "li_loose_glass_beads").detach()
+    assert not [w for w in record if "thinner than" in str(w.message)]

@@ -290,3 +290,16 @@ def test_mesh_robots_come_to_rest_on_sand(name):
     assert row["loaded"] > 0 and row["speed"] < 1e-3
     if name == "mesh quadruped":
         assert row["height"] > 0.25
+
+
+def test_a_quadruped_on_slanted_mesh_shins_set_down_on_sand_stands_still():
+    """Issue 26, item 3, on the default path: the 62 kg Spot-sized robot of studies.glide rests within 1 s of
+    touching and drifts less than 20 mm after that; where it rests is checked too."""
+    from rft_mujoco.studies import glide
+
+    r = glide.stand("explicit", duration=1.5)
+    assert r["t_rest_s"] <= glide.REST_BY, r["t_rest_s"]
+    assert r["drift_after_rest_m"] < glide.DRIFT_MAX
+    assert r["drift_total_m"] < 0.05                    # 30 mm while it settles (measured)
+    assert 0.1 < r["sinkage_m"] < 0.3                   # 208 mm: the shins carry it, the trunk stays out
+    assert glide.passes(r)

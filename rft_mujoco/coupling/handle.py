@@ -635,6 +635,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     handle = SandHandle(model, media, ids, terrain, size, guards, stabilize, passive, monitor, backend, cull)
     checks.check_sand_surfaces(model, handle.body_ids, np.bincount(handle.elem_body, handle.areas,
                                                                    minlength=len(ids)) + handle.culled_area)
+    checks.check_resolution(model, handle.body_ids, handle.element_size)
     handle.rk4_stages = rk4_stages
     handle.solve = solve
     DISPATCHER.register(handle)

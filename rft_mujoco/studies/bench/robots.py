@@ -13,6 +13,8 @@ tests/test_mesh_robots.py.
 * :func:`mesh_quadruped`: a 17 kg quadruped; box torso, visual-only hip bodies (an OBJ mesh each), capsule
   thighs and slanted OBJ lower legs: 12-sided prisms 0.3 m long whose side triangles are 0.3 m by
   16 mm; servos hold ``home``.
+* :func:`slanted_quadruped`: a 62 kg Spot-sized quadruped on slanted mesh lower legs with sphere feet, set
+  down on the sand at its standing height (:mod:`rft_mujoco.studies.glide`).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import warnings
 import mujoco
 import numpy as np
 
-__all__ = ["mesh_humanoid", "mesh_quadruped", "ROBOTS", "standing_cost", "two_box_link", "prism"]
+__all__ = ["mesh_humanoid", "mesh_quadruped", "slanted_quadruped", "ROBOTS", "standing_cost", "two_box_link", "prism"]
 
 
 # --- meshes ----------------------------------------------------------------------------------------------
@@ -184,6 +186,58 @@ def mesh_quadruped() -> mujoco.MjModel:
           <freejoint/>
           <inertial pos="0 0 0" mass="12" diaginertia="0.1 0.3 0.35"/>
           <geom type="box" size="0.33 0.11 0.06"/>
+          {legs}
+        </body>
+      </worldbody>
+      <actuator>{actuators}</actuator>
+      <keyframe>
+        <key name="home" qpos="0 0 {height:.5f} 1 0 0 0 {' '.join(['0'] * 12)}" ctrl="{' '.join(['0'] * 12)}"/>
+      </keyframe>
+    </mujoco>"""
+    return mujoco.MjModel.from_xml_string(xml, assets)
+
+
+def slanted_quadruped(trunk_mass: float = 45.0, slant: float = 0.5, foot: float = 0.03, kp: float = 3000.0,
+                      lean: float = 0.6) -> mujoco.MjModel:
+    """A Spot-sized quadruped (issue 26, item 3) standing with its sphere feet on the surface z = 0 (``home``;
+    no floor: the sand is the ground): a ``trunk_mass`` kg box trunk (1.0 x 0.4 x 0.18 m), knees bent
+    backward, 0.32 m capsule thighs leaning back 0.6 rad, and lower legs leaning forward 0.5 rad that are OBJ
+    meshes: 12-sided prisms 0.36 m long (side triangles 0.36 m by 10 mm), with a 30 mm sphere foot each.
+    Stiff PD servos (kp 3000 N m/rad, kv 60 N m s/rad) hold the pose. 62 kg in all."""
+    thigh, shin = 0.32, 0.36
+    assets = {"shin.obj": _obj(*prism(0.02, shin, 12))}
+    kx, kz = -thigh * np.sin(lean), -thigh * np.cos(lean)          # knee from hip
+    fx, fz = shin * np.sin(slant), -shin * np.cos(slant)           # foot from knee
+    legs = ""
+    for name, x, y in (("fl", 0.4, 0.16), ("fr", 0.4, -0.16), ("hl", -0.4, 0.16), ("hr", -0.4, -0.16)):
+        legs += f"""
+        <body name="{name}_hip" pos="{x} {y} -0.09">
+          <joint name="{name}_abd" axis="1 0 0" range="-0.6 0.6"/>
+          <geom type="cylinder" size="0.05 0.04" euler="1.5708 0 0" mass="1.5"/>
+          <body name="{name}_thigh">
+            <joint name="{name}_hip" axis="0 1 0" range="-1.5 1.5"/>
+            <geom type="capsule" fromto="0 0 0 {kx:.5f} 0 {kz:.5f}" size="0.035" mass="2"/>
+            <body name="{name}_shin" pos="{kx:.5f} 0 {kz:.5f}">
+              <joint name="{name}_knee" axis="0 1 0" range="-2.6 2.6"/>
+              <inertial pos="{fx / 2:.5f} 0 {fz / 2:.5f}" mass="0.6" diaginertia="0.007 0.007 0.0002"/>
+              <geom type="mesh" mesh="shin" pos="{fx / 2:.5f} 0 {fz / 2:.5f}" euler="0 {slant:.5f} 0"/>
+              <body name="{name}_foot" pos="{fx:.5f} 0 {fz:.5f}">
+                <geom type="sphere" size="{foot}" mass="0.15"/>
+              </body>
+            </body>
+          </body>
+        </body>"""
+    height = 0.09 - kz - fz + foot
+    actuators = "".join(f'<position joint="{n}_{j}" kp="{kp:g}" kv="{kp / 50:g}"/>'
+                        for n in ("fl", "fr", "hl", "hr") for j in ("abd", "hip", "knee"))
+    xml = f"""
+    <mujoco model="slanted_quadruped">
+      {_OPTION}
+      <asset><mesh name="shin" file="shin.obj"/></asset>
+      <worldbody>
+        <body name="trunk" pos="0 0 {height:.5f}">
+          <freejoint/>
+          <geom type="box" size="0.5 0.2 0.09" mass="{trunk_mass:g}"/>
           {legs}
         </body>
       </worldbody>
