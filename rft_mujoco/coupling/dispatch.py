@@ -49,6 +49,7 @@ import numpy as np
 from rft_mujoco import compiled
 from rft_mujoco.compiled import route as _ROUTE
 from rft_mujoco import tol
+from rft_mujoco.coupling.book import _DataBook, untouched_components  # noqa: F401  (their home before)
 
 _COMPILE_ENTRY_POINTS = (
     (mujoco.MjModel, "from_xml_string", True),
@@ -73,79 +74,6 @@ _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
 _ACTUATION_OFF = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
 RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
 """Times of RK4 stages 2-4 after the first, in steps (mj_RungeKutta evaluates at t + dt/2, t + dt/2, t + dt)."""
-
-
-def untouched_components(xfrc: np.ndarray, written: np.ndarray) -> np.ndarray:
-    """(n, 6) bool: which components of ``xfrc`` rows (n, 6) the user left as the dispatcher ``written`` them.
-
-    A row equal to what was written is untouched. In a row the user changed, a component still equal to
-    what was written counts as untouched only when that value is non-zero: a user who writes one component
-    (``xfrc_applied[b, 0] = push``) leaves the others, holding user + sand, alone; a user who zeroes or
-    reassigns the row rewrites every component, and a written 0 (the sand exactly cancelling the user's
-    previous value, as at rest) is then taken as the user's new 0. Only a user who writes exactly the
-    non-zero value the dispatcher wrote, or leaves alone a component that the sand exactly cancels while
-    changing others, is misread; values are all the dispatcher can see.
-    """
-    same = xfrc == written
-    return same & (same.all(axis=1, keepdims=True) | (written != 0.0))
-
-
-class _DataBook:
-    """Per-MjData record of what the sand added to ``xfrc_applied`` (rows of all bodies)."""
-
-    __slots__ = ("added", "written", "rows", "model", "sand", "user", "state", "native", "snapshot", "__weakref__")
-
-    def __init__(self, model, data) -> None:
-        nbody = model.nbody
-        self.model = weakref.ref(model)
-        self.added = np.zeros((nbody, 6))
-        self.written = np.zeros((nbody, 6))
-        self.rows = np.zeros(0, dtype=np.int64)
-        self.sand = np.zeros((nbody, 6))     # the handles' sum of this evaluation (reused buffer)
-        self.user = np.zeros((nbody, 6))      # the user's part of xfrc_applied (reused buffer)
-        # (nonzero: ``added`` has a non-zero entry, sand_dirty: ``sand`` needs zeroing, rk4 stage, rk4
-        # stage time, TIME_RTOL, pending: what the native callback left to Python): read and written by
-        # the native route too (rft_mujoco.compiled.route.BOOK_FIELDS)
-        self.state = np.zeros(6)
-        self.state[4] = tol.TIME_RTOL
-        self.native = None                    # (generation, Route) of this MjData's native route
-        # the model's timestep, gravity and geom sizes as the handles last checked them (None: not yet);
-        # the native route hands an evaluation to Python when they differ (compiled.route.model_changed)
-        self.snapshot = None
-
-    @property
-    def nonzero(self) -> bool:
-        return bool(self.state[0])
-
-    @nonzero.setter
-    def nonzero(self, value: bool) -> None:
-        self.state[0] = float(value)
-
-    @property
-    def stage(self) -> int:
-        """With integrator="RK4": the stage of the last evaluation (1-4; 0: another integrator)."""
-        return int(self.state[2])
-
-    @stage.setter
-    def stage(self, value: int) -> None:
-        self.state[2] = float(value)
-
-    @property
-    def stage_time(self) -> float:
-        """The time of the first stage of the step (s)."""
-        return float(self.state[3])
-
-    @stage_time.setter
-    def stage_time(self, value: float) -> None:
-        self.state[3] = float(value)
-
-    @property
-    def sand_dirty(self) -> bool:
-        return bool(self.state[1])
-
-    @sand_dirty.setter
-    def sand_dirty(self, value: bool) -> None:
-        self.state[1] = float(value)
 
 
 class Dispatcher:

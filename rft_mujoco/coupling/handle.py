@@ -34,7 +34,6 @@ the design and its alternatives are measured in docs/rest.md).
 from __future__ import annotations
 
 import copy
-import dataclasses
 import warnings
 import weakref
 from collections.abc import Sequence
@@ -46,6 +45,7 @@ from rft_mujoco import compiled, tol
 from rft_mujoco.coupling import checks, reference, setup
 from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.monitor import ValidityMonitor
+from rft_mujoco.coupling.workspace import Diagnostics, _Workspace
 from rft_mujoco.geometry import surface
 from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
@@ -62,87 +62,6 @@ or the implicit solve (:func:`rft_mujoco.physics.rest.implicit_wrenches`, this s
 :func:`rft_mujoco.coupling.reference.constrained_free_motion`; numpy backend only for now)."""
 RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
-
-
-@dataclasses.dataclass
-class Diagnostics:
-    """Per-body sand state of one evaluation of one MjData (arrays over ``SandHandle.body_ids``).
-
-    Attributes:
-        force: (B, 3) N, world frame, applied at each body's COM.
-        torque: (B, 3) N m, world frame, about each body's COM.
-        submerged: (B,) int, number of submerged leading elements that carried stress.
-        max_depth: (B,) m, deepest loaded element (0 when none).
-        scale: (B,) ``|applied wrench| / |RFT wrench|`` (torques over the body's radius): 1 in flow,
-            the fraction of its capacity the sand uses to hold a resting body.
-        rft_force: (B, 3) N, the RFT force at the body's motion direction (its capacity at rest).
-        resting: (B,) bool, the body is held at rest by the sand (False: in flow, or not loaded).
-        occluded_area: (B,) m^2, submerged surface inside another body's geom (culled this evaluation).
-    """
-
-    force: np.ndarray
-    torque: np.ndarray
-    submerged: np.ndarray
-    max_depth: np.ndarray
-    scale: np.ndarray
-    rft_force: np.ndarray
-    resting: np.ndarray
-    occluded_area: np.ndarray
-
-    @classmethod
-    def zeros(cls, n: int) -> "Diagnostics":
-        return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, dtype=np.int64), np.zeros(n), np.ones(n),
-                   np.zeros((n, 3)), np.zeros(n, dtype=bool), np.zeros(n))
-
-    def copy(self) -> "Diagnostics":
-        """A snapshot that later evaluations do not change."""
-        return Diagnostics(*(np.array(getattr(self, f.name)) for f in dataclasses.fields(self)))
-
-    def clear(self) -> None:
-        """Zero wrenches, counts and depths; scale 1; nothing resting (an evaluation without sand)."""
-        self.force[:] = 0.0
-        self.torque[:] = 0.0
-        self.submerged[:] = 0
-        self.max_depth[:] = 0.0
-        self.scale[:] = 1.0
-        self.rft_force[:] = 0.0
-        self.resting[:] = False
-        self.occluded_area[:] = 0.0
-
-
-class _Workspace:
-    """Per-MjData state of one handle (datas may be stepped in different threads): the arrays of
-    :data:`rft_mujoco.compiled.evaluate.WORK_FIELDS` (the diagnostics are views of them), their tuple for the
-    compiled calls, and the tuple of the MjData's arrays."""
-
-    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing")
-
-    def __init__(self, handle, data) -> None:
-        from rft_mujoco.compiled import evaluate
-        a = evaluate.build_workspace(len(handle.body_ids), handle.groups.ref.size, handle.model.nv,
-                                     handle._cluster_width)
-        self.arrays = a
-        self.tuple = tuple(a[name] for name, _ in evaluate.WORK_FIELDS)
-        self.md = evaluate.mjdata_arrays(data) if handle._fast is not None else None
-        self.diag = Diagnostics(a["force"], a["torque"], a["submerged"], a["max_depth"], a["scale"],
-                                a["rft_force"], a["resting"], a["occluded_area"])
-        self.keep = reference.StepKeep()
-        self.flowing = None                 # the implicit solve's (touching groups, flowed) of the last evaluation
-
-    @property
-    def state(self) -> np.ndarray:
-        """(last time s, clean, touching, lagged, evaluations, RK4 stage, ...):
-        :data:`rft_mujoco.compiled.evaluate.STATE`."""
-        return self.arrays["state"]
-
-    def follow_time(self, t: float, dt: float) -> bool:
-        """Record an evaluation at time ``t``; True when time advanced by at most one step since the last
-        one (RK4 stages included): only then is MuJoCo's previous constraint solve this motion's."""
-        s = self.arrays["state"]
-        continuous = 0.0 <= t - s[0] <= dt * (1.0 + tol.TIME_RTOL)
-        s[0] = t
-        s[3] = float(continuous)
-        return continuous
 
 
 class SandHandle:
@@ -626,7 +545,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     media = get_media(media)
     terrain = _checked_terrain(surface_height)
     size = surface.element_size(resolution)
-    ids = _movable(model, bodies, _body_ids(model, bodies))
+    ids = setup.attachable_bodies(model, bodies)
     gravity_direction(model.opt.gravity)  # raises on zero gravity
     checks.check_not_attached(model, ids, DISPATCHER.handles, terrain=terrain)
     checks.check_timestep(model)
@@ -655,42 +574,6 @@ def _checked_terrain(surface) -> Terrain:
         raise ValueError(f"surface height {terrain.max_height!r} m is beyond +-{SURFACE_HEIGHT_MAX:g} m: the sand's "
                          "stresses would overflow. Give the height in m of the sand surface (e.g. 0.0)")
     return terrain
-
-
-def _body_ids(model, bodies) -> list[int]:
-    """:func:`setup.body_ids`, with the mistakes it would misreport said plainly."""
-    if bodies is not None and not isinstance(bodies, (str, int, np.integer)):
-        try:
-            bodies = list(bodies)
-        except TypeError:
-            raise TypeError(f"bodies must be None (every body), a body name or id, or a sequence of them; got "
-                            f"{type(bodies).__name__}") from None
-        if not bodies:
-            raise ValueError("bodies is empty: name the bodies that touch the sand, or pass None for every body "
-                             "with surface geoms")
-        bad = [b for b in bodies if not isinstance(b, (str, int, np.integer))]
-        if bad:
-            raise TypeError(f"bodies must hold body names (str) or ids (int), got {bad!r}")
-    return setup.body_ids(model, bodies)
-
-
-def _movable(model, bodies, ids: list[int]) -> list[int]:
-    """The bodies of ``ids`` that sand forces can move: not welded to the world (static) and not mocap.
-    Those are dropped when ``bodies`` is None and refused when named (they would feel nothing)."""
-    fixed = [b for b in ids if model.body_weldid[b] == 0 or model.body_mocapid[b] >= 0]
-    if not fixed:
-        return ids
-    if bodies is not None:
-        names = [model.body(b).name or f"#{b}" for b in fixed]
-        raise ValueError(f"bodies {names} are static or mocap (welded to the world or moved by mocap_pos): forces "
-                         "in xfrc_applied cannot move them, so they would feel nothing. Give them a joint "
-                         "(e.g. <freejoint/>) to let the sand act on them, or use rft_mujoco.coupling.rollout to "
-                         "record the sand force along a prescribed motion")
-    ids = [b for b in ids if b not in fixed]
-    if not ids:
-        raise ValueError("no movable body with surface geoms to attach sand to: every body with geoms is static "
-                         "or mocap; give a body a joint (e.g. <freejoint/>)")
-    return ids
 
 
 def detach_all() -> None:

@@ -266,3 +266,45 @@ def summary_text(rows: list[dict], size: float) -> str:
     return "\n".join([line(head)] + [line(r) for r in body]
                      + [f"total: {total_n} elements over {total_a:.4g} m^2 at element size {size:g} m "
                         f"({total_n / max(total_a / size**2, 1e-300):.2f} x area / size^2)"])
+
+
+def attachable_bodies(model, bodies) -> list[int]:
+    """The body ids :func:`rft_mujoco.attach` takes for ``bodies`` (None, a name or id, or a sequence of them):
+    :func:`body_ids` with the mistakes it would misreport said plainly, without static and mocap bodies."""
+    return _movable(model, bodies, _body_ids(model, bodies))
+
+
+def _body_ids(model, bodies) -> list[int]:
+    """:func:`body_ids`, with the mistakes it would misreport said plainly."""
+    if bodies is not None and not isinstance(bodies, (str, int, np.integer)):
+        try:
+            bodies = list(bodies)
+        except TypeError:
+            raise TypeError(f"bodies must be None (every body), a body name or id, or a sequence of them; got "
+                            f"{type(bodies).__name__}") from None
+        if not bodies:
+            raise ValueError("bodies is empty: name the bodies that touch the sand, or pass None for every body "
+                             "with surface geoms")
+        bad = [b for b in bodies if not isinstance(b, (str, int, np.integer))]
+        if bad:
+            raise TypeError(f"bodies must hold body names (str) or ids (int), got {bad!r}")
+    return body_ids(model, bodies)
+
+
+def _movable(model, bodies, ids: list[int]) -> list[int]:
+    """The bodies of ``ids`` that sand forces can move: not welded to the world (static) and not mocap.
+    Those are dropped when ``bodies`` is None and refused when named (they would feel nothing)."""
+    fixed = [b for b in ids if model.body_weldid[b] == 0 or model.body_mocapid[b] >= 0]
+    if not fixed:
+        return ids
+    if bodies is not None:
+        names = [model.body(b).name or f"#{b}" for b in fixed]
+        raise ValueError(f"bodies {names} are static or mocap (welded to the world or moved by mocap_pos): forces "
+                         "in xfrc_applied cannot move them, so they would feel nothing. Give them a joint "
+                         "(e.g. <freejoint/>) to let the sand act on them, or use rft_mujoco.coupling.rollout to "
+                         "record the sand force along a prescribed motion")
+    ids = [b for b in ids if b not in fixed]
+    if not ids:
+        raise ValueError("no movable body with surface geoms to attach sand to: every body with geoms is static "
+                         "or mocap; give a body a joint (e.g. <freejoint/>)")
+    return ids

@@ -12,7 +12,7 @@ from rft_mujoco.warp.common import F64, FLAT, gravity_of
 # --- the user's part of xfrc_applied (rft_mujoco.coupling.dispatch) --------------------------------
 @wp.func
 def _untouched_minus_added(x: wp.spatial_vector, wr: wp.spatial_vector, ad: wp.spatial_vector):
-    """``x - ad`` on the components the user left as written (dispatch.untouched_components): every
+    """``x - ad`` on the components the user left as written (coupling.book.untouched_components): every
     component when the whole row is as written, else those equal to a non-zero written value."""
     row_same = int(1)
     for c in range(6):
@@ -34,7 +34,7 @@ def user_part(body_id: wp.array(dtype=int), xfrc: wp.array2d(dtype=wp.spatial_ve
               user: wp.array2d(dtype=wp.spatial_vector), cand: wp.array2d(dtype=int), touch: wp.array2d(dtype=int),
               wrench: wp.array2d(dtype=wp.spatial_vector), count: wp.array2d(dtype=int),
               max_depth: wp.array2d(dtype=float), occluded: wp.array2d(dtype=float)):
-    """``user = xfrc - added`` on the components the user left as written (dispatch.untouched_components);
+    """``user = xfrc - added`` on the components the user left as written (coupling.book.untouched_components);
     the broadphase (cand[w, b] = 0 when body b's bounding sphere is above the highest point of the sand, as
     SandHandle._touching_numpy: a shortcut, nothing changes); zeroes this evaluation's accumulators."""
     w, b = wp.tid()

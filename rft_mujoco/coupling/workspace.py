@@ -1,0 +1,92 @@
+"""What a sand handle keeps per MjData: the :class:`Diagnostics` of its last evaluation and the
+:class:`_Workspace` of arrays the evaluations (compiled and numpy) read and write."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from rft_mujoco import tol
+from rft_mujoco.coupling import reference
+
+
+@dataclasses.dataclass
+class Diagnostics:
+    """Per-body sand state of one evaluation of one MjData (arrays over ``SandHandle.body_ids``).
+
+    Attributes:
+        force: (B, 3) N, world frame, applied at each body's COM.
+        torque: (B, 3) N m, world frame, about each body's COM.
+        submerged: (B,) int, number of submerged leading elements that carried stress.
+        max_depth: (B,) m, deepest loaded element (0 when none).
+        scale: (B,) ``|applied wrench| / |RFT wrench|`` (torques over the body's radius): 1 in flow,
+            the fraction of its capacity the sand uses to hold a resting body.
+        rft_force: (B, 3) N, the RFT force at the body's motion direction (its capacity at rest).
+        resting: (B,) bool, the body is held at rest by the sand (False: in flow, or not loaded).
+        occluded_area: (B,) m^2, submerged surface inside another body's geom (culled this evaluation).
+    """
+
+    force: np.ndarray
+    torque: np.ndarray
+    submerged: np.ndarray
+    max_depth: np.ndarray
+    scale: np.ndarray
+    rft_force: np.ndarray
+    resting: np.ndarray
+    occluded_area: np.ndarray
+
+    @classmethod
+    def zeros(cls, n: int) -> "Diagnostics":
+        return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, dtype=np.int64), np.zeros(n), np.ones(n),
+                   np.zeros((n, 3)), np.zeros(n, dtype=bool), np.zeros(n))
+
+    def copy(self) -> "Diagnostics":
+        """A snapshot that later evaluations do not change."""
+        return Diagnostics(*(np.array(getattr(self, f.name)) for f in dataclasses.fields(self)))
+
+    def clear(self) -> None:
+        """Zero wrenches, counts and depths; scale 1; nothing resting (an evaluation without sand)."""
+        self.force[:] = 0.0
+        self.torque[:] = 0.0
+        self.submerged[:] = 0
+        self.max_depth[:] = 0.0
+        self.scale[:] = 1.0
+        self.rft_force[:] = 0.0
+        self.resting[:] = False
+        self.occluded_area[:] = 0.0
+
+
+class _Workspace:
+    """Per-MjData state of one handle (datas may be stepped in different threads): the arrays of
+    :data:`rft_mujoco.compiled.evaluate.WORK_FIELDS` (the diagnostics are views of them), their tuple for the
+    compiled calls, and the tuple of the MjData's arrays."""
+
+    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing")
+
+    def __init__(self, handle, data) -> None:
+        from rft_mujoco.compiled import evaluate
+        a = evaluate.build_workspace(len(handle.body_ids), handle.groups.ref.size, handle.model.nv,
+                                     handle._cluster_width)
+        self.arrays = a
+        self.tuple = tuple(a[name] for name, _ in evaluate.WORK_FIELDS)
+        self.md = evaluate.mjdata_arrays(data) if handle._fast is not None else None
+        self.diag = Diagnostics(a["force"], a["torque"], a["submerged"], a["max_depth"], a["scale"],
+                                a["rft_force"], a["resting"], a["occluded_area"])
+        self.keep = reference.StepKeep()
+        self.flowing = None                 # the implicit solve's (touching groups, flowed) of the last evaluation
+
+    @property
+    def state(self) -> np.ndarray:
+        """(last time s, clean, touching, lagged, evaluations, RK4 stage, ...):
+        :data:`rft_mujoco.compiled.evaluate.STATE`."""
+        return self.arrays["state"]
+
+    def follow_time(self, t: float, dt: float) -> bool:
+        """Record an evaluation at time ``t``; True when time advanced by at most one step since the last
+        one (RK4 stages included): only then is MuJoCo's previous constraint solve this motion's."""
+        s = self.arrays["state"]
+        continuous = 0.0 <= t - s[0] <= dt * (1.0 + tol.TIME_RTOL)
+        s[0] = t
+        s[3] = float(continuous)
+        return continuous
