@@ -96,3 +96,18 @@ def test_every_scene_is_checked_against_its_quasi_static_depth(monkeypatch):
     deep = loadpaths.run_case("joint_limit", 0.005, "implicitfast")
     assert deep.sinkage == pytest.approx(r.sinkage)
     assert any("quasi-static 10.0 mm" in f for f in deep.failures), deep.failures
+
+
+def test_the_stability_cli_runs_the_load_paths_alone_with_either_solve(tmp_path, capsys):
+    from rft_mujoco.studies import stability
+
+    with pytest.raises(SystemExit):
+        stability.main(["--solve", "implicit", "--out", str(tmp_path)])
+    assert "--load-paths-only" in capsys.readouterr().err
+    rc = stability.main(["--load-paths-only", "--quick", "--out", str(tmp_path)])
+    text = capsys.readouterr().out
+    assert rc == (1 if "FAIL" in text else 0), text       # exits 1 on any failure (2 known at 5 ms: issue 26)
+    assert "quasi-static" in text and "depth max mm" in text
+    rows = (tmp_path / "loadpaths.csv").read_text().splitlines()
+    assert len(rows) == 1 + len(loadpaths.SCENES)
+    assert "quasi_static_depth_m" in rows[0]

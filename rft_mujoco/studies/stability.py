@@ -442,15 +442,17 @@ def summary(results: list[Result]) -> list[str]:
     return lines
 
 
-def run_load_paths(*, quick: bool = False, out: Path, stream=sys.stdout) -> list:
-    """The load-path subset (:mod:`rft_mujoco.studies.loadpaths`): progress, a table per scene, ``loadpaths.csv``."""
+def run_load_paths(*, quick: bool = False, out: Path, stream=sys.stdout, solve: str = "explicit") -> list:
+    """The load-path subset (:mod:`rft_mujoco.studies.loadpaths`): progress, a table per scene, ``loadpaths.csv``.
+    ``solve="implicit"`` runs it with ``attach(solve="implicit", backend="numpy")``."""
     from rft_mujoco.studies import loadpaths
 
     results = []
     t0 = time.perf_counter()
     todo = loadpaths.cases(quick)
+    kw = dict(solve="implicit", backend="numpy") if solve == "implicit" else {}
     for k, (name, dt, integ) in enumerate(todo, 1):
-        r = loadpaths.run_case(name, dt, integ)
+        r = loadpaths.run_case(name, dt, integ, **kw)
         results.append(r)
         print(f"[{k:3d}/{len(todo)} {time.perf_counter() - t0:6.0f}s] load path {r.label} t_rest={_fmt(r.t_rest, '.3g')} "
               f"final speed={_fmt(r.final_speed, '.1e')} balance={_fmt(r.balance, '.1e')} "
@@ -544,7 +546,19 @@ def main(argv: list[str] | None = None, command: str = "stability") -> int:
     parser.add_argument("--quick", action="store_true", help="a small representative subset (< 1 min)")
     parser.add_argument("--out", default="out/stability", help="output folder (default: out/stability)")
     parser.add_argument("--no-plots", action="store_true", help="table and CSV only")
+    parser.add_argument("--load-paths-only", action="store_true",
+                        help="only the loads through MuJoCo's constraints (rft_mujoco.studies.loadpaths)")
+    parser.add_argument("--solve", choices=("explicit", "implicit"), default="explicit",
+                        help="the sand solve of the load paths (implicit: numpy backend; needs --load-paths-only)")
     args = parser.parse_args(argv)
+    if args.solve != "explicit" and not args.load_paths_only:
+        parser.error("--solve implicit runs the load paths only: add --load-paths-only")
+    if args.load_paths_only:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        results = run_load_paths(quick=args.quick, out=out, solve=args.solve)
+        print(f"wrote {out / 'loadpaths.csv'}")
+        return 1 if any(r.failures for r in results) else 0
     results = run(quick=args.quick, out=args.out, plots=not args.no_plots)
     return 1 if any(r.failures and getattr(getattr(r, "case", None), "stabilize", True) for r in results) else 0
 
