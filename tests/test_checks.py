@@ -32,11 +32,6 @@ def make(floor=FLOOR.format(z=0.0, attrs=""), ball="", extra="", dt=0.002, flags
     return model, mujoco.MjData(model)
 
 
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
-
 
 def setup_warnings(record):
     return [w for w in record if issubclass(w.category, checks.SandSetupWarning)]

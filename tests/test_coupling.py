@@ -35,11 +35,6 @@ def make(integrator="Euler"):
     return model, mujoco.MjData(model)
 
 
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
-
 
 def random_state(model, data, rng, depth=0.05):
     for j, body in enumerate(("ball", "brick")):

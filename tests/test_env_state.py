@@ -20,12 +20,6 @@ CHEETAH = "rft_mujoco/SandHalfCheetah-v0"
 QUADRUPED_V1 = "rft_mujoco/SandQuadruped-v1"
 
 
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
-
-
 def episode(env, steps=200, seed=5):
     obs, _ = env.reset(seed=seed)
     rng = np.random.default_rng(seed)

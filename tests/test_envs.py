@@ -37,11 +37,6 @@ ALLOWED_CHECK_ENV_WARNINGS = ("is probably too low", "is probably too high")
 """check_env warnings every unbounded-observation MuJoCo env gets (Gymnasium's own Ant included)."""
 
 
-@pytest.fixture(autouse=True)
-def _detach_everything():
-    yield
-    rft_mujoco.detach_all()
-
 
 def rollout(env, seed, steps):
     """Observations (steps + 1, n) and rewards (steps,) under seeded random actions (no resets)."""

@@ -39,11 +39,6 @@ SCENE = """
 BODIES = ["ball", "brick", "brick_lid", "leg", "foot", "leg2"]      # brick and brick_lid: one weld group
 
 
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
-
 
 def test_solve_m_equals_mujoco_and_the_layout_check_passes():
     model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))

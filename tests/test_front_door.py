@@ -24,11 +24,6 @@ def make(dt=0.002):
     return model, mujoco.MjData(model)
 
 
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
-
 
 def setup_warnings(record):
     return [w for w in record if issubclass(w.category, SandSetupWarning)]

@@ -3,14 +3,7 @@
 import numpy as np
 import pytest
 
-import rft_mujoco
 from rft_mujoco.studies import loadpaths
-
-
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
 
 
 CASES = [(name, 0.002, "implicitfast") for name in loadpaths.SCENES]

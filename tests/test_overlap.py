@@ -3,14 +3,7 @@
 import numpy as np
 import pytest
 
-import rft_mujoco
 from rft_mujoco.studies import overlap
-
-
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
 
 
 @pytest.mark.parametrize("name", ["hinge_45", "hinge_135", "foot_in_calf", "swimmer", "quadruped_leg"])

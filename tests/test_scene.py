@@ -28,11 +28,6 @@ SCENE = """
 """
 
 
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
-
 
 def test_attach_scene_reads_every_field():
     model = mujoco.MjModel.from_xml_string(SCENE)

@@ -17,11 +17,6 @@ from rft_mujoco.studies.stability import Case
 MEDIA = rft_mujoco.MPM_VALIDATION
 
 
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
-
 
 # --- the drop matrix, a representative subset ----------------------------------------------------------
 DROPS = [Case("drop", shape, mass, dt, integ)

@@ -38,11 +38,6 @@ BALL = """
 BACKENDS = ["auto", "numpy"]
 
 
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
-
 
 def scene(backend="auto", **kwargs):
     model = mujoco.MjModel.from_xml_string(BALL)

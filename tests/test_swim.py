@@ -5,14 +5,7 @@ import math
 import numpy as np
 import pytest
 
-import rft_mujoco
 from rft_mujoco.studies import swim
-
-
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
 
 
 def test_wave_shape_covers_the_study_range():

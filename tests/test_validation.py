@@ -22,11 +22,6 @@ PLOTS = ("directions.png", "drill.png", "guards.png", "convergence.png")
 TABLES = ("directions.csv", "guards.csv", "drill.csv", "overlap.csv", "checks.csv", "summary.txt", "config.json")
 
 
-@pytest.fixture(autouse=True)
-def _clean():
-    yield
-    rft_mujoco.detach_all()
-
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
