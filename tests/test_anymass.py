@@ -46,7 +46,9 @@ def test_the_animal_swims_at_the_quasi_static_limit_with_the_implicit_solve():
     assert implicit["solve"] == "implicit" and explicit["solve"] == "explicit"
     assert abs(implicit["eta"] / limit - 1.0) < anymass.TOLERANCE, (implicit["eta"], limit)
     assert abs(explicit["eta"] / limit - 1.0) > 0.3, (explicit["eta"], limit)
-    assert implicit["tracking_rms_rad"] < 0.05 * amplitude * math.sqrt(0.5) * 2
+    # the servos lag by kv / kp = 10 ms (7 degrees at 2 Hz): a phase error of 0.126 a, 0.089 a RMS
+    lag = 2 * math.sin(math.atan(2 * math.pi * f * swim.SERVO_KV / swim.SERVO_KP) / 2) * amplitude / math.sqrt(2)
+    assert implicit["tracking_rms_rad"] < 1.2 * lag, (implicit["tracking_rms_rad"], lag)
 
 
 def test_the_table_and_worst_error_report_every_solve():
