@@ -9,7 +9,7 @@ import pytest
 
 import rft_mujoco
 from rft_mujoco.coupling import reference
-from rft_mujoco.physics import elements, rest
+from rft_mujoco.physics import elements, implicit
 from rft_mujoco.physics import terrain as terrains
 from rft_mujoco.physics.media import get_media
 
@@ -22,7 +22,7 @@ def coulomb_law(capacity, stiff=(1.0, 1.0, 1.0)):
     def law(u, groups):
         n = u.shape[0]
         f, df = np.zeros((n, 6)), np.zeros((n, 6, 6))
-        c = rest.SPEED_SCALE
+        c = implicit.SPEED_SCALE
         for g in range(n):
             s = np.linalg.norm(u[g, :3])
             if s < 1e-14:
@@ -42,13 +42,13 @@ def test_a_push_below_the_capacity_rests_and_above_it_flows_with_the_full_capaci
     v = np.array([[0.1, 0.0, 0.0, 0.0, 0.0, 0.0]])
     for push, rests in ((5.0, mass < 0.01), (20.0, False)):
         vf = v + dt * np.array([[push, 0, 0, 0, 0, 0]]) / mass
-        w, resting, end, _ = rest.implicit_wrenches(vf, a, coulomb_law([cap]), v, np.array([0.05]), dt)
+        w, resting, end, _ = implicit.implicit_wrenches(vf, a, coulomb_law([cap]), v, np.array([0.05]), dt)
         assert resting[0] == rests
         if rests:
             np.testing.assert_allclose(end, 0.0, atol=1e-12)
         else:                                   # the law at the end twist, which the wrench gives
             np.testing.assert_allclose(end, vf + dt * w @ a, atol=1e-12)
-            np.testing.assert_allclose(np.linalg.norm(w[0, :3]), cap / np.sqrt(1 + (rest.SPEED_SCALE / end[0, 0]) ** 2),
+            np.testing.assert_allclose(np.linalg.norm(w[0, :3]), cap / np.sqrt(1 + (implicit.SPEED_SCALE / end[0, 0]) ** 2),
                                        rtol=1e-8)
             assert end[0, 0] > 0.0 and w[0, 0] < 0.0
 
@@ -60,7 +60,7 @@ def test_flow_keeps_the_drag_of_a_body_that_stops_sinking():
     v = np.array([[0.6, 0.0, -0.02, 0.0, 0.0, 0.0]])
     vf = v + dt * np.array([[0.0, 0.0, -9.81, 0.0, 0.0, 0.0]])
     cap = 1.0                                           # N of drag; 50 N of vertical resistance carry the weight
-    w, resting, end, _ = rest.implicit_wrenches(vf, np.eye(6) / mass, coulomb_law([cap], (1.0, 1.0, 50.0)), v,
+    w, resting, end, _ = implicit.implicit_wrenches(vf, np.eye(6) / mass, coulomb_law([cap], (1.0, 1.0, 50.0)), v,
                                                 np.array([0.05]), dt)
     assert not resting[0]
     assert abs(end[0, 2]) < 1e-2 * end[0, 0]            # sinking (nearly) stopped within the step
@@ -82,7 +82,7 @@ def test_quasi_static_limit_is_independent_of_the_mass():
         push = np.zeros(12)
         push[0] = 3.0
         vf = v + dt * (a @ push).reshape(2, 6)
-        _, resting, end, _ = rest.implicit_wrenches(vf, a, coulomb_law([1.0, 1.0]), v, np.array([0.05, 0.05]), dt)
+        _, resting, end, _ = implicit.implicit_wrenches(vf, a, coulomb_law([1.0, 1.0]), v, np.array([0.05, 0.05]), dt)
         ends.append(end / np.abs(end).max())
     np.testing.assert_allclose(ends[0], ends[1], atol=1e-3)
 

@@ -58,7 +58,7 @@ BACKENDS = ("auto", "numba", "numpy")
 otherwise."""
 SOLVES = ("explicit", "implicit")
 """Values of ``attach(solve=...)``: the explicit rest/flow treatment (:func:`rft_mujoco.physics.rest.rest_wrenches`)
-or the implicit solve (:func:`rft_mujoco.physics.rest.implicit_wrenches`, this step's constraints linearized:
+or the implicit solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`, this step's constraints linearized:
 :func:`rft_mujoco.coupling.reference.constrained_free_motion`; numpy backend only for now)."""
 RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco.geometry import occlusion
-from rft_mujoco.physics import elements, rest
+from rft_mujoco.physics import elements, implicit, rest
 
 
 def touching(handle, data, g_hat, work) -> np.ndarray:
@@ -462,7 +462,7 @@ def _shift(arm: np.ndarray) -> np.ndarray:
 
 
 def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out) -> int:
-    """The implicit solve (:func:`rft_mujoco.physics.rest.implicit_wrenches`) of the touching bodies. Returns
+    """The implicit solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`) of the touching bodies. Returns
     the status of :func:`commit`."""
     grp = handle.groups
     group_of = grp.of_body[touch]
@@ -479,7 +479,7 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
     def law(u, groups):
         ub = np.einsum("kij,kj->ki", shift, u[slot])
         w_b, j_b, count, max_depth = rft_jacobian(handle, data, work, touch, ub[:, :3], ub[:, 3:], g_hat,
-                                                  rest.SPEED_SCALE, touching)
+                                                  implicit.SPEED_SCALE, touching)
         f = np.zeros((active.size, 6))
         np.add.at(f, slot, np.einsum("kji,kj->ki", shift, w_b))
         df = np.zeros((active.size, 6, 6))
@@ -489,7 +489,7 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
 
     prior = work.flowing                              # (groups, flowed) of the last evaluation
     flowing = prior[1] if prior is not None and np.array_equal(prior[0], active) else None
-    applied_g, resting_g, end, its = rest.implicit_wrenches(free, mobility, law, twist, radius, dt, flowing)
+    applied_g, resting_g, end, its = implicit.implicit_wrenches(free, mobility, law, twist, radius, dt, flowing)
     work.flowing = (active, ~resting_g)
     # The bodies' own law wrenches at the end twists (flow) and at the probe (capacities, rest sharing).
     probe = rest.blend(twist, free, radius)

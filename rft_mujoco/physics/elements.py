@@ -94,7 +94,7 @@ def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bo
                           active=None):
     """The regularized 3D-RFT wrench about each body's COM and its derivative in the body's twist.
 
-    The implicit sand solve (:func:`rft_mujoco.physics.rest.implicit_wrenches`) evaluates the law at the
+    The implicit sand solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`) evaluates the law at the
     motion a step ends with, by Newton's method; it needs the law as a continuous function of the twist. Each
     element's stress is the published one at its direction times ``phi(|v|) = |v| / sqrt(|v|^2 + c^2)``,
     ``c = speed_scale``: the published force above ``10 c`` to within 0.5%, zero at rest.
