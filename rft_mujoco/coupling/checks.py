@@ -251,6 +251,11 @@ COARSE_ELEMENTS = 2.0
 converged in element size; docs/rest.md, "The default resolution on small bodies")."""
 
 
+COARSE_MESSAGE = "rft_mujoco: bodies thinner than"
+"""How :func:`check_resolution`'s warning starts (a ``warnings.filterwarnings(message=...)`` pattern for code
+that chose a coarse resolution on purpose, as the gymnasium tasks do for speed)."""
+
+
 def check_resolution(model, body_ids: Sequence[int], element_size: float) -> list:
     """Warn (:class:`SandSetupWarning`, once, naming every body) when attached bodies are thinner than
     :data:`COARSE_ELEMENTS` element sizes (``element_size`` m; a body's thinnest sand geom,
@@ -269,7 +274,7 @@ def check_resolution(model, body_ids: Sequence[int], element_size: float) -> lis
         listed = ", ".join(f"{n!r} {t * 1e3:.3g} mm" for n, t in sorted(thin, key=lambda x: x[1])[:6]) + (
             f" and {len(thin) - 6} more" if len(thin) > 6 else "")
         warnings.warn(
-            f"rft_mujoco: bodies thinner than {COARSE_ELEMENTS:g} element sizes ({element_size * 1e3:g} mm): "
+            f"{COARSE_MESSAGE} {COARSE_ELEMENTS:g} element sizes ({element_size * 1e3:g} mm): "
             f"{listed}. The sand sees them through a few elements each, and their forces carry the "
             "discretization's error (on the bundled swimmer's 8-14 mm links, 10 mm elements put the wave "
             f"efficiency 6-20% above its converged value). Do: attach(..., resolution={suggest:g}) (about a "

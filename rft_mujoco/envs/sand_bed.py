@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import warnings
 import weakref
 from collections.abc import Sequence
 
@@ -25,6 +26,7 @@ import mujoco
 import numpy as np
 
 import rft_mujoco
+from rft_mujoco.coupling.checks import COARSE_MESSAGE
 from rft_mujoco.physics.media import MU_INT_RANGE, RHO_C_RANGE, Media
 from rft_mujoco.physics.terrain import HeightfieldSurface
 
@@ -226,8 +228,12 @@ class SandBed:
             ids = list(bodies)
         # monitor=False: random exploration leaves the quasi-static range all the time; a validity warning
         # per environment instance would be noise (the library's monitor is for scripted scenes).
-        self.handle = rft_mujoco.attach(model, self.base_media, bodies=ids, surface_height=surface,
-                                        resolution=resolution, stabilize=stabilize, monitor=False)
+        # A task's resolution is a speed trade made on purpose: the notice about bodies thinner than two
+        # elements (rft_mujoco.coupling.checks.check_resolution) would come with every env instance.
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=COARSE_MESSAGE, category=rft_mujoco.SandSetupWarning)
+            self.handle = rft_mujoco.attach(model, self.base_media, bodies=ids, surface_height=surface,
+                                            resolution=resolution, stabilize=stabilize, monitor=False)
         # A bed (an env) dropped without close() detaches its sand when collected: the library's dispatcher
         # holds attached handles, and with them their models, until detach.
         self._detach = weakref.finalize(self, self.handle.detach)
