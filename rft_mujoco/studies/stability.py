@@ -442,10 +442,13 @@ def summary(results: list[Result]) -> list[str]:
     return lines
 
 
-def run_load_paths(*, quick: bool = False, out: Path, stream=sys.stdout, solve: str = "explicit") -> list:
+def run_load_paths(*, quick: bool = False, out: Path, stream=None, solve: str = "explicit") -> list:
     """The load-path subset (:mod:`rft_mujoco.studies.loadpaths`): progress, a table per scene, ``loadpaths.csv``.
-    ``solve="implicit"`` runs it with ``attach(solve="implicit", backend="numpy")``."""
+    ``solve="implicit"`` runs it with ``attach(solve="implicit", backend="numpy")``; ``stream``: where to print
+    (default: ``sys.stdout`` at the call)."""
     from rft_mujoco.studies import loadpaths
+
+    stream = sys.stdout if stream is None else stream
 
     results = []
     t0 = time.perf_counter()
@@ -487,9 +490,11 @@ def run_load_paths(*, quick: bool = False, out: Path, stream=sys.stdout, solve: 
     return results
 
 
-def run(*, quick: bool = False, out: str | Path = "out/stability", plots: bool = True, stream=sys.stdout):
-    """Run the study; print progress and tables; write CSV and plot. Returns the results (the load-path
-    cases of :func:`run_load_paths` are appended as ``rft_mujoco.studies.loadpaths.Result`` objects)."""
+def run(*, quick: bool = False, out: str | Path = "out/stability", plots: bool = True, stream=None):
+    """Run the study; print progress and tables (to ``stream``, default ``sys.stdout`` at the call); write CSV
+    and plot. Returns the results (the load-path cases of :func:`run_load_paths` are appended as
+    ``rft_mujoco.studies.loadpaths.Result`` objects)."""
+    stream = sys.stdout if stream is None else stream
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cases = matrix(quick)
