@@ -148,6 +148,14 @@ def mesh_humanoid() -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_string(xml, assets)
 
 
+def _standing(actuators: str, height: float, joints: int) -> str:
+    """The actuator block and the ``home`` keyframe of a floating-base robot with ``joints`` servo-held hinges,
+    its base at ``height`` m, upright, every joint and servo target at 0."""
+    zeros = " ".join(["0"] * joints)
+    return (f"<actuator>{actuators}</actuator><keyframe><key name=\"home\" qpos=\"0 0 {height:.5f} 1 0 0 0 {zeros}\" "
+            f"ctrl=\"{zeros}\"/></keyframe>")
+
+
 def mesh_quadruped() -> mujoco.MjModel:
     """The quadruped of the module docstring, standing on its lower legs on the floor plane at z = 0
     (``home``)."""
@@ -189,10 +197,7 @@ def mesh_quadruped() -> mujoco.MjModel:
           {legs}
         </body>
       </worldbody>
-      <actuator>{actuators}</actuator>
-      <keyframe>
-        <key name="home" qpos="0 0 {height:.5f} 1 0 0 0 {' '.join(['0'] * 12)}" ctrl="{' '.join(['0'] * 12)}"/>
-      </keyframe>
+      {_standing(actuators, height, 12)}
     </mujoco>"""
     return mujoco.MjModel.from_xml_string(xml, assets)
 
@@ -241,10 +246,7 @@ def slanted_quadruped(trunk_mass: float = 45.0, slant: float = 0.5, foot: float 
           {legs}
         </body>
       </worldbody>
-      <actuator>{actuators}</actuator>
-      <keyframe>
-        <key name="home" qpos="0 0 {height:.5f} 1 0 0 0 {' '.join(['0'] * 12)}" ctrl="{' '.join(['0'] * 12)}"/>
-      </keyframe>
+      {_standing(actuators, height, 12)}
     </mujoco>"""
     return mujoco.MjModel.from_xml_string(xml, assets)
 
