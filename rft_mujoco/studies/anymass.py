@@ -11,7 +11,8 @@ size where the limit is converged (:data:`ELEMENT_SIZE`), and reports each eta's
 the same element size.
 
 Cost: the implicit solve runs on the numpy backend (about 0.07 s a step at 3 mm on one core of a 2-core
-machine): the full grid is about 2 CPU hours; ``--quick`` two amplitudes at dt 2 ms, about 15 min on 2 workers.
+machine). Measured on this project's 2-core VM with other jobs running: the animal's half of the grid 4,760 s
+on 2 workers (the 100x half costs about as much); ``--quick`` (amplitudes 0.5 and 0.9 rad at dt 2 ms) 6 min.
 Units: SI (s, m, rad); eta is dimensionless.
 """
 
