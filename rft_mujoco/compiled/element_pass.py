@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from rft_mujoco.compiled.elements import LANES, _inside
+from rft_mujoco.compiled.elements import LANES, _inside, _outside_ball
 from rft_mujoco.compiled.jit import INLINE, JIT_LAW, njit
 from rft_mujoco.compiled.law import _coef, _stress
 from rft_mujoco.compiled.terrain import FLAT, _depth
@@ -167,6 +167,10 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
                     gm[2] * ex + gm[5] * ey + gm[8] * ez
                 s0, s1, s2 = occ_size[o, 0], occ_size[o, 1], occ_size[o, 2]
                 hs0, hs1, ok = occ_hs_start[o], occ_hs_start[o + 1], occ_kind[o]
+                if _outside_ball(t0 + (m00 * q0 + m01 * q1 + m02 * q2), t1 + (m10 * q0 + m11 * q1 + m12 * q2),
+                                 t2 + (m20 * q0 + m21 * q1 + m22 * q2), cluster_radius[q], ok, s0, s1, s2, occ_hs,
+                                 hs0, hs1, margin):
+                    continue                                 # a face of the geom separates the whole cluster
                 for jj in range(ms):
                     i = sub[jj]
                     if not dep[i] > 0.0:

@@ -216,6 +216,24 @@ def _inside(x, y, z, kind, s0, s1, s2, hs, h0, h1, margin):
     return False
 
 
+@njit(**INLINE)
+def _outside_ball(x, y, z, radius, kind, s0, s1, s2, hs, h0, h1, margin):
+    """True when no point within ``radius`` of (x, y, z) (geom frame) is inside the geom as :func:`_inside`
+    tests it: a cluster of elements that can be skipped whole. Boxes and meshes (one separating face
+    suffices) and spheres; other kinds answer False (their elements are tested one by one)."""
+    if kind == _BOX:
+        return abs(x) >= s0 - margin + radius or abs(y) >= s1 - margin + radius or abs(z) >= s2 - margin + radius
+    if kind == _MESH:
+        for k in range(h0, h1):
+            if hs[k, 0] * x + hs[k, 1] * y + hs[k, 2] * z >= hs[k, 3] - margin + radius:
+                return True
+        return False
+    if kind == _SPHERE:
+        r = s0 - margin + radius
+        return x * x + y * y + z * z >= r * r
+    return False
+
+
 # --- the broadphase --------------------------------------------------------------------------------------
 @njit(**JIT_LAW)
 def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_center, bound_radius,
