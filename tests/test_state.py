@@ -7,9 +7,11 @@ Tiny inline models; both the default (compiled, native where supported) path and
 """
 
 import copy
+import gc
 import os
 import pickle
 import tempfile
+import weakref
 
 import mujoco
 import numpy as np
@@ -335,3 +337,51 @@ def test_a_reset_data_steps_as_a_new_one(backend):
     run(model, data, 120)
     run(model, fresh, 120)
     assert np.array_equal(data.qpos, fresh.qpos) and np.array_equal(data.xfrc_applied, fresh.xfrc_applied)
+
+
+# --- lifetime: the sand never keeps a model alive -------------------------------------------------------------------
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_models_with_sand_never_detached_are_freed_when_the_user_drops_them(backend):
+    control, passive = mujoco.get_mjcb_control(), mujoco.get_mjcb_passive()
+    models = []
+    for _ in range(50):                                     # attach to fresh models; never detach
+        model, data, handle = scene(backend)
+        run(model, data, 5)
+        models.append(weakref.ref(model))
+        del model, data, handle
+    gc.collect()
+    assert all(m() is None for m in models)
+    assert rft_mujoco.attached_handles() == () and DISPATCHER.handles == ()
+    assert DISPATCHER._finalizers == {} and DISPATCHER._routes == {}
+    if DISPATCHER._registry is not None:                   # the native callbacks keep no model's address
+        assert DISPATCHER._registry._models == {} and DISPATCHER._registry._routes == {}
+    # the last model gone, the dispatcher is out, as after the last detach
+    assert mujoco.get_mjcb_control() is control and mujoco.get_mjcb_passive() is passive
+    assert not hasattr(mujoco.mj_copyData, "__wrapped__") and DISPATCHER._originals == {}
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_sand_whose_handle_is_not_kept_holds_the_ball_while_the_model_lives(backend):
+    model = mujoco.MjModel.from_xml_string(BALL)
+    rft_mujoco.attach(model, MEDIA, ["ball", "arm"], 0.0, 0.01, monitor=False, backend=backend).replace_rigid("floor")
+    data = mujoco.MjData(model)
+    gc.collect()
+    assert len(rft_mujoco.attached_handles()) == 1
+    run(model, data, 300)                                   # 0.6 s: free fall would be 1.8 m
+    assert z(model, data) > -0.06 and abs(data.qvel[2]) < 1e-3
+    model_ref = weakref.ref(model)
+    del model, data
+    gc.collect()
+    assert model_ref() is None and rft_mujoco.attached_handles() == ()
+
+
+def test_a_handle_kept_after_its_model_was_collected_says_so():
+    model = mujoco.MjModel.from_xml_string(BALL)
+    handle = rft_mujoco.attach(model, MEDIA, ["ball"], 0.0, 0.01, monitor=False)
+    del model
+    gc.collect()
+    assert not handle.attached and rft_mujoco.attached_handles() == ()
+    with pytest.raises(ReferenceError, match="garbage collected.*Keep a reference to the model"):
+        handle.model
+    handle.detach()                                         # nothing left to detach
+    assert "attached=False" in repr(handle)
