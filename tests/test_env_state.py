@@ -70,8 +70,9 @@ def test_an_env_dropped_without_close_detaches_its_sand():
     assert len(DISPATCHER.handles) == before
 
 
-def test_a_quadruped_action_of_the_wrong_shape_is_refused():
-    env = gymnasium.make(QUADRUPED_V1)
+@pytest.mark.parametrize("env_id", ["rft_mujoco/SandQuadruped-v0", QUADRUPED_V1])
+def test_a_quadruped_action_of_the_wrong_shape_is_refused(env_id):
+    env = gymnasium.make(env_id)
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"action must have shape \(12,\)"):
         env.step(np.zeros(3))

@@ -235,10 +235,14 @@ def test_model_edits_after_attach_that_the_sand_cannot_follow_raise(edit, backen
         run(model, data, 2)
 
 
-def test_sideways_gravity_over_a_bounded_sand_region_raises():
+BOUNDED = {"region": lambda: rft_mujoco.SandRegion(rft_mujoco.FlatSurface(0.0), (-1.0, 1.0), (-1.0, 1.0)),
+           "heightfield": lambda: rft_mujoco.HeightfieldSurface(np.zeros((3, 3)), (-1.0, 1.0), (-1.0, 1.0))}
+
+
+@pytest.mark.parametrize("terrain", list(BOUNDED))
+def test_sideways_gravity_over_a_bounded_sand_region_raises(terrain):
     model = mujoco.MjModel.from_xml_string(BALL)
-    surface = rft_mujoco.SandRegion(rft_mujoco.FlatSurface(0.0), (-1.0, 1.0), (-1.0, 1.0))
-    handle = rft_mujoco.attach(model, MEDIA, ["ball"], surface, 0.01, monitor=False)
+    handle = rft_mujoco.attach(model, MEDIA, ["ball"], BOUNDED[terrain](), 0.01, monitor=False)
     data = mujoco.MjData(model)
     run(model, data, 50)
     model.opt.gravity[:] = [9.81, 0.0, 0.0]
