@@ -11,6 +11,8 @@ import gc
 import os
 import pickle
 import tempfile
+import threading
+import time
 import weakref
 
 import mujoco
@@ -389,3 +391,50 @@ def test_a_handle_kept_after_its_model_was_collected_says_so():
         handle.model
     handle.detach()                                         # nothing left to detach
     assert "attached=False" in repr(handle)
+
+
+def test_models_collected_in_another_thread_leave_a_running_simulation_alone():
+    def trajectory(churn):
+        model, data, handle = scene()
+        data.qvel[:] = 0.3
+        stop, made = threading.Event(), []
+
+        def attach_and_drop():                              # sand on fresh models, dropped and collected here
+            while not stop.is_set():
+                other = mujoco.MjModel.from_xml_string(BALL)
+                d = mujoco.MjData(other)
+                rft_mujoco.attach(other, MEDIA, ["ball"], 0.0, 0.02, monitor=False)
+                mujoco.mj_step(other, d, nstep=3)
+                made.append(weakref.ref(other))
+                del other, d
+                gc.collect()
+        thread = threading.Thread(target=attach_and_drop)
+        if churn:
+            thread.start()
+        for i in range(15):
+            while churn and len(made) < i:
+                time.sleep(0.005)
+            run(model, data, 100, 100 * i)
+        stop.set()
+        if churn:
+            thread.join()
+        assert not churn or (len(made) >= 14 and all(m() is None for m in made[:-1]))
+        return data.qpos.copy(), data.qvel.copy()
+
+    q0, v0 = trajectory(False)
+    q1, v1 = trajectory(True)
+    assert np.array_equal(q0, q1) and np.array_equal(v0, v1)
+    gc.collect()
+    assert rft_mujoco.attached_handles() == ()               # the scenes too: their models are gone
+
+
+def test_a_model_collected_while_sand_is_attached_or_detached_is_unregistered_right_after():
+    model = mujoco.MjModel.from_xml_string(BALL)
+    rft_mujoco.attach(model, MEDIA, ["ball"], 0.0, 0.01, monitor=False)
+    kept = mujoco.MjModel.from_xml_string(BALL)
+    handle = rft_mujoco.attach(kept, MEDIA, ["ball"], 0.0, 0.01, monitor=False)
+    with DISPATCHER._changing():                            # as if the collection came inside attach or detach
+        del model
+        gc.collect()
+        assert len(DISPATCHER._handles) == 2                # waits for the end of that call
+    assert DISPATCHER._handles == [handle] and rft_mujoco.attached_handles() == (handle,)
