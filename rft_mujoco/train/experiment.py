@@ -259,6 +259,7 @@ def _learn(config: RunConfig, run_dir: Path, start: Checkpoint | None, *, progre
         if start is not None:
             notes.append(f"no VecNormalize statistics beside {start.model.name}: they start anew")
         env = VecNormalize(env, **config.normalize)
+    stop = None
     try:
         if start is None:
             model = cls(env=env, seed=config.seed, device=config.device, verbose=verbose,
@@ -300,6 +301,11 @@ def _learn(config: RunConfig, run_dir: Path, start: Checkpoint | None, *, progre
                             reset_num_timesteps=start is None)
             except KeyboardInterrupt:                # a second signal, or Ctrl-C outside the main thread's handler
                 stop.signum = stop.signum or signal.SIGINT
+            except (EOFError, BrokenPipeError, ConnectionResetError):
+                if stop.signum is None:
+                    raise
+                # Ctrl-C in a terminal reaches --vec-env subproc workers too, which end: the model and the
+                # VecNormalize statistics live in this process and are saved all the same
             elapsed = time.perf_counter() - begin
             model_path = run_dir / MODEL_FILENAME
             model.save(model_path)
@@ -307,7 +313,11 @@ def _learn(config: RunConfig, run_dir: Path, start: Checkpoint | None, *, progre
                 env.save(str(run_dir / VECNORMALIZE_FILENAME))
             saved = _save_checkpoint(model, env, run_dir) if stop.signum is not None else None
     finally:
-        env.close()
+        try:
+            env.close()
+        except (EOFError, BrokenPipeError, ConnectionResetError):
+            if stop is None or stop.signum is None:     # (workers a signal ended: nothing left to close)
+                raise
     steps = model.num_timesteps - done
     print(f"{steps} steps in {elapsed:.1f} s ({steps / max(elapsed, 1e-9):.0f} steps/s), {model.num_timesteps} in "
           f"all; saved {model_path}", flush=True)
