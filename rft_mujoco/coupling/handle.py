@@ -202,11 +202,14 @@ class SandHandle:
 
     def _collected(self) -> None:
         """The model was garbage collected (its datas with it): nothing of it to restore, only unregister (the
-        dispatcher calls this from the model's finalizer)."""
+        dispatcher calls this from the model's finalizer) and let go of the arrays that view the model's memory
+        (they would keep that memory, though not the MjModel object, alive in a handle the user kept)."""
         if self.attached:
             DISPATCHER.unregister(self)
             self._replaced.clear()
             self._work.clear()
+            self._hc = None
+            self._opt_gravity = None
             self.attached = False
 
     def replace_rigid(self, geoms: str | int | Sequence[str | int]) -> None:
