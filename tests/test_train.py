@@ -428,7 +428,8 @@ def test_sigint_saves_an_off_policy_run_with_its_replay_buffer(tmp_path):
 
     run = tmp_path / "sac"
     process = _train_process(["--algo", "sac", "--env", "Pendulum-v1", "--timesteps", "1000000", "--hyperparams",
-                              "learning_starts=40", "batch_size=32", "buffer_size=2000", "policy_kwargs.net_arch=[32,32]",
+                              "learning_starts=40", "batch_size=32", "buffer_size=2000",
+                              "policy_kwargs.net_arch=[32,32]",
                               "--env-kwargs", "max_episode_steps=20", "--save-freq", "0", "--runs-dir", str(tmp_path),
                               "--run-name", "sac", "--no-progress-bar", "--verbose", "0"], tmp_path)
     output = _interrupt_when_stepping(process, run, signal.SIGINT)
