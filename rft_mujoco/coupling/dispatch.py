@@ -50,8 +50,7 @@ import numpy as np
 
 from rft_mujoco import compiled
 from rft_mujoco.compiled import route as _ROUTE
-from rft_mujoco import tol
-from rft_mujoco.coupling.book import _DataBook, untouched_components  # noqa: F401  (their home before)
+from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_components  # noqa: F401  (their home before)
 
 _COMPILE_ENTRY_POINTS = (
     (mujoco.MjModel, "from_xml_string", True),
@@ -74,8 +73,6 @@ _SET_CONTROL, _SET_PASSIVE = mujoco.set_mjcb_control, mujoco.set_mjcb_passive
 _DISABLEFLAGS = mujoco.MjOption.__dict__["disableflags"]
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
 _ACTUATION_OFF = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
-RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
-"""Times of RK4 stages 2-4 after the first, in steps (mj_RungeKutta evaluates at t + dt/2, t + dt/2, t + dt)."""
 
 
 class Dispatcher:
@@ -96,11 +93,8 @@ class Dispatcher:
         self._registry = None                # rft_mujoco.compiled.native.Registry while native callbacks are in
         self._native_slots = (False, False)  # (control, passive) slots holding a native callback
 
-    # --- registration ---------------------------------------------------------------------------
-    # The dispatcher never keeps a model alive: it holds the handles, a handle holds its model weakly (the
-    # handle's arrays that view the model's memory do not reference the MjModel object), and a finalizer of
-    # the model, which holds the handle, unregisters it when the model is collected. So a handle stays
-    # registered exactly as long as its model lives, whether or not the user kept the handle.
+    # --- registration: a handle holds its model weakly, and a finalizer of the model, holding the handle,
+    # unregisters it when the model is collected: registered exactly as long as its model lives ----------
     def register(self, handle) -> None:
         with self._changing():
             if not self._handles:
@@ -402,13 +396,7 @@ class Dispatcher:
 
     def user_xfrc(self, model, data) -> np.ndarray:
         """(nbody, 6) the user's own part of ``data.xfrc_applied`` (sand contribution removed)."""
-        book = self.book(model, data)
-        xfrc = data.xfrc_applied
-        user = xfrc.copy()
-        rows = book.rows
-        if rows.size:
-            user[rows] -= np.where(untouched_components(xfrc[rows], book.written[rows]), book.added[rows], 0.0)
-        return user
+        return self.book(model, data).user_part(data.xfrc_applied)
 
     # --- the callback -----------------------------------------------------------------------------
     def _route(self, model):
@@ -452,7 +440,7 @@ class Dispatcher:
         if model.opt.integrator != _RK4:
             book.stage = 0
         elif not pending:                    # (a pending evaluation's stage is recorded already)
-            later = self._later_rk4_stage(book, data.time, model.opt.timestep)
+            later = book.later_rk4_stage(data.time, model.opt.timestep)
             if later and all(h.rk4_stages == "first" for h in handles):
                 return                       # xfrc_applied still holds the first stage's user + sand wrench
         native = book.native
@@ -564,18 +552,7 @@ class Dispatcher:
             book.nonzero = any_sand
         book.rows = rows
 
-    @staticmethod
-    def _later_rk4_stage(book: _DataBook, t: float, dt: float) -> bool:
-        """Whether an evaluation at time ``t`` is stage 2, 3 or 4 of the RK4 step whose first stage the
-        book saw last (mj_RungeKutta evaluates at t0 + dt/2, t0 + dt/2, t0 + dt after mj_forward at t0);
-        otherwise it is a first stage (mj_step's mj_forward, or any mj_forward) and is recorded as one."""
-        n = book.stage
-        if 1 <= n <= 3 and abs(t - (book.stage_time + RK4_STAGE_TIMES[n - 1] * dt)) <= tol.TIME_RTOL * dt:
-            book.stage = n + 1
-            return True
-        book.stage_time = t
-        book.stage = 1
-        return False
+    _later_rk4_stage = staticmethod(_DataBook.later_rk4_stage)   # (book, t, dt): its name in compiled/native.py
 
     def remove_sand(self, model, data, rows: np.ndarray) -> None:
         """Take the sand part out of ``data.xfrc_applied`` rows (used at detach)."""

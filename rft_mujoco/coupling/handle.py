@@ -50,7 +50,7 @@ from rft_mujoco.geometry import surface
 from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
 from rft_mujoco.physics.media import Media, f_hat, get_media
-from rft_mujoco.physics.terrain import Terrain, as_terrain
+from rft_mujoco.physics.terrain import Terrain
 
 BACKENDS = ("auto", "numba", "numpy")
 """Backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.compiled`) or numpy (the readable reference,
@@ -248,7 +248,7 @@ class SandHandle:
 
     @terrain.setter
     def terrain(self, value: Terrain | float) -> None:
-        value = _checked_terrain(value)
+        value = checks.checked_terrain(value)
         self._max_height = float(value.max_height)
         self._select_backend(value)
         self._terrain = value
@@ -568,7 +568,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         raise TypeError(f"guards must be a rft_mujoco.Guards (default: rft_mujoco.PUBLISHED, no clean-ups), got "
                         f"{guards!r}; e.g. rft_mujoco.Guards(no_tension=True)")
     media = get_media(media)
-    terrain = _checked_terrain(surface_height)
+    terrain = checks.checked_terrain(surface_height)
     size = surface.element_size(resolution)
     ids = setup.attachable_bodies(model, bodies)
     gravity_direction(model.opt.gravity)  # raises on zero gravity
@@ -585,20 +585,6 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     DISPATCHER.register(handle)
     handle.attached = True
     return handle
-
-
-SURFACE_HEIGHT_MAX = 1e6
-"""m: the highest free surface (in absolute value) :func:`attach` takes; beyond it the stresses (rho_c |g|
-depth) overflow or a unit was mistaken."""
-
-
-def _checked_terrain(surface) -> Terrain:
-    """:func:`as_terrain`, refusing a surface height beyond :data:`SURFACE_HEIGHT_MAX`."""
-    terrain = as_terrain(surface)
-    if not abs(float(terrain.max_height)) <= SURFACE_HEIGHT_MAX:
-        raise ValueError(f"surface height {terrain.max_height!r} m is beyond +-{SURFACE_HEIGHT_MAX:g} m: the sand's "
-                         "stresses would overflow. Give the height in m of the sand surface (e.g. 0.0)")
-    return terrain
 
 
 def attached_handles() -> tuple[SandHandle, ...]:
