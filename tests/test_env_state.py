@@ -4,6 +4,7 @@
 import gc
 import os
 import warnings
+import weakref
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -65,13 +66,15 @@ def test_an_env_dropped_without_close_detaches_its_sand():
     env = gymnasium.make(CHEETAH)
     env.reset(seed=0)
     assert len(DISPATCHER.handles) == before + 1
+    model = weakref.ref(env.unwrapped.model)
     del env
     gc.collect()
-    assert len(DISPATCHER.handles) == before
+    assert len(DISPATCHER.handles) == before and model() is None     # the sand and the model are freed
 
 
-def test_a_quadruped_action_of_the_wrong_shape_is_refused():
-    env = gymnasium.make(QUADRUPED_V1)
+@pytest.mark.parametrize("env_id", ["rft_mujoco/SandQuadruped-v0", QUADRUPED_V1])
+def test_a_quadruped_action_of_the_wrong_shape_is_refused(env_id):
+    env = gymnasium.make(env_id)
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"action must have shape \(12,\)"):
         env.step(np.zeros(3))

@@ -7,9 +7,13 @@ Tiny inline models; both the default (compiled, native where supported) path and
 """
 
 import copy
+import gc
 import os
 import pickle
 import tempfile
+import threading
+import time
+import weakref
 
 import mujoco
 import numpy as np
@@ -233,10 +237,14 @@ def test_model_edits_after_attach_that_the_sand_cannot_follow_raise(edit, backen
         run(model, data, 2)
 
 
-def test_sideways_gravity_over_a_bounded_sand_region_raises():
+BOUNDED = {"region": lambda: rft_mujoco.SandRegion(rft_mujoco.FlatSurface(0.0), (-1.0, 1.0), (-1.0, 1.0)),
+           "heightfield": lambda: rft_mujoco.HeightfieldSurface(np.zeros((3, 3)), (-1.0, 1.0), (-1.0, 1.0))}
+
+
+@pytest.mark.parametrize("terrain", list(BOUNDED))
+def test_sideways_gravity_over_a_bounded_sand_region_raises(terrain):
     model = mujoco.MjModel.from_xml_string(BALL)
-    surface = rft_mujoco.SandRegion(rft_mujoco.FlatSurface(0.0), (-1.0, 1.0), (-1.0, 1.0))
-    handle = rft_mujoco.attach(model, MEDIA, ["ball"], surface, 0.01, monitor=False)
+    handle = rft_mujoco.attach(model, MEDIA, ["ball"], BOUNDED[terrain](), 0.01, monitor=False)
     data = mujoco.MjData(model)
     run(model, data, 50)
     model.opt.gravity[:] = [9.81, 0.0, 0.0]
@@ -335,3 +343,98 @@ def test_a_reset_data_steps_as_a_new_one(backend):
     run(model, data, 120)
     run(model, fresh, 120)
     assert np.array_equal(data.qpos, fresh.qpos) and np.array_equal(data.xfrc_applied, fresh.xfrc_applied)
+
+
+# --- lifetime: the sand never keeps a model alive -------------------------------------------------------------------
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_models_with_sand_never_detached_are_freed_when_the_user_drops_them(backend):
+    control, passive = mujoco.get_mjcb_control(), mujoco.get_mjcb_passive()
+    models = []
+    for _ in range(50):                                     # attach to fresh models; never detach
+        model, data, handle = scene(backend)
+        run(model, data, 5)
+        models.append(weakref.ref(model))
+        del model, data, handle
+    gc.collect()
+    assert all(m() is None for m in models)
+    assert rft_mujoco.attached_handles() == () and DISPATCHER.handles == ()
+    assert DISPATCHER._finalizers == {} and DISPATCHER._routes == {}
+    if DISPATCHER._registry is not None:                   # the native callbacks keep no model's address
+        assert DISPATCHER._registry._models == {} and DISPATCHER._registry._routes == {}
+    # the last model gone, the dispatcher is out, as after the last detach
+    assert mujoco.get_mjcb_control() is control and mujoco.get_mjcb_passive() is passive
+    assert not hasattr(mujoco.mj_copyData, "__wrapped__") and DISPATCHER._originals == {}
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_sand_whose_handle_is_not_kept_holds_the_ball_while_the_model_lives(backend):
+    model = mujoco.MjModel.from_xml_string(BALL)
+    rft_mujoco.attach(model, MEDIA, ["ball", "arm"], 0.0, 0.01, monitor=False, backend=backend).replace_rigid("floor")
+    data = mujoco.MjData(model)
+    gc.collect()
+    assert len(rft_mujoco.attached_handles()) == 1
+    run(model, data, 300)                                   # 0.6 s: free fall would be 1.8 m
+    assert z(model, data) > -0.06 and abs(data.qvel[2]) < 1e-3
+    model_ref = weakref.ref(model)
+    del model, data
+    gc.collect()
+    assert model_ref() is None and rft_mujoco.attached_handles() == ()
+
+
+def test_a_handle_kept_after_its_model_was_collected_says_so():
+    model = mujoco.MjModel.from_xml_string(BALL)
+    handle = rft_mujoco.attach(model, MEDIA, ["ball"], 0.0, 0.01, monitor=False)
+    del model
+    gc.collect()
+    assert not handle.attached and rft_mujoco.attached_handles() == ()
+    with pytest.raises(ReferenceError, match="garbage collected.*Keep a reference to the model"):
+        handle.model
+    handle.detach()                                         # nothing left to detach
+    assert "attached=False" in repr(handle)
+
+
+def test_models_collected_in_another_thread_leave_a_running_simulation_alone():
+    def trajectory(churn):
+        model, data, handle = scene()
+        data.qvel[:] = 0.3
+        stop, made = threading.Event(), []
+
+        def attach_and_drop():                              # sand on fresh models, dropped and collected here
+            while not stop.is_set():
+                other = mujoco.MjModel.from_xml_string(BALL)
+                d = mujoco.MjData(other)
+                rft_mujoco.attach(other, MEDIA, ["ball"], 0.0, 0.02, monitor=False)
+                mujoco.mj_step(other, d, nstep=3)
+                made.append(weakref.ref(other))
+                del other, d
+                gc.collect()
+        thread = threading.Thread(target=attach_and_drop)
+        if churn:
+            thread.start()
+        for i in range(15):
+            while churn and len(made) < i:
+                time.sleep(0.005)
+            run(model, data, 100, 100 * i)
+        stop.set()
+        if churn:
+            thread.join()
+        assert not churn or (len(made) >= 14 and all(m() is None for m in made[:-1]))
+        return data.qpos.copy(), data.qvel.copy()
+
+    q0, v0 = trajectory(False)
+    q1, v1 = trajectory(True)
+    assert np.array_equal(q0, q1) and np.array_equal(v0, v1)
+    gc.collect()
+    assert rft_mujoco.attached_handles() == ()               # the scenes too: their models are gone
+
+
+def test_a_model_collected_while_sand_is_attached_or_detached_is_unregistered_right_after():
+    model = mujoco.MjModel.from_xml_string(BALL)
+    rft_mujoco.attach(model, MEDIA, ["ball"], 0.0, 0.01, monitor=False)
+    kept = mujoco.MjModel.from_xml_string(BALL)
+    handle = rft_mujoco.attach(kept, MEDIA, ["ball"], 0.0, 0.01, monitor=False)
+    with DISPATCHER._changing():                            # as if the collection came inside attach or detach
+        del model
+        gc.collect()
+        assert len(DISPATCHER._handles) == 2                # waits for the end of that call
+    assert DISPATCHER._handles == [handle] and rft_mujoco.attached_handles() == (handle,)

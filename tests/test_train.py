@@ -10,7 +10,10 @@ runs ``rft_mujoco/SandQuadruped-v1`` with its own hyperparameter entry.
 from __future__ import annotations
 
 import json
+import os
+import re
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -358,3 +361,99 @@ def test_the_shipped_policy_loads_by_name_and_walks_forward_on_sand(tmp_path, mo
         assert env.unwrapped.data.qpos[0] - x0 > 0.1
     finally:
         env.close()
+
+
+# --- interrupted and resumed runs ------------------------------------------------------------------
+
+def _train_process(args, cwd):
+    """``python -m rft_mujoco.train train ARGS`` of this checkout in a subprocess (stdout and stderr together)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.Popen([sys.executable, "-m", "rft_mujoco.train", "train", *args], cwd=cwd, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _interrupt_when_stepping(process, run, signum, timeout=240.0):
+    """Send ``signum`` once the run's first env finished an episode (training is stepping); its output."""
+    monitor = run / "monitor" / "0.monitor.csv"
+    deadline = time.monotonic() + timeout
+    while not (monitor.is_file() and len(monitor.read_text().splitlines()) >= 3):
+        if process.poll() is not None or time.monotonic() > deadline:
+            process.kill()
+            pytest.fail(f"training never stepped (exit {process.poll()}):\n{process.communicate()[0]}")
+        time.sleep(0.2)
+    process.send_signal(signum)
+    return process.communicate(timeout=timeout)[0]
+
+
+def _interrupted_steps(output, signame):
+    match = re.search(rf"interrupted by {signame} at (\d+) of \d+ steps", output)
+    assert match, output
+    return int(match.group(1))
+
+
+def test_sigterm_saves_the_run_and_resume_continues_it(tmp_path):
+    """PPO with VecNormalize and no periodic checkpoints (--save-freq 0): SIGTERM saves a checkpoint and exits
+    with 143 without a traceback; --resume (by name) trains on from it, counting the steps on."""
+    from rft_mujoco.train.runs import latest_checkpoint, model_steps
+
+    runs, run = tmp_path / "runs", tmp_path / "runs" / "ppo"
+    process = _train_process(["--algo", "ppo", "--env", "Pendulum-v1", "--timesteps", "1000000", "--n-envs", "1",
+                              "--hyperparams", "n_steps=64", "batch_size=64", "n_epochs=1", "normalize=true",
+                              "--env-kwargs", "max_episode_steps=20", "--save-freq", "0", "--runs-dir", str(runs),
+                              "--run-name", "ppo", "--no-progress-bar", "--verbose", "0"], tmp_path)
+    output = _interrupt_when_stepping(process, run, signal.SIGTERM)
+    assert process.returncode == 143, output
+    assert "Traceback" not in output and f"resume with: {PROG} train --resume {run}\n" in output
+    steps = _interrupted_steps(output, "SIGTERM")
+    for name in (f"checkpoints/model_{steps}_steps.zip", f"checkpoints/model_vecnormalize_{steps}_steps.pkl",
+                 "model.zip", "vecnormalize.pkl"):
+        assert (run / name).is_file(), name
+    assert latest_checkpoint(run).model == run / "checkpoints" / f"model_{steps}_steps.zip"
+    assert model_steps(run / f"checkpoints/model_{steps}_steps.zip") == steps
+
+    resumed = _train_process(["--resume", "ppo", "--runs-dir", str(runs), "--timesteps", str(steps + 128),
+                              "--no-progress-bar", "--verbose", "0"], tmp_path)
+    output = resumed.communicate(timeout=240)[0]
+    assert resumed.returncode == 0, output
+    assert f"resuming from checkpoints/model_{steps}_steps.zip at {steps} steps" in output
+    assert model_steps(run / "model.zip") >= steps + 128                  # the total grew
+    assert cfg.load_config(run).n_timesteps == steps + 128
+    assert (run / "monitor" / f"resumed_{steps}" / "0.monitor.csv").is_file()
+    assert len(list((run / "tb").glob("PPO_1/events.out.tfevents.*"))) == 2     # the same TensorBoard run
+    assert latest_checkpoint(run).model == run / "model.zip"
+
+
+def test_sigint_saves_an_off_policy_run_with_its_replay_buffer(tmp_path):
+    from rft_mujoco.train.runs import model_steps
+
+    run = tmp_path / "sac"
+    process = _train_process(["--algo", "sac", "--env", "Pendulum-v1", "--timesteps", "1000000", "--hyperparams",
+                              "learning_starts=40", "batch_size=32", "buffer_size=2000",
+                              "policy_kwargs.net_arch=[32,32]",
+                              "--env-kwargs", "max_episode_steps=20", "--save-freq", "0", "--runs-dir", str(tmp_path),
+                              "--run-name", "sac", "--no-progress-bar", "--verbose", "0"], tmp_path)
+    output = _interrupt_when_stepping(process, run, signal.SIGINT)
+    assert process.returncode == 130 and "Traceback" not in output, output
+    steps = _interrupted_steps(output, "SIGINT")
+    assert (run / "checkpoints" / f"model_replay_buffer_{steps}_steps.pkl").is_file()
+    resumed = _train_process(["--resume", str(run), "--timesteps", str(steps + 30), "--no-progress-bar",
+                              "--verbose", "0"], tmp_path)
+    output = resumed.communicate(timeout=240)[0]
+    assert resumed.returncode == 0, output
+    loaded = re.search(r"replay buffer of (\d+) transitions loaded", output)
+    assert loaded and 0 < int(loaded.group(1)) <= steps, output          # (the interrupted step is not in it)
+    assert model_steps(run / "model.zip") >= steps + 30
+
+
+def test_resume_refuses_what_it_cannot_do(tmp_path, capsys):
+    config = cfg.resolve_config(algo="ppo", env_id="Pendulum-v1", timesteps=100)
+    cfg.save_config(config, tmp_path / "empty")
+    cases = [(["--resume", str(tmp_path / "empty")], "nothing to resume in .*no model_<steps>_steps.zip"),
+             (["--resume", "nope", "--runs-dir", str(tmp_path)], "no run 'nope' to resume"),
+             (["--resume", str(tmp_path / "empty"), "--algo", "sac", "--seed", "3"],
+              "--algo, --seed cannot be given with it"),
+             (["--algo", "ppo"], "required: --env \\(or --resume RUN\\)")]
+    for args, message in cases:
+        with pytest.raises(SystemExit) as exit_info:
+            main(["train", *args])
+        assert exit_info.value.code == 2 and re.search(message, capsys.readouterr().err), args

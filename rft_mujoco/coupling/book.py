@@ -10,6 +10,9 @@ import numpy as np
 
 from rft_mujoco import tol
 
+RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
+"""Times of RK4 stages 2-4 after the first, in steps (mj_RungeKutta evaluates at t + dt/2, t + dt/2, t + dt)."""
+
 
 def untouched_components(xfrc: np.ndarray, written: np.ndarray) -> np.ndarray:
     """(n, 6) bool: which components of ``xfrc`` rows (n, 6) the user left as the dispatcher ``written`` them.
@@ -49,6 +52,14 @@ class _DataBook:
         # the native route hands an evaluation to Python when they differ (compiled.route.model_changed)
         self.snapshot = None
 
+    def user_part(self, xfrc: np.ndarray) -> np.ndarray:
+        """(nbody, 6) the user's own part of ``xfrc`` (the data's ``xfrc_applied``: the sand's part removed)."""
+        user = xfrc.copy()
+        if self.rows.size:
+            rows = self.rows
+            user[rows] -= np.where(untouched_components(xfrc[rows], self.written[rows]), self.added[rows], 0.0)
+        return user
+
     @property
     def nonzero(self) -> bool:
         return bool(self.state[0])
@@ -82,3 +93,15 @@ class _DataBook:
     @sand_dirty.setter
     def sand_dirty(self, value: bool) -> None:
         self.state[1] = float(value)
+
+    def later_rk4_stage(self, t: float, dt: float) -> bool:
+        """Whether an evaluation at time ``t`` is stage 2, 3 or 4 of the RK4 step whose first stage the
+        book saw last (mj_RungeKutta evaluates at t0 + dt/2, t0 + dt/2, t0 + dt after mj_forward at t0);
+        otherwise it is a first stage (mj_step's mj_forward, or any mj_forward) and is recorded as one."""
+        n = self.stage
+        if 1 <= n <= 3 and abs(t - (self.stage_time + RK4_STAGE_TIMES[n - 1] * dt)) <= tol.TIME_RTOL * dt:
+            self.stage = n + 1
+            return True
+        self.stage_time = t
+        self.stage = 1
+        return False

@@ -34,7 +34,7 @@ import numpy as np
 from rft_mujoco.coupling.callers import user_stacklevel
 from rft_mujoco.geometry.elements import SandSetupWarning
 from rft_mujoco.physics.law import gravity_direction
-from rft_mujoco.physics.terrain import HeightfieldSurface, SandRegion, Terrain
+from rft_mujoco.physics.terrain import HeightfieldSurface, SandRegion, Terrain, as_terrain
 
 ACCURATE_TIMESTEP_MAX = 0.005
 """s: the rest treatment was measured accurate up to this timestep (the load-path study: 0.5-5 ms,
@@ -409,3 +409,17 @@ def check_replaced_floor(model, geoms: Sequence[int], terrain: Terrain) -> list[
             f"surface_height={found[0][1]:g} (the floor's height), or move the plane to {sand:g} m.",
             SandSetupWarning, stacklevel=user_stacklevel())
     return found
+
+
+SURFACE_HEIGHT_MAX = 1e6
+"""m: the highest free surface (in absolute value) :func:`rft_mujoco.attach` takes; beyond it the stresses (rho_c |g|
+depth) overflow or a unit was mistaken."""
+
+
+def checked_terrain(surface) -> Terrain:
+    """:func:`as_terrain`, refusing a surface height beyond :data:`SURFACE_HEIGHT_MAX`."""
+    terrain = as_terrain(surface)
+    if not abs(float(terrain.max_height)) <= SURFACE_HEIGHT_MAX:
+        raise ValueError(f"surface height {terrain.max_height!r} m is beyond +-{SURFACE_HEIGHT_MAX:g} m: the sand's "
+                         "stresses would overflow. Give the height in m of the sand surface (e.g. 0.0)")
+    return terrain

@@ -22,7 +22,9 @@ one dispatcher installed with ``mujoco.set_mjcb_control``. It
   switched off colliding again); ``mj_resetData*`` makes a data new for the sand;
   ``set_mjcb_control`` / ``set_mjcb_passive`` set the user callback it chains; ``model.opt.disableflags``
   that would leave no callback for the sand are refused; and every evaluation compares the model's
-  timestep, gravity and geom sizes with what the handles last checked (:meth:`SandHandle._check_model`).
+  timestep, gravity and geom sizes with what the handles last checked (:meth:`SandHandle._check_model`);
+* never keeps a model alive: a handle holds its model weakly and is unregistered by a finalizer of the model
+  when the model is garbage collected (docs/architecture.md, "Lifetime").
 
 Where it can (:func:`rft_mujoco.compiled.native.support`), the dispatcher installs native callbacks
 (:mod:`rft_mujoco.compiled.native`) in MuJoCo's place of its Python ones: the bindings still hold the
@@ -48,8 +50,7 @@ import numpy as np
 
 from rft_mujoco import compiled
 from rft_mujoco.compiled import route as _ROUTE
-from rft_mujoco import tol
-from rft_mujoco.coupling.book import _DataBook, untouched_components  # noqa: F401  (their home before)
+from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_components  # noqa: F401  (their home before)
 
 _COMPILE_ENTRY_POINTS = (
     (mujoco.MjModel, "from_xml_string", True),
@@ -72,8 +73,6 @@ _SET_CONTROL, _SET_PASSIVE = mujoco.set_mjcb_control, mujoco.set_mjcb_passive
 _DISABLEFLAGS = mujoco.MjOption.__dict__["disableflags"]
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
 _ACTUATION_OFF = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
-RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
-"""Times of RK4 stages 2-4 after the first, in steps (mj_RungeKutta evaluates at t + dt/2, t + dt/2, t + dt)."""
 
 
 class Dispatcher:
@@ -84,22 +83,49 @@ class Dispatcher:
         self._passive = self.passive          # one bound method: MuJoCo hands back the object it was given
         self._originals: dict = {}
         self._books: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-        self._routes: dict = {}              # id(model) -> (model, handles, rows), rebuilt on (un)register
+        self._routes: dict = {}              # id(model) -> (weakref to model, handles, rows), rebuilt on (un)register
+        self._finalizers: dict = {}          # handle -> weakref.finalize of its model (unregisters it)
+        self._busy = 0                       # (un)registering: a model collected meanwhile waits in _pending
+        self._pending: list = []
         self._lock = threading.RLock()
         self._generation = 0                 # bumped whenever a handle's setting changes (native routes)
         self.native = True                   # install native callbacks where possible (read at install)
         self._registry = None                # rft_mujoco.compiled.native.Registry while native callbacks are in
         self._native_slots = (False, False)  # (control, passive) slots holding a native callback
 
-    # --- registration ---------------------------------------------------------------------------
+    # --- registration: a handle holds its model weakly, and a finalizer of the model, holding the handle,
+    # unregisters it when the model is collected: registered exactly as long as its model lives ----------
     def register(self, handle) -> None:
-        with self._lock:
+        with self._changing():
             if not self._handles:
                 self._install()
-            self._handles.append(handle)
+            self._handles = [*self._handles, handle]      # a new list: loops over the old one are unaffected
+            gone = self._finalizers[handle] = weakref.finalize(handle._model(), self.collected, handle)
+            gone.atexit = False
             self._routes.clear()
             self._generation += 1
             self._registry_models()
+
+    def collected(self, handle) -> None:
+        """The model of ``handle`` was garbage collected (called by its finalizer, in whichever thread
+        collected it): unregister the handle, now or, when this thread is (un)registering, right after."""
+        with self._lock:
+            if self._busy:
+                self._pending.append(handle)
+                return
+        handle._collected()
+
+    @contextlib.contextmanager
+    def _changing(self):
+        """The lock, and the collected models' handles unregistered at the end of the outermost block."""
+        with self._lock:
+            self._busy += 1
+            try:
+                yield
+            finally:
+                self._busy -= 1
+            while not self._busy and self._pending:
+                self._pending.pop()._collected()
 
     def invalidate(self) -> None:
         """A handle's setting, terrain or workspace changed: rebuild the native routes before the next use."""
@@ -108,9 +134,11 @@ class Dispatcher:
             self._registry.clear_routes()
 
     def unregister(self, handle) -> None:
-        with self._lock:
-            if handle in self._handles:
-                self._handles.remove(handle)
+        with self._changing():
+            self._handles = [h for h in self._handles if h is not handle]
+            gone = self._finalizers.pop(handle, None)
+            if gone is not None:
+                gone.detach()
             self._routes.clear()
             self._generation += 1
             if self._registry is not None:
@@ -121,7 +149,8 @@ class Dispatcher:
 
     @property
     def handles(self) -> tuple:
-        return tuple(self._handles)
+        """The attached handles (of models still alive), in attach order."""
+        return tuple(h for h in self._handles if h._model() is not None)
 
     def _install(self) -> None:
         current = mujoco.get_mjcb_control()
@@ -188,7 +217,8 @@ class Dispatcher:
 
     def _registry_models(self) -> None:
         if self._registry is not None:
-            self._registry.models({id(h.model): h.model for h in self._handles}.values())
+            models = (h._model() for h in self._handles)
+            self._registry.models({id(m): m for m in models if m is not None}.values())
 
     @property
     def native_installed(self) -> tuple:
@@ -266,7 +296,8 @@ class Dispatcher:
                     undo.append(lambda: data.xfrc_applied.__setitem__(slice(None), saved))
             address = getattr(model, "_address", None)
             for h in self._handles:
-                if h.model._address == address and h._replaced:
+                owner = h._model()
+                if owner is not None and owner._address == address and h._replaced:
                     saved_type, saved_aff = model.geom_contype.copy(), model.geom_conaffinity.copy()
                     for gid, contype, conaffinity in h._replaced:
                         model.geom_contype[gid] = contype
@@ -296,7 +327,7 @@ class Dispatcher:
             new.rows = book.rows.copy()
             new.snapshot = None if book.snapshot is None else book.snapshot.copy()
             for h in self._handles:
-                if h.model is owner:
+                if h._model() is owner:
                     h._copy_workspace(src, dst)
 
     def forget(self, data) -> None:
@@ -333,7 +364,8 @@ class Dispatcher:
         _DISABLEFLAGS.fset(opt, value)
         from rft_mujoco.coupling import checks
         for h in self._handles:
-            if h._opt is opt and checks.check_actuation_flag(h.model):
+            model = h._model()
+            if model is not None and model.opt is opt and checks.check_actuation_flag(model):
                 _DISABLEFLAGS.fset(opt, old)
                 raise ValueError(f"model.opt.disableflags = {value} refused while sand is attached (kept "
                                  f"{old}): {checks.ACTUATION_DISABLED_MESSAGE} Or detach the sand first.")
@@ -364,22 +396,16 @@ class Dispatcher:
 
     def user_xfrc(self, model, data) -> np.ndarray:
         """(nbody, 6) the user's own part of ``data.xfrc_applied`` (sand contribution removed)."""
-        book = self.book(model, data)
-        xfrc = data.xfrc_applied
-        user = xfrc.copy()
-        rows = book.rows
-        if rows.size:
-            user[rows] -= np.where(untouched_components(xfrc[rows], book.written[rows]), book.added[rows], 0.0)
-        return user
+        return self.book(model, data).user_part(data.xfrc_applied)
 
     # --- the callback -----------------------------------------------------------------------------
     def _route(self, model):
         """(handles of ``model``, their body rows) -- cached until a handle is (un)registered."""
         route = self._routes.get(id(model))
-        if route is None or route[0] is not model:
-            handles = tuple(h for h in self._handles if h.model is model)
+        if route is None or route[0]() is not model:
+            handles = tuple(h for h in self._handles if h._model() is model)
             rows = np.unique(np.concatenate([h.body_ids for h in handles])) if handles else None
-            route = self._routes[id(model)] = (model, handles, rows)
+            route = self._routes[id(model)] = (weakref.ref(model), handles, rows)
         return route[1], route[2]
 
     def __call__(self, model, data) -> None:
@@ -414,7 +440,7 @@ class Dispatcher:
         if model.opt.integrator != _RK4:
             book.stage = 0
         elif not pending:                    # (a pending evaluation's stage is recorded already)
-            later = self._later_rk4_stage(book, data.time, model.opt.timestep)
+            later = book.later_rk4_stage(data.time, model.opt.timestep)
             if later and all(h.rk4_stages == "first" for h in handles):
                 return                       # xfrc_applied still holds the first stage's user + sand wrench
         native = book.native
@@ -526,18 +552,7 @@ class Dispatcher:
             book.nonzero = any_sand
         book.rows = rows
 
-    @staticmethod
-    def _later_rk4_stage(book: _DataBook, t: float, dt: float) -> bool:
-        """Whether an evaluation at time ``t`` is stage 2, 3 or 4 of the RK4 step whose first stage the
-        book saw last (mj_RungeKutta evaluates at t0 + dt/2, t0 + dt/2, t0 + dt after mj_forward at t0);
-        otherwise it is a first stage (mj_step's mj_forward, or any mj_forward) and is recorded as one."""
-        n = book.stage
-        if 1 <= n <= 3 and abs(t - (book.stage_time + RK4_STAGE_TIMES[n - 1] * dt)) <= tol.TIME_RTOL * dt:
-            book.stage = n + 1
-            return True
-        book.stage_time = t
-        book.stage = 1
-        return False
+    _later_rk4_stage = staticmethod(_DataBook.later_rk4_stage)   # (book, t, dt): its name in compiled/native.py
 
     def remove_sand(self, model, data, rows: np.ndarray) -> None:
         """Take the sand part out of ``data.xfrc_applied`` rows (used at detach)."""

@@ -50,7 +50,7 @@ from rft_mujoco.geometry import surface
 from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
 from rft_mujoco.physics.media import Media, f_hat, get_media
-from rft_mujoco.physics.terrain import Terrain, as_terrain
+from rft_mujoco.physics.terrain import Terrain
 
 BACKENDS = ("auto", "numba", "numpy")
 """Backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.compiled`) or numpy (the readable reference,
@@ -68,7 +68,9 @@ class SandHandle:
     """Sand attached to some bodies of one MjModel. Create with :func:`attach`; remove with :meth:`detach`.
 
     Attributes:
-        model: the MjModel.
+        model: the MjModel. The handle does not keep it alive: when the model is garbage collected (the user's
+            last reference to it and to its MjDatas gone), its sand is detached and ``model`` raises
+            ReferenceError (docs/architecture.md, "Lifetime").
         media: the granular medium.
         terrain: the free surface.
         body_ids: (B,) int, bodies that feel the sand.
@@ -89,7 +91,7 @@ class SandHandle:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
         self._ready = False
         self._params = np.zeros(12)
-        self.model = model
+        self._model = weakref.ref(model)     # the dispatcher unregisters the handle when the model is collected
         self.element_size = size
         self.body_ids = np.asarray(body_ids, dtype=np.int64)
         self.body_names = [model.body(int(b)).name for b in self.body_ids]
@@ -119,7 +121,6 @@ class SandHandle:
                         ValidityMonitor() if monitor else None)
         self._replaced: list[tuple[int, int, int]] = []
         self._floor_checked = False
-        self._opt = model.opt
         self._opt_gravity = model.opt.gravity            # a live view: gravity changes are seen
         self._gravity_seen = None
         self.rk4_stages = "all"
@@ -174,18 +175,42 @@ class SandHandle:
                             "use rft_mujoco.get_media(name) for a preset")
         self._media = value
 
+    @property
+    def model(self):
+        """The MjModel the sand is attached to (ReferenceError once it was garbage collected)."""
+        model = self._model()
+        if model is None:
+            raise ReferenceError("this sand handle's MjModel was garbage collected, which detached its sand: a handle "
+                                 "does not keep its model alive. Keep a reference to the model (or to an MjData of "
+                                 "it) for as long as you use the handle")
+        return model
+
     def detach(self) -> None:
         """Remove the sand: later steps are the plain model; sand wrenches are taken out of xfrc_applied."""
         if not self.attached:
             return
+        model = self._model()
         DISPATCHER.unregister(self)
-        for gid, contype, conaffinity in self._replaced:
-            self.model.geom_contype[gid] = contype
-            self.model.geom_conaffinity[gid] = conaffinity
+        if model is not None:
+            for gid, contype, conaffinity in self._replaced:
+                model.geom_contype[gid] = contype
+                model.geom_conaffinity[gid] = conaffinity
+            for data in DISPATCHER.datas_of(model):
+                DISPATCHER.remove_sand(model, data, self.body_ids)
         self._replaced.clear()
-        for data in DISPATCHER.datas_of(self.model):
-            DISPATCHER.remove_sand(self.model, data, self.body_ids)
         self.attached = False
+
+    def _collected(self) -> None:
+        """The model was garbage collected (its datas with it): nothing of it to restore, only unregister (the
+        dispatcher calls this from the model's finalizer) and let go of the arrays that view the model's memory
+        (they would keep that memory, though not the MjModel object, alive in a handle the user kept)."""
+        if self.attached:
+            DISPATCHER.unregister(self)
+            self._replaced.clear()
+            self._work.clear()
+            self._hc = None
+            self._opt_gravity = None
+            self.attached = False
 
     def replace_rigid(self, geoms: str | int | Sequence[str | int]) -> None:
         """Switch off collisions of rigid geoms the sand replaces (e.g. the floor plane) until detach; warns
@@ -223,7 +248,7 @@ class SandHandle:
 
     @terrain.setter
     def terrain(self, value: Terrain | float) -> None:
-        value = _checked_terrain(value)
+        value = checks.checked_terrain(value)
         self._max_height = float(value.max_height)
         self._select_backend(value)
         self._terrain = value
@@ -377,7 +402,7 @@ class SandHandle:
     def _evaluate_once(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, stage: int = 0) -> bool:
         work = self._workspace(data)
         work.state[5] = stage
-        dt = self._opt.timestep
+        dt = self.model.opt.timestep
         if not self._floor_checked:                      # after replace_rigid had its chance
             self._floor_checked = True
             checks.check_rigid_floor(self.model, self.body_ids, self._terrain)
@@ -440,7 +465,7 @@ class SandHandle:
         A new positive timestep is checked as at attach (:func:`checks.check_timestep`). The dispatcher calls
         this at the first evaluation of each MjData and whenever the model's timestep, gravity or geom sizes
         change (:func:`rft_mujoco.compiled.route.model_changed`)."""
-        dt = float(self._opt.timestep)
+        dt = float(self.model.opt.timestep)
         if not (np.isfinite(dt) and dt > 0.0):
             raise ValueError(f"model.opt.timestep is {dt!r} s, set after attach; the sand needs a finite timestep "
                              "> 0 s (its rest treatment stops bodies within one step). Set a positive timestep, "
@@ -543,7 +568,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         raise TypeError(f"guards must be a rft_mujoco.Guards (default: rft_mujoco.PUBLISHED, no clean-ups), got "
                         f"{guards!r}; e.g. rft_mujoco.Guards(no_tension=True)")
     media = get_media(media)
-    terrain = _checked_terrain(surface_height)
+    terrain = checks.checked_terrain(surface_height)
     size = surface.element_size(resolution)
     ids = setup.attachable_bodies(model, bodies)
     gravity_direction(model.opt.gravity)  # raises on zero gravity
@@ -562,21 +587,13 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     return handle
 
 
-SURFACE_HEIGHT_MAX = 1e6
-"""m: the highest free surface (in absolute value) :func:`attach` takes; beyond it the stresses (rho_c |g|
-depth) overflow or a unit was mistaken."""
-
-
-def _checked_terrain(surface) -> Terrain:
-    """:func:`as_terrain`, refusing a surface height beyond :data:`SURFACE_HEIGHT_MAX`."""
-    terrain = as_terrain(surface)
-    if not abs(float(terrain.max_height)) <= SURFACE_HEIGHT_MAX:
-        raise ValueError(f"surface height {terrain.max_height!r} m is beyond +-{SURFACE_HEIGHT_MAX:g} m: the sand's "
-                         "stresses would overflow. Give the height in m of the sand surface (e.g. 0.0)")
-    return terrain
+def attached_handles() -> tuple[SandHandle, ...]:
+    """The sand handles attached now in this process, in attach order: those not detached whose model is alive
+    (a handle is detached when its model is garbage collected, kept by the user or not)."""
+    return DISPATCHER.handles
 
 
 def detach_all() -> None:
     """Detach every sand handle in the process (and restore the user's own control callback)."""
-    for h in DISPATCHER.handles:
+    for h in attached_handles():
         h.detach()

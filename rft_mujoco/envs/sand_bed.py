@@ -234,8 +234,8 @@ class SandBed:
             warnings.filterwarnings("ignore", message=COARSE_MESSAGE, category=rft_mujoco.SandSetupWarning)
             self.handle = rft_mujoco.attach(model, self.base_media, bodies=ids, surface_height=surface,
                                             resolution=resolution, stabilize=stabilize, monitor=False)
-        # A bed (an env) dropped without close() detaches its sand when collected: the library's dispatcher
-        # holds attached handles, and with them their models, until detach.
+        # A bed (an env) dropped without close() detaches its sand when collected, even where something else
+        # still holds its model (the library detaches a handle by itself only when its model is collected).
         self._detach = weakref.finalize(self, self.handle.detach)
         self.body_ids = self.handle.body_ids
         self.body_names = [n or f"body{b}" for n, b in zip(self.handle.body_names, self.body_ids)]

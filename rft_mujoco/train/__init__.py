@@ -6,7 +6,8 @@ Hyperparameter YAMLs ship as package data. A thin command line (``python -m rft_
 - ``config``       the run configuration: YAML hyperparameters keyed by env id, CLI overrides, and the
                    ``config.yaml`` saved beside every model (the one source ``evaluate`` rebuilds from);
 - ``environments`` env-id checks (unknown ids list the registered ``rft_mujoco/`` tasks) and env factories;
-- ``experiment``   one training run: vectorized envs, optional VecNormalize, TensorBoard, checkpoints;
+- ``experiment``   one training run: vectorized envs, optional VecNormalize, TensorBoard, checkpoints,
+                   saving on SIGTERM/SIGINT, resuming;
 - ``evaluate``     reload a run from its ``config.yaml``; trained vs random vs zero-action baselines,
                    JSON, bar chart + learning curve, and a video where offscreen rendering works;
 - ``plot``         learning curves (episode return vs timesteps) from the Monitor CSVs of runs.
@@ -16,8 +17,9 @@ A run directory ``runs/<env>_<algo>_<seed>_<timestamp>/`` holds::
     config.yaml          exact resolved configuration (algo, env id and kwargs, hyperparameters, ...)
     model.zip            final model
     vecnormalize.pkl     VecNormalize statistics (only when the run normalizes)
-    checkpoints/         model_<steps>_steps.zip (+ model_vecnormalize_<steps>_steps.pkl)
-    monitor/             <rank>.monitor.csv, one per training env (episode return, length, time)
+    checkpoints/         model_<steps>_steps.zip (+ model_vecnormalize_<steps>_steps.pkl; periodic, and on SIGTERM
+                         or Ctrl-C, then with the SAC replay buffer): ``train --resume RUN`` continues from the latest
+    monitor/             <rank>.monitor.csv, one per training env (episode return, length, time); resumed_<steps>/
     tb/                  TensorBoard logs (``tensorboard --logdir runs``)
 
 ``evaluate`` writes into ``./out/eval/<run name>/`` (never into a run folder). The shipped runs

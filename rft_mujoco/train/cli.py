@@ -6,6 +6,7 @@ Examples (from any directory; runs go to ./runs)::
     python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandQuadruped-v1 --seed 0
     python -m rft_mujoco.train train --algo ppo --env rft_mujoco/SandSwimmer-v0 --timesteps 200000 --n-envs 4
     python -m rft_mujoco.train train --algo sac --env Pendulum-v1 --timesteps 20000 --hyperparams learning_rate=1e-3
+    python -m rft_mujoco.train train --resume runs/rft_mujoco-SandSwimmer-v0_ppo_0_20250101-120000   # after SIGTERM
     python -m rft_mujoco.train evaluate --run SandQuadruped-v1          # the shipped policy, by name
     python -m rft_mujoco.train evaluate --run runs/rft_mujoco-SandSwimmer-v0_ppo_0_20250101-120000 --episodes 10
     python -m rft_mujoco.train gap --sand runs/SAND_RUN --rigid runs/RIGID_RUN --speed 0.4
@@ -38,16 +39,23 @@ def _parser(prog: str = PROG) -> argparse.ArgumentParser:
                         "(shipped with the package) "
                         "(the 'default' entry updated by the env id's entry), then --hyperparams, then the "
                         "explicit flags. The resolved configuration is saved as config.yaml in the run "
-                        "directory, beside model.zip, vecnormalize.pkl, checkpoints/, monitor/ and tb/.")
-    tr.add_argument("--algo", required=True, type=str.lower, choices=ALGOS, help="algorithm")
-    tr.add_argument("--env", required=True, dest="env_id",
-                    help="gymnasium env id, e.g. rft_mujoco/SandSwimmer-v0 or Pendulum-v1")
+                        "directory, beside model.zip, vecnormalize.pkl, checkpoints/, monitor/ and tb/. SIGTERM "
+                        "or Ctrl-C saves the run as a checkpoint and exits with 128 + the signal number (143, 130); "
+                        "--resume RUN continues a run from its latest checkpoint with its config.yaml.")
+    tr.add_argument("--algo", type=str.lower, choices=ALGOS, help="algorithm (required unless --resume)")
+    tr.add_argument("--env", dest="env_id",
+                    help="gymnasium env id, e.g. rft_mujoco/SandSwimmer-v0 or Pendulum-v1 (required unless --resume)")
+    tr.add_argument("--resume", default=None, metavar="RUN",
+                    help="continue the run in folder RUN (or named RUN under --runs-dir) from its latest checkpoint "
+                    "(or model.zip), with its config.yaml, counting timesteps on; takes --timesteps, "
+                    "--max-minutes, --eval-freq, --eval-episodes, --no-progress-bar, --verbose")
     tr.add_argument("--timesteps", type=float, default=None,
-                    help="total env steps over all envs (default: n_timesteps from the YAML)")
+                    help="total env steps over all envs (default: n_timesteps from the YAML; with --resume: the "
+                    "run's total, a larger one trains it further)")
     tr.add_argument("--max-minutes", type=float, default=None,
                     help="stop (and save) after this many minutes of wall-clock time (default: no limit)")
     tr.add_argument("--n-envs", type=int, default=None, help="parallel training envs (default: YAML n_envs, else 1)")
-    tr.add_argument("--seed", type=int, default=0, help="seed of the model and of env i (seed + i) (default 0)")
+    tr.add_argument("--seed", type=int, default=None, help="seed of the model and of env i (seed + i) (default 0)")
     tr.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY=VALUE",
                     help="override hyperparameters; values are YAML, dotted keys nest, e.g. "
                     "learning_rate=1e-3 n_steps=256 normalize=false policy_kwargs.net_arch=[64,64]")
@@ -57,12 +65,12 @@ def _parser(prog: str = PROG) -> argparse.ArgumentParser:
                     help=f"YAML of hyperparameters keyed by env id (default {HYPERPARAMS_DIR}/<algo>.yml)")
     tr.add_argument("--runs-dir", default="runs", help="parent folder of run directories (default runs)")
     tr.add_argument("--run-name", default=None, help="run directory name (default <env>_<algo>_<seed>_<timestamp>)")
-    tr.add_argument("--save-freq", type=int, default=100_000,
+    tr.add_argument("--save-freq", type=int, default=None,
                     help="checkpoint every this many total steps; 0 disables (default 100000)")
-    tr.add_argument("--vec-env", choices=VEC_ENVS, default="dummy",
+    tr.add_argument("--vec-env", choices=VEC_ENVS, default=None,
                     help="dummy: envs in this process (fastest on few cores); subproc: one process each")
-    tr.add_argument("--device", default="auto", help="torch device: auto, cpu, cuda (default auto)")
-    tr.add_argument("--num-threads", type=int, default=1,
+    tr.add_argument("--device", default=None, help="torch device: auto, cpu, cuda (default auto)")
+    tr.add_argument("--num-threads", type=int, default=None,
                     help="torch CPU threads; 0: torch's default (default 1, the fastest for small MLPs)")
     tr.add_argument("--eval-freq", type=int, default=0,
                     help="evaluate the policy every this many total steps on a separate env (rl-zoo3's "
@@ -125,20 +133,12 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
         return 2
     try:
         if args.command == "train":
-            from .config import command_line, resolve_config
-            from .environments import check_env_id
-            from .experiment import new_run_dir, train
+            from .experiment import Interrupted
 
-            check_env_id(args.env_id)
-            config = resolve_config(
-                algo=args.algo, env_id=args.env_id, seed=args.seed, timesteps=args.timesteps,
-                n_envs=args.n_envs, hyperparams=args.hyperparams, env_kwargs=args.env_kwargs,
-                hyperparams_file=args.hyperparams_file, vec_env=args.vec_env, save_freq=args.save_freq,
-                device=args.device, num_threads=args.num_threads, command=command_line(argv, prog),
-            )
-            train(config, new_run_dir(config, args.runs_dir, args.run_name),
-                  progress_bar=not args.no_progress_bar, verbose=args.verbose, prog=prog,
-                  max_minutes=args.max_minutes, eval_freq=args.eval_freq, eval_episodes=args.eval_episodes)
+            try:
+                _train(args, argv, prog)
+            except Interrupted as stopped:          # saved; the message said what and how to resume
+                return stopped.exit_code
         elif args.command == "evaluate":
             from .evaluate import evaluate
 
@@ -166,6 +166,48 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     except (ValueError, FileNotFoundError, FileExistsError) as err:
         parser.exit(2, f"{prog} {args.command}: error: {err}\n")
     return 0
+
+
+RUN_OPTIONS = {"algo": "--algo", "env_id": "--env", "seed": "--seed", "n_envs": "--n-envs",
+               "hyperparams": "--hyperparams", "env_kwargs": "--env-kwargs", "hyperparams_file": "--hyperparams-file",
+               "run_name": "--run-name", "save_freq": "--save-freq", "vec_env": "--vec-env", "device": "--device",
+               "num_threads": "--num-threads"}
+"""``train`` options that make a run's configuration: given with ``--resume`` they are refused (the run has its own)."""
+TRAIN_DEFAULTS = {"seed": 0, "save_freq": 100_000, "vec_env": "dummy", "device": "auto", "num_threads": 1}
+
+
+def _train(args, argv, prog: str) -> None:
+    """``train``: a new run, or ``--resume`` of one."""
+    from .config import command_line, resolve_config
+    from .environments import check_env_id
+    from .experiment import new_run_dir, resume, train
+
+    given = [flag for name, flag in RUN_OPTIONS.items() if getattr(args, name) not in (None, [])]
+    if args.resume is not None:
+        if given:
+            raise ValueError(f"--resume continues a run with its own config.yaml; {', '.join(given)} cannot be "
+                             "given with it (only --timesteps, --max-minutes, --eval-freq, --eval-episodes, "
+                             "--runs-dir, --no-progress-bar, --verbose)")
+        resume(args.resume, timesteps=args.timesteps, runs_dir=args.runs_dir, progress_bar=not args.no_progress_bar,
+               verbose=args.verbose, prog=prog, max_minutes=args.max_minutes, eval_freq=args.eval_freq,
+               eval_episodes=args.eval_episodes)
+        return
+    missing = [flag for name, flag in (("algo", "--algo"), ("env_id", "--env")) if getattr(args, name) is None]
+    if missing:
+        raise ValueError(f"the following arguments are required: {', '.join(missing)} (or --resume RUN)")
+    for name, value in TRAIN_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+    check_env_id(args.env_id)
+    config = resolve_config(
+        algo=args.algo, env_id=args.env_id, seed=args.seed, timesteps=args.timesteps,
+        n_envs=args.n_envs, hyperparams=args.hyperparams, env_kwargs=args.env_kwargs,
+        hyperparams_file=args.hyperparams_file, vec_env=args.vec_env, save_freq=args.save_freq,
+        device=args.device, num_threads=args.num_threads, command=command_line(argv, prog),
+    )
+    train(config, new_run_dir(config, args.runs_dir, args.run_name),
+          progress_bar=not args.no_progress_bar, verbose=args.verbose, prog=prog,
+          max_minutes=args.max_minutes, eval_freq=args.eval_freq, eval_episodes=args.eval_episodes)
 
 
 def script_main() -> int:

@@ -19,12 +19,13 @@ MONITOR_GLOB = "*monitor.csv"
 
 
 def monitor_files(path: str | Path) -> list[Path]:
-    """Monitor CSVs of a run directory (its ``monitor/`` folder), of a folder, or the file itself."""
+    """Monitor CSVs of a run directory (its ``monitor/`` folder, with the ``resumed_<steps>/`` folders of
+    resumed runs), of a folder and its subfolders, or the file itself."""
     path = Path(path)
     if path.is_file():
         return [path]
     folder = path / "monitor" if (path / "monitor").is_dir() else path
-    return sorted(folder.glob(MONITOR_GLOB))
+    return sorted(folder.rglob(MONITOR_GLOB))
 
 
 def load_monitor(path: str | Path) -> dict[str, np.ndarray]:
