@@ -144,5 +144,6 @@ def train(config: RunConfig, run_dir: str | Path, *, progress_bar: bool = True, 
     finally:
         env.close()
     print(f"{model.num_timesteps} steps in {elapsed:.1f} s ({model.num_timesteps / max(elapsed, 1e-9):.0f} "
-          f"steps/s); saved {model_path}\nevaluate with: {prog} evaluate --run {run_dir}", flush=True)
+          f"steps/s); saved {model_path}\nevaluate with: {prog} evaluate --run {run_dir}\n"
+          f"for rl-zoo3's enjoy: {prog} zoo --run {run_dir} -f logs", flush=True)
     return model_path
