@@ -32,7 +32,8 @@ from rft_mujoco.studies.bench import plots
 from rft_mujoco.studies.bench.coupling import (above_sand, env_rates, quadruped_overhead, rk4_stages_accuracy,
                                                 sand_phases)
 from rft_mujoco.studies.bench.kernels import DIRECTIONS_DEG, TARGET_ERROR, speed_accuracy, throughput
-from rft_mujoco.studies.bench.timing import machine, table
+from rft_mujoco.studies.bench.timing import machine
+from rft_mujoco.tables import table
 
 __all__ = ["run", "main", "throughput", "quadruped_overhead", "env_rates", "above_sand", "speed_accuracy",
            "mesh_robots"]
