@@ -20,8 +20,10 @@ table instead, to paste into a page (``RFT_MUJOCO_TABLES=markdown python -m rft_
 Why not ``rich``: the core library (``rft_mujoco.describe``/``summary``, the studies) depends on numpy and
 MuJoCo only, and rich is in the ``train`` extra; several studies print rows as they are measured
 (minutes apart), which rich's ``Table`` cannot do (it measures every row before drawing); and rich
-fits a table to the console, 80 columns when the output is a file or a pipe, wrapping the cells of the
-wider study tables in the logs that the docs quote. This module is the one formatter instead.
+fits a table to the console, 80 columns when the output is a file or a pipe: an 8-column table of
+numbers piped through ``cat`` came out (rich 15.0, this machine) with its titles wrapped over three lines
+and its numbers cut with an ellipsis (``1234.5…``), in the logs that the docs quote. This module is the
+one formatter instead.
 """
 
 from __future__ import annotations
