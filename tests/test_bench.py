@@ -20,6 +20,13 @@ def test_throughput_rows_are_positive_timings_of_a_loaded_problem():
     assert row["leading"] > 0.0          # the benchmark's elements are loaded: the law really runs
 
 
+def test_public_law_rows_time_the_three_side_by_side():
+    (row,) = bench.public_law([300], rounds=2)
+    assert row["n"] == 300
+    for key in ("numpy_ns", "kernel_ns", "public_ns", "public_speedup", "kernel_speedup", "public_over_kernel"):
+        assert math.isfinite(row[key]) and row[key] > 0.0, key
+
+
 def test_plots_are_written_from_the_tables(tmp_path):
     thr = [dict(n=n, law_numpy=200.0, law_numba=10.0, kernel_numpy=300.0, kernel_numba=12.0)
            for n in (1e3, 1e4)]
@@ -42,10 +49,11 @@ def test_quick_bench_runs_every_section(tmp_path, capsys):
     finite positive timings, the default preset's accuracy verdict and the plots. No speed is asserted."""
     res = bench.run(quick=True, out=tmp_path)
     text = capsys.readouterr().out
-    for heading in ("1. Element throughput", "2a. Quadruped", "2b. Env steps per second", "2c. RK4 stages",
+    for heading in ("1. Element throughput", "1b. The public rft_mujoco.element_forces", "2a. Quadruped", "2b. Env steps per second", "2c. RK4 stages",
                     "3. Bodies above the sand", "4. Speed-accuracy", "culling costs", "5. Mesh robots"):
         assert heading in text, heading
     assert "default preset: worst error" in text and "%): met" in text      # the 2% accuracy target holds
+    assert "public element_forces speed-up over the numpy law at N = 1e+05" in text   # 1b's verdict (met or not)
     assert [f.name for f in res["files"]] == ["throughput.png", "overhead.png", "env_rates.png",
                                               "error_vs_cost.png"]
     quad = res["quadruped"]

@@ -1,8 +1,11 @@
 """rl-zoo3 reads our hyperparameter files and trains, evaluates (``--eval-freq``) and enjoys on our tasks;
-the runs log the reward terms to TensorBoard. A tiny budget: the point is the round trip, not learning."""
+the runs log the reward terms to TensorBoard; rl-zoo3's enjoy replays the runs of our front (and the shipped
+ones) once ``python -m rft_mujoco.train zoo`` has written them in its layout. A tiny budget: the point is
+the round trip, not learning."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,8 +17,12 @@ pytest.importorskip("stable_baselines3")
 pytest.importorskip("gymnasium")
 
 from rft_mujoco.train import config as cfg  # noqa: E402
+from rft_mujoco.train import zoo  # noqa: E402
 
 ENV = "rft_mujoco/SandQuadruped-v1"
+ROOT = Path(__file__).resolve().parent.parent
+# the subprocesses import this tree's rft_mujoco, whatever is installed (they run in tmp_path)
+SUBPROCESS_ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
 
 
 @pytest.mark.parametrize("algo", cfg.ALGOS)
@@ -41,7 +48,8 @@ def test_policy_kwargs_string_is_parsed_without_eval():
 
 
 def _run(args, cwd):
-    result = subprocess.run([sys.executable, "-m", *args], cwd=cwd, capture_output=True, text=True, timeout=900)
+    result = subprocess.run([sys.executable, "-m", *args], cwd=cwd, capture_output=True, text=True, timeout=900,
+                            env=SUBPROCESS_ENV)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     return result.stdout
 
@@ -64,3 +72,62 @@ def test_rl_zoo3_trains_evaluates_and_enjoys_with_our_yaml(tmp_path):
     events = [p.read_bytes() for p in (tmp_path / "tb").rglob("events.out.tfevents.*")]
     assert any(b"reward_terms/tracking_lin_vel" in e for e in events), "no per-term reward scalars in TensorBoard"
     _run(["rl_zoo3.enjoy", *common, "-n", "30", "--no-render", "--exp-id", "1", "--device", "cpu"], tmp_path)
+
+
+@pytest.mark.parametrize("env_id", [ENV, "Pendulum-v1", "gymnasium.envs.classic_control:Pendulum-v1"])
+def test_zoo_env_name_is_the_zoos(env_id):
+    huggingface_sb3 = pytest.importorskip("huggingface_sb3")   # what rl-zoo3 names its folders with
+    assert zoo.zoo_env_name(env_id) == str(huggingface_sb3.EnvironmentName(env_id))
+    assert "/" not in zoo.zoo_env_name(env_id)
+
+
+def test_zoo_config_reads_back_as_ours():
+    """config.yml's policy_kwargs is the zoo's dict(...) string of our mapping, and reads back to it."""
+    config = cfg.load_config(zoo.find_run("SandQuadruped-v1"))
+    entry = zoo.zoo_hyperparams(config)
+    assert entry["policy_kwargs"].startswith("dict(") and "activation_fn=nn.ELU" in entry["policy_kwargs"]
+    parsed = cfg.parse_policy_kwargs(entry["policy_kwargs"])
+    assert parsed == {**config.hyperparams["policy_kwargs"], "activation_fn": "nn.ELU"}
+    assert entry["normalize"] == config.normalize and entry["n_envs"] == config.n_envs
+
+
+def test_shipped_run_exported_as_copies(tmp_path):
+    """A shipped run is copied, never hard-linked (the package must not change through the zoo's folder);
+    the next export takes the next id, an existing one is refused."""
+    run = zoo.find_run("SandQuadruped-v1")
+    first = zoo.export_zoo("SandQuadruped-v1", tmp_path / "logs")
+    name = zoo.zoo_env_name(ENV)
+    assert first == tmp_path / "logs" / "ppo" / f"{name}_1"
+    model = first / f"{name}.zip"
+    assert model.read_bytes() == (run / cfg.MODEL_FILENAME).read_bytes()
+    assert not model.samefile(run / cfg.MODEL_FILENAME)
+    assert (first / name / "vecnormalize.pkl").is_file() and (first / name / "config.yml").is_file()
+    assert sorted(p.name for p in first.glob("*.monitor.csv")) == sorted(p.name for p in (run / "monitor").iterdir())
+    assert zoo.export_zoo("SandQuadruped-v1", tmp_path / "logs").name == f"{name}_2"
+    assert zoo.latest_exp_id(tmp_path / "logs", "ppo", ENV) == 2
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        zoo.export_zoo("SandQuadruped-v1", tmp_path / "logs", exp_id=1)
+
+
+def test_rl_zoo3_enjoys_our_front_runs(tmp_path):
+    """A run of ``python -m rft_mujoco.train train`` (tiny budget, evaluations and a checkpoint), written
+    in the zoo's layout by ``python -m rft_mujoco.train zoo``, replays in ``python -m rl_zoo3.enjoy`` (final,
+    best and checkpointed models), and so does the shipped run."""
+    pytest.importorskip("rl_zoo3")
+    _run(["rft_mujoco.train", "train", "--algo", "ppo", "--env", ENV, "--timesteps", "128", "--n-envs", "1",
+          "--hyperparams", "n_steps=64", "batch_size=64", "n_epochs=1", "--env-kwargs", "max_episode_steps=20",
+          "--eval-freq", "64", "--eval-episodes", "1", "--save-freq", "64", "--runs-dir", "runs", "--run-name",
+          "ours", "--no-progress-bar", "--device", "cpu"], tmp_path)
+    out = _run(["rft_mujoco.train", "zoo", "--run", "runs/ours", "-f", "logs"], tmp_path)
+    assert "--exp-id 1" in out and "0 copied" in out, out    # a run of the user's: hard links
+    exp = tmp_path / "logs" / "ppo" / f"{zoo.zoo_env_name(ENV)}_1"
+    assert (exp / f"{zoo.zoo_env_name(ENV)}.zip").samefile(tmp_path / "runs" / "ours" / cfg.MODEL_FILENAME)
+    assert (exp / "rl_model_64_steps.zip").is_file() and (exp / "best_model.zip").is_file()
+    common = ["rl_zoo3.enjoy", "--algo", "ppo", "--env", ENV, "--gym-packages", "rft_mujoco.envs", "-f", "logs",
+              "--no-render", "-n", "30", "--device", "cpu"]
+    for extra in ([], ["--load-best"], ["--load-checkpoint", "64"]):
+        out = _run([*common, "--exp-id", "1", *extra], tmp_path)
+        assert "Loading running average" in out and "Episode Length 20" in out, out   # its stats, our env_kwargs
+    _run(["rft_mujoco.train", "zoo", "--run", "SandQuadruped-v1", "-f", "logs"], tmp_path)
+    out = _run([*common, "--exp-id", "2"], tmp_path)
+    assert "rft_mujoco-SandQuadruped-v1_2" in out and "Loading running average" in out, out

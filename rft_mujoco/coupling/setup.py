@@ -20,6 +20,7 @@ import numpy as np
 
 from rft_mujoco.coupling.callers import user_stacklevel
 from rft_mujoco.geometry import occlusion, surface
+from rft_mujoco.tables import table
 
 MAX_ELEMENTS_PER_BODY = 1_000_000
 """Most surface elements one body may be cut into (memory and time guard against absurd resolutions)."""
@@ -253,19 +254,17 @@ def describe(model, body_ids, elem_body: np.ndarray, areas: np.ndarray, culled_a
 
 def summary_text(rows: list[dict], size: float) -> str:
     """:func:`describe`'s rows as a table, with the totals and the element size (m)."""
-    head = ["body", "source", "elements", "area m^2", "culled m^2", "smallest m", "geoms"]
     body = [[r["body"], r["source"], str(r["elements"]), f"{r['area']:.4g}", f"{r['culled']:.3g}",
              f"{r['smallest']:.3g}" + (" (< element)" if 0 < r["smallest"] < size else ""),
              ", ".join(r["geoms"]) if len(r["geoms"]) <= 4
              else ", ".join(r["geoms"][:3]) + f", ... ({len(r['geoms'])})"]
             for r in rows]
-    width = [max(len(x) for x in col) for col in zip(head, *body)]
-    line = lambda cells: "  ".join(c.ljust(w) for c, w in zip(cells, width)).rstrip()  # noqa: E731
     total_a = sum(r["area"] for r in rows)
     total_n = sum(r["elements"] for r in rows)
-    return "\n".join([line(head)] + [line(r) for r in body]
-                     + [f"total: {total_n} elements over {total_a:.4g} m^2 at element size {size:g} m "
-                        f"({total_n / max(total_a / size**2, 1e-300):.2f} x area / size^2)"])
+    return "\n".join([table(["body", "source", "elements", "area m^2", "culled m^2", "smallest m", "geoms"], body,
+                             align="<<>>>><"),
+                      f"total: {total_n} elements over {total_a:.4g} m^2 at element size {size:g} m "
+                      f"({total_n / max(total_a / size**2, 1e-300):.2f} x area / size^2)"])
 
 
 def attachable_bodies(model, bodies) -> list[int]:

@@ -13,6 +13,8 @@ import time
 
 import gymnasium
 
+from rft_mujoco.tables import Columns
+
 from . import ENV_IDS
 
 PLAIN_IDS = ("Ant-v5", "HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Humanoid-v5")
@@ -60,14 +62,13 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [i for i in ids if i not in gymnasium.registry]
     if unknown:
         parser.error(f"unknown env ids {unknown}; registered sand ids: {sorted(ENV_IDS)}")
-    header = (f"{'env id':34s} {'obs':>4s} {'act':>4s} {'elements':>8s} {'dt (s)':>7s} {'steps/s':>8s} "
-              f"{'x realtime':>10s}")
-    print(header)
-    print("-" * len(header))
+    columns = Columns(["env id", "obs", "act", "elements", "dt (s)", "steps/s", "x realtime"],
+                      widths=[max(map(len, ids)), 4, 4, 8, 7, 8, 10])
+    print(columns.header())
     for env_id in ids:
         row = steps_per_second(env_id, args.steps)
-        print(f"{row['id']:34s} {row['obs']:4d} {row['act']:4d} {row['elements']:8d} {row['dt_s']:7.3f} "
-              f"{row['steps_per_s']:8.0f} {row['realtime']:10.2f}", flush=True)
+        print(columns.row([row["id"], row["obs"], row["act"], row["elements"], f"{row['dt_s']:.3f}",
+                           f"{row['steps_per_s']:.0f}", f"{row['realtime']:.2f}"]), flush=True)
     return 0
 
 

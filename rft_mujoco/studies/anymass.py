@@ -29,6 +29,8 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
+from rft_mujoco import tables
+
 AMPLITUDES = (0.3, 0.5, 0.7, 0.9, 1.1, 1.3)
 """rad: the swim study's amplitudes from 0.3 to 1.3 rad."""
 TIMESTEPS = (0.002, 0.001, 0.0005)
@@ -120,17 +122,16 @@ def measure(amplitudes=AMPLITUDES, timesteps=TIMESTEPS, densities=DENSITIES, sol
 def table(result: dict) -> list[str]:
     """One line per (density, timestep, amplitude): the limit and each solve's eta and error."""
     solves = sorted({r["solve"] for r in result["rows"]})
-    head = f"{'density':>8} {'dt ms':>6} {'a rad':>6} {'limit':>8}" + "".join(
-        f" {s + ' eta':>14} {'error':>8}" for s in solves)
-    lines = [head, "-" * len(head)]
     keyed = {(r["density_scale"], r["timestep_s"], r["amplitude_rad"], r["solve"]): r for r in result["rows"]}
+    rows = []
     for rho, dt, a in sorted({k[:3] for k in keyed}, key=lambda k: (k[0], -k[1], k[2])):
-        line = f"{'x' + format(rho, 'g'):>8} {dt * 1e3:>6g} {a:>6.1f} {result['limits'][a]:>8.4f}"
+        row = [f"x{rho:g}", f"{dt * 1e3:g}", f"{a:.1f}", f"{result['limits'][a]:.4f}"]
         for s in solves:
             r = keyed.get((rho, dt, a, s))
-            line += f" {r['eta']:>14.4f} {r['error'] * 100:>7.1f}%" if r else f" {'-':>14} {'-':>8}"
-        lines.append(line)
-    return lines
+            row += [f"{r['eta']:.4f}", f"{r['error'] * 100:.1f}%"] if r else ["-", "-"]
+        rows.append(row)
+    headers = ["density", "dt ms", "a rad", "limit"] + [h for s in solves for h in (f"{s} eta", "error")]
+    return tables.table(headers, rows, align=tables.RIGHT * len(headers)).splitlines()
 
 
 def worst(result: dict) -> dict:

@@ -22,6 +22,7 @@ import numpy as np
 
 from rft_mujoco.studies.gait import FOOT_BODIES, TrotGait
 from rft_mujoco.coupling.scene import attach_scene
+from rft_mujoco.tables import table
 
 SCENE = "quadruped_sand.xml"
 DEMO_GAIT = {"frequency_hz": 2.5, "step_height_m": 0.09, "hip_height_m": 0.26}
@@ -231,12 +232,13 @@ def run(seconds: float = 5.0, stand_s: float = 1.0, out: Path = Path("out"), vid
         "trot_peak_foot_force_N": np.abs(force[trotting, :, 2]).max(0) if trotting.any() else np.zeros(4),
         "trot_mean_foot_depth_m": depth[trotting].mean(0) if trotting.any() else np.zeros(4),
     }
-    print("\nper-foot sand load              " + "  ".join(f"{f:>8s}" for f in FOOT_BODIES))
-    print("  standing vertical force (N)   " + "  ".join(f"{v:8.1f}" for v in summary["standing_foot_force_N"]))
-    print("  ... whole leg, foot + calf    " + "  ".join(f"{v:8.1f}" for v in summary["standing_leg_force_N"]))
-    print("  standing foot depth (mm)      " + "  ".join(f"{1e3 * v:8.1f}" for v in summary["standing_foot_depth_m"]))
-    print("  trotting peak force (N)       " + "  ".join(f"{v:8.1f}" for v in summary["trot_peak_foot_force_N"]))
-    print("  trotting mean depth (mm)      " + "  ".join(f"{1e3 * v:8.1f}" for v in summary["trot_mean_foot_depth_m"]))
+    print("\n" + table(["per-foot sand load", *FOOT_BODIES], [
+        [label, *(f"{scale * v:.1f}" for v in summary[key])]
+        for label, key, scale in (("standing vertical force (N)", "standing_foot_force_N", 1.0),
+                                  ("... whole leg, foot + calf", "standing_leg_force_N", 1.0),
+                                  ("standing foot depth (mm)", "standing_foot_depth_m", 1e3),
+                                  ("trotting peak force (N)", "trot_peak_foot_force_N", 1.0),
+                                  ("trotting mean depth (mm)", "trot_mean_foot_depth_m", 1e3))]))
     print(f"trunk sinkage while standing: {1e3 * summary['standing_trunk_sinkage_m']:.1f} mm; total sand force "
           f"{summary['standing_total_force_N']:.1f} N against the robot's weight {summary['weight_N']:.1f} N; "
           f"trot speed on sand: {summary['trot_speed_mps']:.3f} m/s")

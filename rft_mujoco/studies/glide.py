@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco.coupling.handle import attach
+from rft_mujoco.tables import Columns
 
 MEDIA = "li_loose_glass_beads"
 DURATION = 2.0
@@ -95,12 +96,15 @@ def main(argv: list[str] | None = None, command: str = "glide") -> int:
     args = parser.parse_args(argv)
     if not args.duration > 0:
         parser.error(f"--duration must be > 0 s, got {args.duration}")
-    print(f"{'solve':10s} {'rest by s':>9s} {'drift after rest mm':>20s} {'drift total mm':>15s} "
-          f"{'trunk sinkage mm':>17s} {'wall s':>7s}  verdict (rest by {REST_BY:g} s, drift < {DRIFT_MAX * 1e3:g} mm)")
+    columns = Columns(["solve", "rest by s", "drift after rest mm", "drift total mm", "trunk sinkage mm", "wall s",
+                       f"verdict (rest by {REST_BY:g} s, drift < {DRIFT_MAX * 1e3:g} mm)"],
+                      widths=[max(map(len, args.solves)), 9, 19, 14, 16, 7, 0], align="<>>>>><")
+    print(columns.header())
     for solve in args.solves:
         r = stand(solve, args.duration)
-        print(f"{solve:10s} {r['t_rest_s']:9.3g} {r['drift_after_rest_m'] * 1e3:20.1f} {r['drift_total_m'] * 1e3:15.1f} "
-              f"{r['sinkage_m'] * 1e3:17.1f} {r['wall_s']:7.0f}  {'pass' if passes(r) else 'FAIL'}", flush=True)
+        print(columns.row([solve, f"{r['t_rest_s']:.3g}", f"{r['drift_after_rest_m'] * 1e3:.1f}",
+                           f"{r['drift_total_m'] * 1e3:.1f}", f"{r['sinkage_m'] * 1e3:.1f}", f"{r['wall_s']:.0f}",
+                           "pass" if passes(r) else "FAIL"]), flush=True)
     return 0
 
 

@@ -27,6 +27,7 @@ from rft_mujoco.coupling.handle import attach
 from rft_mujoco.geometry import occlusion, surface
 from rft_mujoco.physics import law
 from rft_mujoco.physics.media import MPM_VALIDATION
+from rft_mujoco.tables import table
 
 SPEED = 0.1
 """m/s of every motion."""
@@ -205,12 +206,9 @@ def run(names=None, size: float = REFERENCE_SIZE) -> list[dict]:
 
 
 def table_lines(rows) -> list[str]:
-    """Plain-text table of :func:`run` rows."""
-    head = (f"{'case':<15} {'motion':<8} {'hidden':>7} {'|F| ref N':>10} {'err culled':>10} "
-            f"{'err no cull':>11} {'no cull/ref':>11} {'area err':>9}")
-    out = [head, "-" * len(head)]
-    for r in rows:
-        out.append(f"{r['case']:<15} {r['motion']:<8} {100 * r['hidden_fraction']:>6.1f}% "
-                   f"{np.linalg.norm(r['force_ref']):>10.4g} {100 * r['error']:>9.2f}% "
-                   f"{100 * r['error_no_cull']:>10.2f}% {r['overcount']:>11.3f} {100 * r['area_error']:>8.2f}%")
-    return out
+    """The table of :func:`run` rows (:func:`rft_mujoco.tables.table`), as lines."""
+    return table(["case", "motion", "hidden", "|F| ref N", "err culled", "err no cull", "no cull/ref", "area err"],
+                 [[r["case"], r["motion"], f"{100 * r['hidden_fraction']:.1f}%",
+                   f"{np.linalg.norm(r['force_ref']):.4g}", f"{100 * r['error']:.2f}%",
+                   f"{100 * r['error_no_cull']:.2f}%", f"{r['overcount']:.3f}", f"{100 * r['area_error']:.2f}%"]
+                  for r in rows], align="<<>>>>>>").splitlines()

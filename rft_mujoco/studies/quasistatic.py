@@ -38,6 +38,7 @@ from rft_mujoco.physics import elements, law
 from rft_mujoco.physics.law import PUBLISHED
 from rft_mujoco.physics.media import MALADEN_GLASS_BEADS, Media, get_media
 from rft_mujoco.physics.terrain import FlatSurface
+from rft_mujoco.tables import RIGHT, Columns
 
 # --- settings: one place ---------------------------------------------------------------------------------
 SWIM_ELEMENT_SIZE = 0.003
@@ -534,22 +535,26 @@ def run(quick: bool = False, progress=print) -> dict:
     size, steps = (0.006, 25) if quick else (SWIM_ELEMENT_SIZE, STEPS_PER_CYCLE)
     progress(f"swimmer, inertia-free limit (1 Hz, {size * 1e3:g} mm elements, {steps} RK4 steps per period, "
              f"speed over the last 2 of 4 periods)")
-    progress(f"{'a rad':>6} {'A/lambda':>9} {'eta':>7} {'forward m/s':>12} {'lateral m/s':>12} {'yaw drift':>10} "
-             f"{'residual':>9} {'wall s':>7}")
+    columns = Columns(["a rad", "A/lambda", "eta", "forward m/s", "lateral m/s", "yaw drift", "residual", "wall s"],
+                      widths=[6, 8, 7, 11, 11, 9, 8, 7], align=RIGHT * 8)
+    progress(columns.header())
     swims = []
     for a in SWIM_AMPLITUDES:
         r = swimmer_limit(a, 1.0, element_size=size, steps_per_cycle=steps)
         swims.append(r)
-        progress(f"{a:6.2f} {r['a_over_lambda']:9.3f} {r['eta']:7.4f} {r['forward_mps']:12.5f} "
-                 f"{r['lateral_mps']:12.5f} {r['yaw_drift_rad']:10.4f} {r['max_residual']:9.1e} {r['wall_s']:7.1f}")
+        progress(columns.row([f"{a:.2f}", f"{r['a_over_lambda']:.3f}", f"{r['eta']:.4f}", f"{r['forward_mps']:.5f}",
+                              f"{r['lateral_mps']:.5f}", f"{r['yaw_drift_rad']:.4f}", f"{r['max_residual']:.1e}",
+                              f"{r['wall_s']:.1f}"]))
     progress(f"\nquasi-static rest depths ({loadpaths.MEDIA}, {loadpaths.RESOLUTION * 1e3:g} mm elements as the "
              "load-path study; depth = the sand body's displacement from its start pose = its lowest point's depth)")
-    progress(f"{'scene':>15} {'load N':>8} {'depth mm':>9}")
+    names = list(loadpaths.SCENES) + list(SELF_WEIGHT)
+    columns = Columns(["scene", "load N", "depth mm"], widths=[max(map(len, names)), 8, 9])
+    progress(columns.header())
     depths = {}
-    for name in list(loadpaths.SCENES) + list(SELF_WEIGHT):
+    for name in names:
         d, load = scene_rest_depth(name)
         depths[name] = (d, load)
-        progress(f"{name:>15} {load:8.3f} {d * 1e3:9.3f}")
+        progress(columns.row([name, f"{load:.3f}", f"{d * 1e3:.3f}"]))
     return dict(swim=swims, depths=depths)
 
 

@@ -60,6 +60,7 @@ from rft_mujoco.physics.law import element_forces
 from rft_mujoco.physics.media import PRESETS, get_media
 from rft_mujoco.coupling.monitor import RFTValidityWarning
 from rft_mujoco.studies.recorder import StageRecorder
+from rft_mujoco.tables import table
 
 # --- the matrix: one place ---------------------------------------------------------------------------
 SHAPES = {
@@ -399,9 +400,7 @@ def _fmt(x: float, spec: str = ".2g") -> str:
 def summary(results: list[Result]) -> list[str]:
     """Table lines: one line per (group, coupling), with per-integrator, per-shape and per-dt lines of the
     drop matrix."""
-    lines = [f"{'subset':24s} {'cases':>5s} {'NaN':>3s} {'max dE (J)':>10s} {'dE>0':>4s} {'at rest':>8s} "
-             f"{'t_rest max':>10s} {'jitter max':>10s} {'creep max':>9s} {'sink/static':>12s} {'held':>5s} "
-             f"{'F err flow':>10s} {'F err slow':>10s} {'fail':>4s}"]
+    rows = []
 
     def nanmax(values):
         values = [v for v in values if v == v]
@@ -415,16 +414,14 @@ def summary(results: list[Result]) -> list[str]:
         ratios = [r.sinkage_ratio for r in drops if r.sinkage_ratio == r.sinkage_ratio]
         moving = [r for r in rs if r.case.kind != "drop"]
         t_rest = nanmax([r.t_rest for r in rs if not r.nan])
-        lines.append(
-            f"{name:24s} {len(rs):5d} {sum(r.nan for r in rs):3d} {_fmt(max(r.max_gain for r in rs), '.1e'):>10s} "
-            f"{sum(r.max_gain_rel > GAIN_RTOL for r in rs):4d} {f'{rest_ok}/{len(rs)}':>8s} "
-            f"{_fmt(t_rest, '.3g'):>10s} {_fmt(nanmax([r.jitter for r in rs]), '.1e'):>10s} "
-            f"{_fmt(nanmax([r.creep for r in rs]), '.1e'):>9s} "
-            f"{(_fmt(min(ratios), '.2f') + '..' + _fmt(max(ratios), '.3g')) if ratios else '-':>12s} "
-            f"{f'{sum(r.held for r in moving)}/{len(moving)}' if moving else '-':>5s} "
-            f"{_fmt(nanmax([r.force_err_flow for r in rs]), '.1e'):>10s} "
-            f"{_fmt(nanmax([r.force_err_moving for r in rs]), '.1e'):>10s} "
-            f"{sum(bool(r.failures) for r in rs):4d}")
+        rows.append([
+            name, len(rs), sum(r.nan for r in rs), _fmt(max(r.max_gain for r in rs), ".1e"),
+            sum(r.max_gain_rel > GAIN_RTOL for r in rs), f"{rest_ok}/{len(rs)}", _fmt(t_rest, ".3g"),
+            _fmt(nanmax([r.jitter for r in rs]), ".1e"), _fmt(nanmax([r.creep for r in rs]), ".1e"),
+            (_fmt(min(ratios), ".2f") + ".." + _fmt(max(ratios), ".3g")) if ratios else "-",
+            f"{sum(r.held for r in moving)}/{len(moving)}" if moving else "-",
+            _fmt(nanmax([r.force_err_flow for r in rs]), ".1e"), _fmt(nanmax([r.force_err_moving for r in rs]), ".1e"),
+            sum(bool(r.failures) for r in rs)])
 
     groups = sorted({(r.case.group, r.case.stabilize) for r in results}, key=lambda g: (g[0] != "matrix", g))
     for group, stab in groups:
@@ -439,7 +436,8 @@ def summary(results: list[Result]) -> list[str]:
                 line(f"  m = {mass:g} kg", [r for r in rs if r.case.mass == mass])
             for dt in TIMESTEPS:
                 line(f"  dt = {dt * 1e3:g} ms", [r for r in rs if r.case.dt == dt])
-    return lines
+    return table(["subset", "cases", "NaN", "max dE (J)", "dE>0", "at rest", "t_rest max", "jitter max", "creep max",
+                  "sink/static", "held", "F err flow", "F err slow", "fail"], rows).splitlines()
 
 
 def run_load_paths(*, quick: bool = False, out: Path, stream=None, solve: str = "explicit") -> list:
@@ -473,20 +471,21 @@ def run_load_paths(*, quick: bool = False, out: Path, stream=None, solve: str = 
     print(f"\nLoad paths: rest within {loadpaths.DEADLINE:g} s (every body < {loadpaths.REST_SPEED * 1e3:g} mm/s and "
           f"mrad/s), sand force against the load (balance), largest energy added by the sand in a step, the "
           f"deepest rest against the quasi-static depth (at most {loadpaths.DEPTH_FACTOR:g}x)", file=stream)
-    print(f"{'scene':16s} {'cases':>5s} {'NaN':>3s} {'at rest':>8s} {'t_rest max':>10s} {'final speed max':>15s} "
-          f"{'balance max':>11s} {'max dE (J)':>10s} {'depth max mm':>12s} {'q-s mm':>7s} {'fail':>4s}",
-          file=stream)
+    rows = []
     for name in dict.fromkeys(r.scene for r in results):
         rs = [r for r in results if r.scene == name]
         ok = [r for r in rs if not r.nan]
-        print(f"{name:16s} {len(rs):5d} {sum(r.nan for r in rs):3d} "
-              f"{f'{sum(r.t_rest <= loadpaths.DEADLINE for r in rs)}/{len(rs)}':>8s} "
-              f"{_fmt(max((r.t_rest for r in ok), default=math.nan), '.3g'):>10s} "
-              f"{_fmt(max((r.final_speed for r in ok), default=math.nan), '.1e'):>15s} "
-              f"{_fmt(max((r.balance for r in ok), default=math.nan), '.1e'):>11s} "
-              f"{_fmt(max(r.max_gain for r in rs), '.1e'):>10s} "
-              f"{_fmt(max((r.sinkage * 1e3 for r in ok), default=math.nan), '.1f'):>12s} "
-              f"{rs[0].rest_depth * 1e3:7.1f} {sum(bool(r.failures) for r in rs):4d}", file=stream)
+        at_rest = sum(r.t_rest <= loadpaths.DEADLINE for r in rs)
+        rows.append([name, len(rs), sum(r.nan for r in rs), f"{at_rest}/{len(rs)}",
+                     _fmt(max((r.t_rest for r in ok), default=math.nan), ".3g"),
+                     _fmt(max((r.final_speed for r in ok), default=math.nan), ".1e"),
+                     _fmt(max((r.balance for r in ok), default=math.nan), ".1e"),
+                     _fmt(max(r.max_gain for r in rs), ".1e"),
+                     _fmt(max((r.sinkage * 1e3 for r in ok), default=math.nan), ".1f"),
+                     f"{rs[0].rest_depth * 1e3:.1f}",
+                     sum(bool(r.failures) for r in rs)])
+    print(table(["scene", "cases", "NaN", "at rest", "t_rest max", "final speed max", "balance max", "max dE (J)",
+                 "depth max mm", "q-s mm", "fail"], rows), file=stream)
     return results
 
 

@@ -37,6 +37,7 @@ import numpy as np
 
 from rft_mujoco.coupling.handle import attach
 from rft_mujoco.physics.media import MALADEN_GLASS_BEADS
+from rft_mujoco.tables import RIGHT, table
 
 N_JOINTS = 6
 SERVO_KP = 100.0
@@ -188,9 +189,9 @@ def mass_check(amplitude: float = 0.8, frequency: float = 1.0, timesteps=(0.002,
 
 
 def _table(rows, keys, fmt) -> list[str]:
-    head = "  ".join(f"{k:>14}" for k in keys)
-    return [head, "-" * len(head)] + ["  ".join(format(r[k], f).rjust(14) for k, f in zip(keys, fmt))
-                                      for r in rows]
+    """Columns ``keys`` of ``rows`` (dicts), each value formatted with its spec in ``fmt``, as table lines."""
+    return table(keys, [[format(r[k], f) for k, f in zip(keys, fmt)] for r in rows],
+                 align=RIGHT * len(keys)).splitlines()
 
 
 def plot(rows, out: Path) -> Path:

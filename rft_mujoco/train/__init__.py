@@ -1,7 +1,7 @@
 """Training and evaluation of stable-baselines3 agents on the sand tasks (and any gymnasium id).
 
 Hyperparameter YAMLs ship as package data. A thin command line (``python -m rft_mujoco.train
-{train,evaluate,plot} --help``, or the console script ``rft-mujoco-train``) over a few modules:
+{train,evaluate,gap,plot,zoo} --help``, or the console script ``rft-mujoco-train``) over a few modules:
 
 - ``config``       the run configuration: YAML hyperparameters keyed by env id, CLI overrides, and the
                    ``config.yaml`` saved beside every model (the one source ``evaluate`` rebuilds from);
@@ -10,7 +10,8 @@ Hyperparameter YAMLs ship as package data. A thin command line (``python -m rft_
                    saving on SIGTERM/SIGINT, resuming;
 - ``evaluate``     reload a run from its ``config.yaml``; trained vs random vs zero-action baselines,
                    JSON, bar chart + learning curve, and a video where offscreen rendering works;
-- ``plot``         learning curves (episode return vs timesteps) from the Monitor CSVs of runs.
+- ``plot``         learning curves (episode return vs timesteps) from the Monitor CSVs of runs;
+- ``zoo``          a run written in rl-zoo3's layout, for ``python -m rl_zoo3.enjoy``.
 
 A run directory ``runs/<env>_<algo>_<seed>_<timestamp>/`` holds::
 

@@ -1,4 +1,4 @@
-"""Command line: ``python -m rft_mujoco.train {train,evaluate,gap,plot}`` (``--help`` on each), also installed
+"""Command line: ``python -m rft_mujoco.train {train,evaluate,gap,plot,zoo}`` (``--help`` on each), also installed
 as ``rft-mujoco-train``.
 
 Examples (from any directory; runs go to ./runs)::
@@ -11,6 +11,7 @@ Examples (from any directory; runs go to ./runs)::
     python -m rft_mujoco.train evaluate --run runs/rft_mujoco-SandSwimmer-v0_ppo_0_20250101-120000 --episodes 10
     python -m rft_mujoco.train gap --sand runs/SAND_RUN --rigid runs/RIGID_RUN --speed 0.4
     python -m rft_mujoco.train plot runs/*SandSwimmer* --out swimmer_curves.png
+    python -m rft_mujoco.train zoo --run SandQuadruped-v1 -f logs    # then: python -m rl_zoo3.enjoy ... -f logs
     tensorboard --logdir runs
 """
 
@@ -32,7 +33,7 @@ SCRIPT = "rft-mujoco-train"
 def _parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", metavar="{train,evaluate,gap,plot}")
+    sub = parser.add_subparsers(dest="command", metavar="{train,evaluate,gap,plot,zoo}")
 
     tr = sub.add_parser("train", help="train PPO or SAC; writes runs/<env>_<algo>_<seed>_<timestamp>/",
                         description=f"Train an SB3 agent. Hyperparameters come from {HYPERPARAMS_DIR.name}/<algo>.yml "
@@ -120,6 +121,19 @@ def _parser(prog: str = PROG) -> argparse.ArgumentParser:
                     "else out/plot/learning_curves.png)")
     pl.add_argument("--overwrite", action="store_true", help="replace an existing image")
     pl.add_argument("--window", type=int, default=10, help="moving-average window (default 10)")
+
+    zo = sub.add_parser("zoo", help="write a run in rl-zoo3's layout, for python -m rl_zoo3.enjoy",
+                        description="Write RUN as the rl-zoo3 experiment FOLDER/<algo>/<env name>_<exp id>/ "
+                        "(<env name>: the env id with '/' written as '-'): the model, VecNormalize statistics, "
+                        "best model, checkpoints and monitor logs hard-linked (copied where the file system "
+                        "refuses), config.yml and args.yml written from config.yaml. Then "
+                        "`python -m rl_zoo3.enjoy --algo ALGO --env ID --gym-packages rft_mujoco.envs -f FOLDER "
+                        "--exp-id N` replays it.")
+    zo.add_argument("--run", required=True, help="run directory, or the name of a shipped run (SandQuadruped-v1)")
+    zo.add_argument("-f", "--folder", default="logs", help="the zoo's log folder (its -f; default logs)")
+    zo.add_argument("--exp-id", type=int, default=None,
+                    help="experiment id N (default: the next free one, as rl-zoo3 numbers its runs)")
+    zo.add_argument("--overwrite", action="store_true", help="replace an existing experiment folder")
     return parser
 
 
@@ -152,6 +166,10 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
             rows = gap_table(args.sand, args.rigid, command=(args.speed, 0.0, 0.0), episodes=args.episodes,
                              out=args.out, overwrite=args.overwrite)
             print(format_gap(rows))
+        elif args.command == "zoo":
+            from .zoo import export_zoo
+
+            export_zoo(args.run, args.folder, exp_id=args.exp_id, overwrite=args.overwrite)
         else:
             from pathlib import Path
 

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from rft_mujoco.tables import Columns, table
+
 from .config import load_config, set_num_threads
 from .environments import make_env
 from .evaluate import EVAL_SEED_OFFSET, load_policy, zero_action
@@ -107,16 +109,17 @@ def command_table(run_dir: str | Path, *, commands: Sequence[Sequence[float]] = 
     return rows
 
 
+COMMAND_COLUMNS = Columns(["policy", "ground", "command vx, yaw", "vx m/s", "yaw rad/s", "falls", "sinkage mm",
+                           "return"], widths=[7, 6, 15, 7, 9, 5, 10, 8], align="<<>>>>>>")
+"""The command table's columns, fixed so that :func:`command_table` prints each row as it is measured."""
+
+
 def format_rows(rows: Sequence[dict], header: bool = True) -> str:
-    """Plain-text table of :func:`command_table` rows."""
-    lines = []
-    if header:
-        lines.append(f"{'policy':<8} {'ground':<6} {'command vx, yaw':>16} {'vx m/s':>7} {'yaw rad/s':>9} "
-                     f"{'falls':>6} {'sinkage mm':>10} {'return':>8}")
-    for r in rows:
-        c = r["command"]
-        lines.append(f"{r['policy']:<8} {r['ground']:<6} {c[0]:>9.2f}, {c[2]:>5.2f} {r['vx']:>7.3f} {r['yaw']:>9.3f} "
-                     f"{r['falls']:>3}/{r['episodes']:<2} {1000 * r['sinkage_m']:>10.1f} {r['return']:>8.1f}")
+    """Table lines of :func:`command_table` rows (:data:`COMMAND_COLUMNS`), with the header when ``header``."""
+    lines = [COMMAND_COLUMNS.header()] if header else []
+    lines += [COMMAND_COLUMNS.row([r["policy"], r["ground"], f"{r['command'][0]:.2f}, {r['command'][2]:.2f}",
+                                   f"{r['vx']:.3f}", f"{r['yaw']:.3f}", f"{r['falls']}/{r['episodes']}",
+                                   f"{1000 * r['sinkage_m']:.1f}", f"{r['return']:.1f}"]) for r in rows]
     return "\n".join(lines)
 
 
@@ -140,9 +143,7 @@ def gap_table(sand_run: str | Path, rigid_run: str | Path, *, command=(0.4, 0.0,
 
 
 def format_gap(rows: Sequence[dict]) -> str:
-    head = f"{'trained on':<10} {'evaluated on':<12} {'vx m/s':>7} {'falls':>6} {'sinkage mm':>10} {'return':>8}"
-    lines = [head, "-" * len(head)]
-    for r in rows:
-        lines.append(f"{r['trained_on']:<10} {r['ground']:<12} {r['vx']:>7.3f} {r['falls']:>3}/{r['episodes']:<2} "
-                     f"{1000 * r['sinkage_m']:>10.1f} {r['return']:>8.1f}")
-    return "\n".join(lines)
+    """The table of :func:`gap_table` rows."""
+    return table(["trained on", "evaluated on", "vx m/s", "falls", "sinkage mm", "return"],
+                 [[r["trained_on"], r["ground"], f"{r['vx']:.3f}", f"{r['falls']}/{r['episodes']}",
+                   f"{1000 * r['sinkage_m']:.1f}", f"{r['return']:.1f}"] for r in rows], align="<<>>>>")

@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from rft_mujoco.tables import table
+
 from .config import (
     MODEL_FILENAME,
     VECNORMALIZE_FILENAME,
@@ -230,17 +232,15 @@ def plot_evaluation(results: dict, run_dir: str | Path, out: str | Path, *, wind
 
 
 def format_table(results: dict) -> str:
-    """The per-policy numbers as a plain-text table."""
+    """The per-policy numbers as a table."""
     key = results["speed_key"]
-    head = f"{'policy':<8} {'return mean ± std':>24} {'length':>8}" + (f" {'speed (' + key + ')':>24}" if key else "")
-    lines = [head, "-" * len(head)]
+    rows = []
     for name, s in results["policies"].items():
-        line = f"{name:<8} {s['return_mean']:>13.3f} ± {s['return_std']:<8.3f} {s['length_mean']:>8.1f}"
+        row = [name, f"{s['return_mean']:.3f} ± {s['return_std']:.3f}", f"{s['length_mean']:.1f}"]
         if key:
-            line += (f" {s['speed_mean']:>13.4f} ± {s['speed_std']:<8.4f}" if s["speed_mean"] is not None
-                     else f" {'-':>24}")
-        lines.append(line)
-    return "\n".join(lines)
+            row.append(f"{s['speed_mean']:.4f} ± {s['speed_std']:.4f}" if s["speed_mean"] is not None else "-")
+        rows.append(row)
+    return table(["policy", "return mean ± std", "length"] + ([f"speed ({key})"] if key else []), rows)
 
 
 def evaluate(run_dir: str | Path, *, episodes: int = 10, seed: int | None = None,

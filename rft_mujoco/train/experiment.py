@@ -328,7 +328,8 @@ def _learn(config: RunConfig, run_dir: Path, start: Checkpoint | None, *, progre
                    f"in {run_dir}\nresume with: {prog} train --resume {run_dir}")
         print(message, flush=True)
         raise Interrupted(stop.signum, saved, message)
-    print(f"evaluate with: {prog} evaluate --run {run_dir}", flush=True)
+    print(f"evaluate with: {prog} evaluate --run {run_dir}\nfor rl-zoo3's enjoy: {prog} zoo --run {run_dir} -f logs",
+          flush=True)
     return model_path
 
 

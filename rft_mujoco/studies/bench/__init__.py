@@ -5,7 +5,10 @@ Prints tables and writes plots to ``out/bench/`` (``--out``). Every time is the 
 numbers from one run, not across machines. Sections:
 
 1. **Element throughput** (ns per element, N = 1e3 ... 1e6): the law, numpy against compiled; the element
-   pass (poses and twists -> body wrenches), numpy against compiled (:mod:`.kernels`).
+   pass (poses and twists -> body wrenches), numpy against compiled (:mod:`.kernels`). 1b: the public
+   ``rft_mujoco.element_forces`` (compiled, with its input handling) against the numpy law and the kernel
+   alone, side by side in interleaved rounds, with the target of >= 20x the numpy law at 1e5 elements
+   (``--law`` runs 1b alone).
 2. **Coupling cost** against a bare ``mj_step`` of the same model (:mod:`.coupling`): (a) the bundled
    quadruped, every body attached, the floor replaced by the sand, standing still and trotting, at three
    resolutions, with the rest treatment (default), without it (``stabilize=False``), without the
@@ -31,11 +34,12 @@ from pathlib import Path
 from rft_mujoco.studies.bench import plots
 from rft_mujoco.studies.bench.coupling import (above_sand, env_rates, quadruped_overhead, rk4_stages_accuracy,
                                                 sand_phases)
-from rft_mujoco.studies.bench.kernels import DIRECTIONS_DEG, TARGET_ERROR, speed_accuracy, throughput
-from rft_mujoco.studies.bench.timing import machine, table
+from rft_mujoco.studies.bench.kernels import DIRECTIONS_DEG, TARGET_ERROR, public_law, speed_accuracy, throughput
+from rft_mujoco.studies.bench.timing import machine
+from rft_mujoco.tables import table
 
-__all__ = ["run", "main", "throughput", "quadruped_overhead", "env_rates", "above_sand", "speed_accuracy",
-           "mesh_robots"]
+__all__ = ["run", "main", "throughput", "public_law", "quadruped_overhead", "env_rates", "above_sand",
+           "speed_accuracy", "mesh_robots"]
 
 SETTINGS = {"rest": dict(), "naive": dict(stabilize=False), "no culling": dict(cull=False),
             "numpy": dict(backend="numpy")}
@@ -45,9 +49,27 @@ SETTINGS = {"rest": dict(), "naive": dict(stabilize=False), "no culling": dict(c
 
 ROBOT_TARGET = 5.0
 """Each mesh robot of section 5 standing (or lying) on sand at <= 5x its bare step, default settings."""
+PUBLIC_LAW_TARGET, PUBLIC_LAW_N = 20.0, 100_000
+"""The public ``rft_mujoco.element_forces`` at >= 20x the numpy law at 1e5 elements (section 1b)."""
 QUADRUPED_TARGET, STANDING_TARGET, ANT_TARGET = 5.0, 0.8, 0.7
 """The speed targets of the rest design (docs/performance.md): the quadruped standing at <= 5x its bare
 step; zero-action env steps/s >= 0.8x random-action ones; SandAnt-v0 >= 0.7x Ant-v5 (random actions)."""
+
+
+def _public_law(sizes, rounds: int) -> list[dict]:
+    """Section 1b: measure and print :func:`.kernels.public_law` and its target's verdict."""
+    print(f"1b. The public rft_mujoco.element_forces against the numpy law and the compiled kernel alone, ns per "
+          f"element ({rounds} interleaved rounds; medians)", flush=True)
+    rows = public_law(sizes, rounds)
+    print(table(["N", "law numpy", "kernel", "public", "public speed-up", "kernel speed-up", "public / kernel"],
+                [[f"{r['n']:.0e}", f"{r['numpy_ns']:.1f}", f"{r['kernel_ns']:.1f}", f"{r['public_ns']:.1f}",
+                  f"{r['public_speedup']:.1f}x", f"{r['kernel_speedup']:.1f}x", f"{r['public_over_kernel']:.2f}"]
+                 for r in rows]))
+    for r in rows:
+        if r["n"] == PUBLIC_LAW_N:
+            print(_verdict(f"public element_forces speed-up over the numpy law at N = {PUBLIC_LAW_N:.0e}",
+                           r["public_speedup"], PUBLIC_LAW_TARGET, ">=", "x"))
+    return rows
 
 
 def _verdict(what: str, value: float, target: float, sense: str, unit: str = "") -> str:
@@ -149,6 +171,8 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = Tru
                 [[f"{r['n']:.0e}", f"{r['law_numpy']:.1f}", f"{r['law_numba']:.1f}",
                   f"{r['law_numpy'] / r['law_numba']:.1f}x", f"{r['kernel_numpy']:.1f}",
                   f"{r['kernel_numba']:.1f}", f"{r['kernel_numpy'] / r['kernel_numba']:.1f}x"] for r in thr]))
+    print()
+    public = _public_law([1e3, 1e4, 1e5], 3 if quick else 5)
 
     print("\n2a. Quadruped (models/quadruped.xml) on sand, every body attached: us per mj_step, standing "
           "and trotting", flush=True)
@@ -206,7 +230,7 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = Tru
     files = plots.all_plots(out, thr, quad, rates, acc) if plots_on else []
     if files:
         print("\nwrote " + ", ".join(str(f) for f in files))
-    return dict(throughput=thr, quadruped=quad, rates=rates, stages=stages, above=above, accuracy=acc,
+    return dict(throughput=thr, public_law=public, quadruped=quad, rates=rates, stages=stages, above=above, accuracy=acc,
                 robots=robot_rows, files=files)
 
 
@@ -231,6 +255,9 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
     parser.add_argument("--no-plots", action="store_true", help="tables only")
     parser.add_argument("--robots", action="store_true",
                         help="section 5 alone: the mesh robots' element counts and standing cost (~1-3 min)")
+    parser.add_argument("--law", action="store_true",
+                        help="section 1b alone: the public element_forces against the numpy law and the kernel "
+                             "(~1 min)")
     args = parser.parse_args(argv)
     from rft_mujoco import compiled
 
@@ -243,6 +270,11 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
         print("5. Mesh robots on loose glass beads, every body attached, floor replaced, servos holding home: "
               "us per mj_step after 1.5 s (alternating runs with the bare model)", flush=True)
         mesh_robots(args.quick)
+        return 0
+    if args.law:
+        print(machine())
+        compiled.ensure_compiled()
+        _public_law([1e3, 1e4, 1e5], 3 if args.quick else 5)
         return 0
     run(quick=args.quick, out=args.out, plots_on=not args.no_plots)
     return 0

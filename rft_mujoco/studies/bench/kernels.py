@@ -76,6 +76,37 @@ def throughput(sizes) -> list[dict]:
     return out
 
 
+def public_law(sizes, rounds: int = 5) -> list[dict]:
+    """ns per element at each N of the public :func:`rft_mujoco.element_forces` (its default backend, the
+    compiled one, with its input checks and conversions) against the numpy law
+    (:func:`rft_mujoco.physics.law.element_forces`) and the compiled kernel alone
+    (:func:`rft_mujoco.compiled.law.element_forces`), on :func:`throughput`'s elements. The three are timed
+    side by side in ``rounds`` interleaved rounds (the machine's speed drifts); each time is the median over
+    the rounds, each speed-up the median of the per-round ratios."""
+    import rft_mujoco
+    from rft_mujoco.compiled import law as fastlaw
+
+    media = MPM_VALIDATION
+    out = []
+    for n in sizes:
+        n = int(n)
+        rng, local, nrm, areas, _ = _random_elements(n)
+        centroids = local + [0.0, 0.0, -0.15]
+        vel = rng.normal(size=(n, 3)) * SPEED
+        calls = {"numpy": lambda: law.element_forces(centroids, nrm, areas, vel, media),
+                 "kernel": lambda: fastlaw.element_forces(centroids, nrm, areas, vel, media),
+                 "public": lambda: rft_mujoco.element_forces(centroids, nrm, areas, vel, media)}
+        times = {k: [] for k in calls}
+        for _ in range(rounds):
+            for key, call in calls.items():
+                times[key].append(median_time(call, 3) / n * 1e9)
+        ratio = lambda a, b: float(np.median(np.array(times[a]) / np.array(times[b])))  # noqa: E731
+        out.append(dict(n=n, numpy_ns=float(np.median(times["numpy"])), kernel_ns=float(np.median(times["kernel"])),
+                        public_ns=float(np.median(times["public"])), public_speedup=ratio("numpy", "public"),
+                        kernel_speedup=ratio("numpy", "kernel"), public_over_kernel=ratio("public", "kernel")))
+    return out
+
+
 def _rot(axis: str, angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return {"y": np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]),

@@ -1,4 +1,4 @@
-"""Timing helpers of the benchmarks: medians of repeats, the machine line, plain-text tables, the quadruped."""
+"""Timing helpers of the benchmarks: medians of repeats, the machine line, the quadruped."""
 
 from __future__ import annotations
 
@@ -58,15 +58,6 @@ def machine() -> str:
     return (f"machine: {cpu}, {cores} logical cores ({usable} usable), {platform.system()} "
             f"{platform.machine()}; python {platform.python_version()}, numpy {np.__version__}, numba {nb}, "
             f"mujoco {mujoco.__version__}")
-
-
-def table(headers, rows) -> str:
-    """A right-aligned plain-text table."""
-    cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
-    width = [max(len(r[i]) for r in cells) for i in range(len(headers))]
-    lines = ["  ".join(c.rjust(w) for c, w in zip(r, width)) for r in cells]
-    lines.insert(1, "  ".join("-" * w for w in width))
-    return "\n".join(lines)
 
 
 def quadruped() -> mujoco.MjModel:

@@ -365,10 +365,3 @@ class Log:
         print(f"[validate] {line}", file=self.stream, flush=True)
 
 
-def table(headers, rows, widths=None) -> list[str]:
-    cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
-    w = widths or [max(len(r[i]) for r in cells) for i in range(len(headers))]
-    line = lambda r: "  ".join(c.rjust(w[i]) if i else c.ljust(w[i]) for i, c in enumerate(r))  # noqa: E731
-    return [line(cells[0]), "  ".join("-" * x for x in w)] + [line(r) for r in cells[1:]]
-
-

@@ -12,7 +12,8 @@ from rft_mujoco.physics.media import DEM_GLASS_BEADS, MPM_VALIDATION
 from rft_mujoco.geometry import surface
 from rft_mujoco.studies import overlap
 from rft_mujoco.studies.validation.protocol import *  # noqa: F401,F403
-from rft_mujoco.studies.validation.protocol import Log, Results, table
+from rft_mujoco.studies.validation.protocol import Log, Results
+from rft_mujoco.tables import table
 
 def report(res: Results, log: Log, size: float, quick: bool) -> None:
     m = MPM_VALIDATION
@@ -29,7 +30,7 @@ def report(res: Results, log: Log, size: float, quick: bool) -> None:
         log()
         log(f"{label} (N), mean of {SAMPLES} samples over {WINDOW * 1000:g} ms")
         rows = [[f"{a:+.0f}"] + [f"{res.force[n][i, k]:.1f}" for n in names] for i, a in enumerate(res.angles_deg)]
-        for line in table(["deg"] + names, rows):
+        for line in table(["deg"] + names, rows).splitlines():
             log(line)
     log()
     log("rows at exactly 0 and +-90 deg include faces with n.v = 0 (flat tops and bottoms sliding sideways, "
@@ -46,7 +47,7 @@ def report(res: Results, log: Log, size: float, quick: bool) -> None:
             worst = res.angles_deg[int(np.argmax(np.linalg.norm(q - p, axis=1) / np.linalg.norm(p, axis=1)))]
             row.append(f"{100 * mean:+.2f} [{100 * mx:.1f}" + (f" @{worst:+.0f}]" if mx > 0 else "]"))
         rows.append(row)
-    for line in table(["shape"] + list(GUARD_SETTINGS), rows):
+    for line in table(["shape"] + list(GUARD_SETTINGS), rows).splitlines():
         log(line)
     if res.convergence:
         log()
@@ -61,7 +62,8 @@ def report(res: Results, log: Log, size: float, quick: bool) -> None:
                 err = np.linalg.norm(per[s] - ref, axis=1) / np.linalg.norm(ref, axis=1)
                 rows.append([n, s] + [f"{x:.1f}" for x in np.linalg.norm(per[s], axis=1)]
                             + [f"{100 * err.max():.2f}"])
-        for line in table(["shape", "size"] + [f"{a:+d}" for a in CONVERGENCE_ANGLES_DEG] + ["err %"], rows):
+        headers = ["shape", "size"] + [f"{a:+d}" for a in CONVERGENCE_ANGLES_DEG] + ["err %"]
+        for line in table(headers, rows).splitlines():
             log(line)
     log()
     d = DEM_GLASS_BEADS
@@ -77,7 +79,7 @@ def report(res: Results, log: Log, size: float, quick: bool) -> None:
             rows.append([f"{omega / math.pi:g} pi", f"{t:.2f}", f"{100 * bottom:.1f}", f"{r.force[i, 2]:.2f}",
                          f"{np.hypot(r.force[i, 0], r.force[i, 1]):.2e}", f"{r.torque[i, 2]:.4f}",
                          f"{np.hypot(r.torque[i, 0], r.torque[i, 1]):.2e}"])
-    for line in table(["omega rad/s", "t s", "bottom cm", "Fz N", "|Fxy| N", "Mz N m", "|Mxy| N m"], rows):
+    for line in table(["omega rad/s", "t s", "bottom cm", "Fz N", "|Fxy| N", "Mz N m", "|Mxy| N m"], rows).splitlines():
         log(line)
     log("bunny drill: skipped (needs the Stanford-bunny mesh, which this project does not ship)")
     log()
