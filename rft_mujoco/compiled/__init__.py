@@ -35,8 +35,9 @@ _lock = threading.Lock()
 class _Progress:
     """Says on stderr (and the "rft_mujoco" logger) that numba compiles the package's kernels, with the time
     so far every :data:`TICK_S` s, and the total when it is done. numba reports each compile as an event;
-    compiles of the package's functions (at import, the native callbacks; later, :func:`ensure_compiled`)
-    start the reporter, and :data:`IDLE_S` s without one end it."""
+    compiles of the package's functions start the reporter, and :data:`IDLE_S` s without one end it, except
+    while :func:`ensure_compiled` holds it (:meth:`hold`): its warm-up is one report, pauses between
+    numba's compile events (the C callbacks, machine code) included."""
 
     TICK_S = 15.0
     IDLE_S = 2.0
@@ -44,6 +45,7 @@ class _Progress:
     def __init__(self, stream=None):
         self.stream = stream
         self.depth = 0
+        self.holding = 0              # > 0 while ensure_compiled runs: no end of the report before it returns
         self.started = None           # perf_counter of the first compile of this burst
         self.last = 0.0               # perf_counter of the last compile event
         self.total = 0.0              # s compiled in earlier bursts
@@ -78,12 +80,22 @@ class _Progress:
             self.last = time.perf_counter()
             self.cond.notify_all()
 
+    def hold(self) -> None:
+        with self.cond:
+            self.holding += 1
+
+    def release(self) -> None:
+        with self.cond:
+            self.holding = max(self.holding - 1, 0)
+            self.last = time.perf_counter()
+            self.cond.notify_all()
+
     def _run(self) -> None:
         next_tick = self.started + self.TICK_S
         with self.cond:
             while True:
                 now = time.perf_counter()
-                if self.depth == 0 and now - self.last >= self.IDLE_S:
+                if self.depth == 0 and self.holding == 0 and now - self.last >= self.IDLE_S:
                     break
                 if now >= next_tick:
                     self._say(f"rft_mujoco: still compiling ({self.total + now - self.started:.0f} s so far)")
@@ -152,6 +164,12 @@ def ensure_compiled(verbose: bool = True) -> float:
             jit.drop_stale_cache()
         if _PROGRESS is not None and not verbose:
             _PROGRESS.stream = open(os.devnull, "w")  # noqa: SIM115 (kept for the process)
-        warmup.run()
+        if _PROGRESS is not None:
+            _PROGRESS.hold()
+        try:
+            warmup.run()
+        finally:
+            if _PROGRESS is not None:
+                _PROGRESS.release()
         _compiled = True
         return time.perf_counter() - t0

@@ -1,4 +1,6 @@
-"""Compile every kernel once, for exactly the argument types the package passes (a tiny model, two terrains)."""
+"""Compile every kernel of the coupling once, for exactly the argument types the package passes (a tiny model,
+two terrains). :func:`rft_mujoco.compiled.law.element_forces`, which the coupling does not use, compiles at
+its first call."""
 
 from __future__ import annotations
 
@@ -56,10 +58,6 @@ def run() -> None:
             wt[45][2] = 2.0
             evaluate.evaluate(md, hc, wt, data.xfrc_applied, 0.002, sand, evaluate.friction_arrays(data))
     del x
-    c3 = np.zeros((2, 3))
-    law._element_forces(c3.reshape(-1), np.tile([0.0, 0.0, 1.0], 2), np.ones(2), np.ones(6), 0.0,
-                        np.array([0.0, 0.0, -1.0]), 1.0, plaw.COEFFICIENTS, 0.4, False, False, False,
-                        law.tolerances(), np.zeros((9, law.CHUNK)), np.zeros(6))
     try:
         route.warm_up(model, data)
     except RuntimeError:                             # no route here (route.efc_layout): the Python path runs
