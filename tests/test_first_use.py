@@ -46,7 +46,7 @@ def test_progress_lines_while_compiling(monkeypatch):
     progress.thread.join(timeout=5)
     lines = stream.getvalue().splitlines()
     assert lines[0].startswith("rft_mujoco: compiling the numba kernels, once for this user and version "
-                               f"(about {jit.COMPILE_SECONDS // 60} min")
+                               f"(about {jit.COMPILE_SECONDS / 60:.1f} min")
     assert any(line.startswith("rft_mujoco: still compiling (") for line in lines[1:-1])
     assert lines[-1].startswith("rft_mujoco: numba kernels compiled (")
     progress.start()                                         # a later burst continues the count

@@ -41,9 +41,9 @@ if AVAILABLE:
         types: numba compiles a called function once per literal type it meets, those of constant
         arguments (``False``) and the intermediate types of the caller's type inference (``ng = 0``
         before its loop's ``ng += 1`` makes ``Literal[int](0)``), each specialization a whole compile of
-        the callee and of everything it calls (measured: 22 s of the 163 s of CPU the kernels took to
-        compile before this dispatcher, docs/performance.md). The kernels gain nothing from literal
-        arguments; LLVM folds the constants it sees."""
+        the callee and of everything it calls (profiled: 34 s of the 253 s of CPU the demo's kernels took
+        to compile before this dispatcher, docs/performance.md "First use"). The kernels gain nothing from
+        literal arguments; LLVM folds the constants it sees."""
 
         def get_call_template(self, args, kws):
             return super().get_call_template(tuple(types.unliteral(a) for a in args),
@@ -62,17 +62,18 @@ JIT = dict(cache=True, fastmath=False, nogil=True, error_model="numpy")
 """Default: IEEE arithmetic, no exception checks on float division (``error_model="numpy"``: a division by
 zero gives inf/NaN, masked out afterwards, instead of a Python check that would stop vectorization)."""
 INLINE = dict(JIT, inline="always")
-"""Small building blocks inlined by numba into their callers: the per-element scalar helpers of the element
-loops and the route's table accessors. Never a large function: numba types, lowers and LLVM optimizes an
-inlined body again in each caller (``evaluate`` was, into the Python path and into the route: most of the
-first use's compile, docs/performance.md "First use"); a large function is a plain :data:`JIT` call."""
+"""Functions inlined by numba into their callers: the per-element scalar helpers of the element loops, the
+route's table accessors, and the evaluation's two phases into the route's (as plain calls, the tuples of
+120 arrays they take cost 2-5 us a call, measured). numba types, lowers and LLVM optimizes an inlined body
+again in each function it is inlined into: a large one belongs in one entry point only (docs/performance.md
+"First use")."""
 JIT_LAW = dict(JIT, fastmath={"contract"})
 """The two element loops: multiply-add fusion (FMA), nothing else; measured 5-7% fewer ns per element,
 results within round-off of the numpy law (tests), deterministic run to run."""
 
-COMPILE_SECONDS = 130
-"""First-use compile time in s on a 2-core machine, for the notice: 128 s of wall and 130 s of CPU measured
-for the demo's kernels (docs/performance.md "First use"; 273 s before, issue 29)."""
+COMPILE_SECONDS = 150
+"""First-use compile time in s on a 2-core machine, for the notice: the demo's first use took 150 s of wall
+and 149 s of CPU (docs/performance.md "First use"; 248 s of wall before, 273 s in issue 29)."""
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",
