@@ -41,7 +41,7 @@ if AVAILABLE:
         types: numba compiles a called function once per literal type it meets, those of constant
         arguments (``False``) and the intermediate types of the caller's type inference (``ng = 0``
         before its loop's ``ng += 1`` makes ``Literal[int](0)``), each specialization a whole compile of
-        the callee and of everything it calls (profiled: 34 s of the 253 s of CPU the demo's kernels took
+        the callee and of everything it calls (profiled: 34 s of the 250 s of CPU the demo's kernels took
         to compile before this dispatcher, docs/performance.md "First use"). The kernels gain nothing from
         literal arguments; LLVM folds the constants it sees."""
 
