@@ -45,10 +45,51 @@ def test_progress_lines_while_compiling(monkeypatch):
     progress.end()
     progress.thread.join(timeout=5)
     lines = stream.getvalue().splitlines()
-    assert lines[0].startswith("rft_mujoco: compiling the numba kernels, once for this user and version (about 4 min")
+    assert lines[0].startswith("rft_mujoco: compiling the numba kernels, once for this user and version "
+                               f"(about {jit.COMPILE_SECONDS / 60:.1f} min")
     assert any(line.startswith("rft_mujoco: still compiling (") for line in lines[1:-1])
     assert lines[-1].startswith("rft_mujoco: numba kernels compiled (")
     progress.start()                                         # a later burst continues the count
     progress.end()
     progress.thread.join(timeout=5)
     assert "compiling more numba kernels" in stream.getvalue()
+
+
+def test_progress_is_one_report_while_held(monkeypatch):
+    """ensure_compiled holds the report: pauses between numba's compile events do not end it."""
+    stream = io.StringIO()
+    progress = compiled._Progress(stream)
+    monkeypatch.setattr(progress, "TICK_S", 10.0)
+    monkeypatch.setattr(progress, "IDLE_S", 0.05)
+    progress.hold()
+    progress.start()
+    progress.end()
+    time.sleep(0.3)                                          # idle, but held
+    assert "numba kernels compiled" not in stream.getvalue()
+    progress.start()
+    progress.end()
+    thread = progress.thread
+    progress.release()
+    thread.join(timeout=5)
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 2 and lines[-1].startswith("rft_mujoco: numba kernels compiled (")
+
+
+def test_calls_between_kernels_compile_one_plain_specialization():
+    """A counter starting at 0 or a constant argument does not compile literal specializations."""
+    import numpy as np
+
+    @jit.njit(cache=False)
+    def callee(n, flag):
+        return n + 1 if flag else n
+
+    @jit.njit(cache=False)
+    def caller(a):
+        ng = 0
+        for i in range(a.shape[0]):
+            if a[i]:
+                ng += 1
+        return callee(ng, True) + callee(ng, a.shape[0] > 5)
+
+    assert caller(np.ones(3, np.bool_)) == 7
+    assert [str(t) for t in callee.signatures[0]] == ["int64", "bool"] and len(callee.signatures) == 1

@@ -35,8 +35,9 @@ _lock = threading.Lock()
 class _Progress:
     """Says on stderr (and the "rft_mujoco" logger) that numba compiles the package's kernels, with the time
     so far every :data:`TICK_S` s, and the total when it is done. numba reports each compile as an event;
-    compiles of the package's functions (at import, the native callbacks; later, :func:`ensure_compiled`)
-    start the reporter, and :data:`IDLE_S` s without one end it."""
+    compiles of the package's kernels (``rft_mujoco.compiled``) start the reporter, and :data:`IDLE_S` s
+    without one end it, except while :func:`ensure_compiled` holds it (:meth:`hold`): its warm-up is one
+    report, pauses between numba's compile events (the C callbacks, machine code) included."""
 
     TICK_S = 15.0
     IDLE_S = 2.0
@@ -44,6 +45,7 @@ class _Progress:
     def __init__(self, stream=None):
         self.stream = stream
         self.depth = 0
+        self.holding = 0              # > 0 while ensure_compiled runs: no end of the report before it returns
         self.started = None           # perf_counter of the first compile of this burst
         self.last = 0.0               # perf_counter of the last compile event
         self.total = 0.0              # s compiled in earlier bursts
@@ -66,7 +68,7 @@ class _Progress:
         where = jit.cache_dir() if jit.PER_USER_CACHE else "numba's cache"
         if self.total == 0.0:
             self._say(f"rft_mujoco: compiling the numba kernels, once for this user and version (about "
-                      f"{COMPILE_SECONDS // 60} min on a 2-core machine, more on a busy one); cached in {where}")
+                      f"{COMPILE_SECONDS / 60:.1f} min on a 2-core machine, more on a busy one); cached in {where}")
         else:
             self._say(f"rft_mujoco: compiling more numba kernels ({self.total:.0f} s so far)")
         self.thread = threading.Thread(target=self._run, name="rft_mujoco-compile-progress", daemon=True)
@@ -78,12 +80,22 @@ class _Progress:
             self.last = time.perf_counter()
             self.cond.notify_all()
 
+    def hold(self) -> None:
+        with self.cond:
+            self.holding += 1
+
+    def release(self) -> None:
+        with self.cond:
+            self.holding = max(self.holding - 1, 0)
+            self.last = time.perf_counter()
+            self.cond.notify_all()
+
     def _run(self) -> None:
         next_tick = self.started + self.TICK_S
         with self.cond:
             while True:
                 now = time.perf_counter()
-                if self.depth == 0 and now - self.last >= self.IDLE_S:
+                if self.depth == 0 and self.holding == 0 and now - self.last >= self.IDLE_S:
                     break
                 if now >= next_tick:
                     self._say(f"rft_mujoco: still compiling ({self.total + now - self.started:.0f} s so far)")
@@ -105,12 +117,12 @@ def _install_progress() -> _Progress | None:
     class _Listener(event.Listener):
         def on_start(self, ev):
             func = getattr(ev.data.get("dispatcher"), "py_func", None)
-            if getattr(func, "__module__", "").startswith("rft_mujoco."):
+            if getattr(func, "__module__", "").startswith("rft_mujoco.compiled."):
                 progress.start()
 
         def on_end(self, ev):
             func = getattr(ev.data.get("dispatcher"), "py_func", None)
-            if getattr(func, "__module__", "").startswith("rft_mujoco."):
+            if getattr(func, "__module__", "").startswith("rft_mujoco.compiled."):
                 progress.end()
 
     event.register("numba:compile", _Listener())
@@ -136,9 +148,10 @@ def require() -> None:
 
 
 def ensure_compiled(verbose: bool = True) -> float:
-    """Compile (or load from numba's cache) every kernel for the argument types the package passes, once per
-    process; returns the seconds it took (0 when already done). Prints one line to stderr (and logs it on
-    the "rft_mujoco" logger) only when numba actually compiles something."""
+    """Compile (or load from numba's cache) the coupling's kernels (:mod:`~rft_mujoco.compiled.warmup`: the
+    native route and callbacks; the Python path's and ``element_forces``' compile at their first call), once
+    per process; returns the seconds it took (0 when already done). Prints progress lines to stderr (and
+    logs them on the "rft_mujoco" logger) only when numba actually compiles something."""
     global _compiled
     if _compiled or not AVAILABLE:
         return 0.0
@@ -152,6 +165,12 @@ def ensure_compiled(verbose: bool = True) -> float:
             jit.drop_stale_cache()
         if _PROGRESS is not None and not verbose:
             _PROGRESS.stream = open(os.devnull, "w")  # noqa: SIM115 (kept for the process)
-        warmup.run()
+        if _PROGRESS is not None:
+            _PROGRESS.hold()
+        try:
+            warmup.run()
+        finally:
+            if _PROGRESS is not None:
+                _PROGRESS.release()
         _compiled = True
         return time.perf_counter() - t0

@@ -21,11 +21,12 @@ import platform
 
 try:  # numba is a dependency, but keep the package importable (and on numpy) without it
     import numba
-    from numba import carray, cfunc, njit, types
+    from numba import carray, cfunc, types
+    from numba.core.registry import CPUDispatcher
     AVAILABLE = True
     IMPORT_ERROR: str | None = None
 except Exception as exc:  # pragma: no cover - exercised only where numba is missing or broken
-    numba = carray = cfunc = types = None
+    numba = carray = cfunc = types = CPUDispatcher = None
     AVAILABLE = False
     IMPORT_ERROR = f"{type(exc).__name__}: {exc}"
 
@@ -34,17 +35,45 @@ except Exception as exc:  # pragma: no cover - exercised only where numba is mis
             return args[0]
         return lambda f: f
 
+if AVAILABLE:
+    class _Dispatcher(CPUDispatcher):
+        """numba's CPU dispatcher, except that a call from compiled code is typed with its arguments' plain
+        types: numba compiles a called function once per literal type it meets, those of constant
+        arguments (``False``) and the intermediate types of the caller's type inference (``ng = 0``
+        before its loop's ``ng += 1`` makes ``Literal[int](0)``), each specialization a whole compile of
+        the callee and of everything it calls (profiled: 34 s of the 250 s of CPU the demo's kernels took
+        to compile before this dispatcher, docs/performance.md "First use"). The kernels gain nothing from
+        literal arguments; LLVM folds the constants it sees."""
+
+        def get_call_template(self, args, kws):
+            return super().get_call_template(tuple(types.unliteral(a) for a in args),
+                                             {k: types.unliteral(v) for k, v in kws.items()})
+
+    def njit(*args, **kwargs):
+        """``numba.njit`` with :class:`_Dispatcher`: one compile per plain signature."""
+        made = numba.njit(*args, **kwargs)
+
+        def plain(dispatcher):
+            dispatcher.__class__ = _Dispatcher
+            return dispatcher
+        return plain(made) if isinstance(made, CPUDispatcher) else (lambda f: plain(made(f)))
+
 JIT = dict(cache=True, fastmath=False, nogil=True, error_model="numpy")
 """Default: IEEE arithmetic, no exception checks on float division (``error_model="numpy"``: a division by
 zero gives inf/NaN, masked out afterwards, instead of a Python check that would stop vectorization)."""
 INLINE = dict(JIT, inline="always")
-"""Scalar building blocks, inlined into the loops that call them."""
+"""Functions inlined by numba into their callers: the per-element scalar helpers of the element loops, the
+route's table accessors, and the evaluation's two phases into the route's (as plain calls, the tuples of
+120 arrays they take cost 2-5 us a call, measured). numba types, lowers and LLVM optimizes an inlined body
+again in each function it is inlined into: a large one belongs in one entry point only (docs/performance.md
+"First use")."""
 JIT_LAW = dict(JIT, fastmath={"contract"})
 """The two element loops: multiply-add fusion (FMA), nothing else; measured 5-7% fewer ns per element,
 results within round-off of the numpy law (tests), deterministic run to run."""
 
-COMPILE_SECONDS = 270
-"""First-use compile time in s on a quiet 2-core machine (273 s measured for issue 29), for the notice."""
+COMPILE_SECONDS = 150
+"""First-use compile time in s on a 2-core machine, for the notice: the demo's first use took 150 s of wall
+and 149 s of CPU (docs/performance.md "First use"; 248 s of wall before, 273 s in issue 29)."""
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",

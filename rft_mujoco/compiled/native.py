@@ -47,10 +47,11 @@ MUJOCO_VERSION = "4.0.0"
 """The mujoco version whose struct layout and callback semantics this module was written and tested for."""
 SYMBOL = "rft_mujoco_native_registry"
 """Global symbol holding the address of the registry array."""
-HEAD, ENTRY = 8, 8
+HEAD, ENTRY = 9, 8
 """Registry: a header of HEAD int64 (entries, control trampoline, passive trampoline, mj_fwdActuation,
-addresses of mjcb_act_dyn / gain / bias, -), then ENTRY int64 per entry (mjModel*, mjData* or 0 for a model
-without a route yet, route table, &data.time, &opt.timestep, &opt.integrator, &opt.disableflags, table length)."""
+addresses of mjcb_act_dyn / gain / bias, the route's phase 1 and phase 2 C functions), then ENTRY int64 per
+entry (mjModel*, mjData* or 0 for a model without a route yet, route table, &data.time, &opt.timestep,
+&opt.integrator, &opt.disableflags, table length)."""
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
 _ACTUATION_OFF = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
 _CELL = ctypes.c_int64(0)               # the registry's address: what SYMBOL names
@@ -89,6 +90,18 @@ if AVAILABLE:
             return context.get_dummy_value()
         return types.void(types.int64, types.int64, types.int64), codegen
 
+    @intrinsic
+    def _phase(typingctx, fn, table, time, dt):
+        """Call the route's phase at address ``fn`` (:func:`rft_mujoco.compiled.route.entries`) on the table at
+        address ``table``: a call through the address, so that this module's machine code does not contain
+        (and compile again) the phases' own."""
+        def codegen(context, builder, signature, args):
+            i64, f64 = ir.IntType(64), ir.DoubleType()
+            fnty = ir.FunctionType(i64, [i64.as_pointer(), f64, f64])
+            f = builder.inttoptr(args[0], fnty.as_pointer())
+            return builder.call(f, [builder.inttoptr(args[1], i64.as_pointer()), args[2], args[3]])
+        return types.int64(types.int64, types.int64, types.float64, types.float64), codegen
+
     _as_i4 = rt._cast(types.CPointer(types.int32))
     _as_i8, _as_f8 = rt._as_i8, rt._as_f8
 
@@ -123,7 +136,10 @@ def _later_rk4_stage(state, t, dt):
     return False
 
 
-@njit(**JIT)
+_RUN_SIG = types.void(types.Array(types.int64, 1, "C"), types.int64, types.int64, types.int64) if AVAILABLE else None
+
+
+@njit(_RUN_SIG, **JIT)                                # one signature: not one per literal ``passive``
 def run(reg, m, d, passive):
     """One callback: the route of (``m``, ``d``) natively, or the Python trampoline, or nothing."""
     n = reg[0]
@@ -155,12 +171,13 @@ def run(reg, m, d, passive):
             return                                   # xfrc_applied holds the first stage's user + sand wrench
     else:
         state[2] = 0.0
-    code = rt.phase1(t, time, dt)
+    table = reg[entry + 2]
+    code = _phase(reg[7], table, time, dt)           # rt.phase1
     if code == rt.ACTUATE:
         _call(reg[3], m, d)                          # mj_fwdActuation: no user actuator callback installed
-        code = rt.phase2(t, time, dt)
+        code = _phase(reg[8], table, time, dt)       # rt.phase2
     elif code == rt.CONTINUE:
-        code = rt.phase2(t, time, dt)
+        code = _phase(reg[8], table, time, dt)
     if code == rt.MONITOR or code == rt.PYTHON:
         state[5] = code                              # what the Python side is to do
         _call(trampoline, m, d)
@@ -273,7 +290,8 @@ def _check() -> tuple:
         symbols = dict(control=addr("mjcb_control"), passive=addr("mjcb_passive"), act_dyn=addr("mjcb_act_dyn"),
                        act_gain=addr("mjcb_act_gain"), act_bias=addr("mjcb_act_bias"),
                        fwd_actuation=ctypes.cast(lib.mj_fwdActuation, ctypes.c_void_p).value,
-                       control_c=_control_c.address, passive_c=_passive_c.address)
+                       control_c=_control_c.address, passive_c=_passive_c.address,
+                       phase1_c=rt.cfuncs()[0].address, phase2_c=rt.cfuncs()[1].address)
     except Exception as exc:  # a MuJoCo build this module does not know
         return False, f"{type(exc).__name__}: {exc}"
     return True, dict(symbols, offsets=offsets)
@@ -343,7 +361,7 @@ class Registry:
             entries.append((m, 0, 0, 0, 0, 0, flags, 0))
         reg = np.zeros(HEAD + ENTRY * len(entries), dtype=np.int64)
         reg[:HEAD] = (len(entries), *self.trampolines, info["fwd_actuation"], info["act_dyn"], info["act_gain"],
-                      info["act_bias"], 0)
+                      info["act_bias"], info["phase1_c"], info["phase2_c"])
         for e, values in enumerate(entries):
             reg[HEAD + ENTRY * e:HEAD + ENTRY * (e + 1)] = values
         self._old.append(reg)

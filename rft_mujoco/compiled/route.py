@@ -23,6 +23,7 @@ dtype its schema says (MuJoCo's ``mjtNum`` must be float64), no other Python cal
 from __future__ import annotations
 
 import ctypes
+import threading
 
 import numpy as np
 
@@ -216,6 +217,8 @@ def _book(t, base):
 _HC_SLOTS = len(ev.HANDLE_FIELDS) * SLOT
 _PARAMS = [name for name, _ in ev.HANDLE_FIELDS].index("params") * SLOT
 _RK4_FIRST = ev.PARAMS.index("rk4_first")
+_MONITOR_EVERY = ev.PARAMS.index("monitor_every")
+_STATE = _HC_SLOTS + [name for name, _ in ev.WORK_FIELDS].index("state") * SLOT
 
 
 @njit(**JIT)
@@ -228,10 +231,19 @@ def all_first(t):
     return n > 0
 
 
-@njit(**JIT)
-def phase1(t, time, dt):
-    """User part and every handle's broadphase (see the module docstring); returns DONE, ACTUATE, CONTINUE
-    or PYTHON (also when the model's timestep, gravity or geom sizes changed: :func:`model_changed`)."""
+@njit(**INLINE)
+def _table(ptr):
+    """The table at ``ptr`` (its length from its header)."""
+    n = carray(ptr, (_HEADER,))[0]
+    return carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT + _EFC
+                        + n * (len(ev.HANDLE_FIELDS) + len(ev.WORK_FIELDS)) * SLOT,))
+
+
+def phase1(ptr, time, dt):
+    """User part and every handle's broadphase (see the module docstring) on the table at ``ptr``; returns
+    DONE, ACTUATE, CONTINUE or PYTHON (also when the model's timestep, gravity or geom sizes changed:
+    :func:`model_changed`). A C function (:func:`cfuncs`), compiled only as such: one compile, not two."""
+    t = _table(ptr)
     n = t[0]
     xfrc, written, added, rows, user, sand, state, snapshot, gravity, geom_size = _book(t, t[1])
     if model_changed(snapshot, dt, gravity, geom_size):
@@ -263,9 +275,10 @@ def phase1(t, time, dt):
     return ACTUATE if actuate else CONTINUE
 
 
-@njit(**JIT)
-def phase2(t, time, dt):
-    """Every touching handle's evaluation and the commit; returns DONE, MONITOR or PYTHON."""
+def phase2(ptr, time, dt):
+    """Every touching handle's evaluation and the commit, on the table at ``ptr``; returns DONE, MONITOR or
+    PYTHON. A C function (:func:`cfuncs`)."""
+    t = _table(ptr)
     n = t[0]
     xfrc, written, added, rows, user, sand, state, _, _, _ = _book(t, t[1])
     md = _md(t, t[2])
@@ -286,40 +299,37 @@ def phase2(t, time, dt):
     state[0] = 1.0 if nonzero else 0.0
     for h in range(n):
         base = t[_HEADER + h]
-        every = _hc(t, base)[35][10]
-        st = _ws(t, base + _HC_SLOTS)[45]
+        every = _f1(t, base + _PARAMS)[_MONITOR_EVERY]       # (not the whole hc, ws tuples: less to compile)
+        st = _f1(t, base + _STATE)
         if every > 0.0 and st[2] > 0.0 and st[4] % every == 0.0:
             return MONITOR
     return DONE
 
 
-if AVAILABLE:
-    _SIG = types.int64(types.CPointer(types.int64), types.float64, types.float64)
+_SIG = types.int64(types.CPointer(types.int64), types.float64, types.float64) if AVAILABLE else None
+"""The C signature of both phases: (table address, time s, dt s) -> phase result."""
 
-    @cfunc(_SIG, cache=True)
-    def _phase1_c(ptr, time, dt):
-        n = carray(ptr, (_HEADER,))[0]
-        t = carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT + _EFC
-                         + n * (len(ev.HANDLE_FIELDS) + len(ev.WORK_FIELDS)) * SLOT,))
-        return phase1(t, time, dt)
-
-    @cfunc(_SIG, cache=True)
-    def _phase2_c(ptr, time, dt):
-        n = carray(ptr, (_HEADER,))[0]
-        t = carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT + _EFC
-                         + n * (len(ev.HANDLE_FIELDS) + len(ev.WORK_FIELDS)) * SLOT,))
-        return phase2(t, time, dt)
 
 _CTYPE = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_double, ctypes.c_double)
-_entries = None
+_entries: list = []
+_entries_lock = threading.Lock()
+
+
+def cfuncs() -> tuple:
+    """(phase1, phase2) as numba ``cfunc`` s, compiled (or loaded from the cache) on first use rather than at
+    import, so that importing the package compiles nothing (:func:`rft_mujoco.compiled.ensure_compiled`
+    calls this while it reports the compile)."""
+    with _entries_lock:
+        if not _entries:
+            c1, c2 = (cfunc(_SIG, cache=True)(f) for f in (phase1, phase2))
+            _entries.extend([c1, c2, _CTYPE(c1.address), _CTYPE(c2.address)])
+        return tuple(_entries[:2])
 
 
 def entries():
     """(phase1, phase2) as ctypes functions (address, time s, dt s) -> int."""
-    global _entries
-    if _entries is None:
-        _entries = (_CTYPE(_phase1_c.address), _CTYPE(_phase2_c.address))
-    return _entries
+    cfuncs()
+    return tuple(_entries[2:])
 
 
 _DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_}

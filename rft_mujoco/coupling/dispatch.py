@@ -443,15 +443,22 @@ class Dispatcher:
             later = book.later_rk4_stage(data.time, model.opt.timestep)
             if later and all(h.rk4_stages == "first" for h in handles):
                 return                       # xfrc_applied still holds the first stage's user + sand wrench
-        native = book.native
-        if native is not None and native[0] == self._generation:
-            if not pending and self._native_call(model, data, native[1]):
-                return
-        elif native is None or native[0] != self._generation:
+        if book.native is not None and book.native[0] != self._generation:
             book.native = None
-        self._evaluate(model, data, book, handles, rows)
-        if book.native is None and all(h._fast is not None and not h._observers for h in handles) \
-                and compiled.ready() and _route_layout():
+        routable = book.native is None and all(h._fast is not None and not h._observers for h in handles) \
+            and compiled.ready() and _route_layout()
+        if routable and (book.rows is rows or book.rows.size == 0):
+            # no rows of detached handles to clear: the native route from this evaluation on, the first of a
+            # model included (the Python path's kernels then compile only where it runs)
+            for h in handles:                # what the Python path checks at a handle's first evaluation
+                h._check_floor()
+            book.native = (self._generation, self._build_route(data, book, handles, rows))
+            book.rows = rows
+            routable = False
+        native = book.native
+        if native is None or pending or not self._native_call(model, data, native[1]):
+            self._evaluate(model, data, book, handles, rows)
+        if routable:
             book.native = (self._generation, self._build_route(data, book, handles, rows))
         if self._registry is not None and book.native is not None and book.native[0] == self._generation \
                 and not self._registry.routed(model, data):

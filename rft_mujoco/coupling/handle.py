@@ -399,13 +399,17 @@ class SandHandle:
             observer(data, wrenches, stage)
         return loaded
 
+    def _check_floor(self) -> None:
+        """At the first evaluation (after replace_rigid had its chance): warn about a rigid floor under the sand."""
+        if not self._floor_checked:
+            self._floor_checked = True
+            checks.check_rigid_floor(self.model, self.body_ids, self._terrain)
+
     def _evaluate_once(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, stage: int = 0) -> bool:
         work = self._workspace(data)
         work.state[5] = stage
         dt = self.model.opt.timestep
-        if not self._floor_checked:                      # after replace_rigid had its chance
-            self._floor_checked = True
-            checks.check_rigid_floor(self.model, self.body_ids, self._terrain)
+        self._check_floor()
         if self._fast is not None:
             return self._evaluate_compiled(data, work, user_xfrc, sand_out, dt)
         self._evaluations += 1
