@@ -3,18 +3,14 @@
 MuJoCo callbacks are global to the process, so every attached sand handle of every model goes through
 one dispatcher installed with ``mujoco.set_mjcb_control``. It
 
-* chains a control callback the user had installed before (called first, so ``ctrl`` is final);
-* also installs a passive callback (chaining the user's) that evaluates the sand when
-  ``mjDSBL_ACTUATION`` is set: MuJoCo then skips ``mjcb_control``, and the sand must act anyway;
-* routes each evaluation to the handles of that model (several models and datas work independently);
-* owns the ``xfrc_applied`` bookkeeping per MjData, so that the row always ends as user wrench + sand
-  wrench, whether the user left the row alone (we subtract what we added), zeroed it, assigned a new
-  wrench between steps, or wrote some of its six components only (:func:`untouched_components`);
-* keeps model compilation working while installed: mujoco 4.0's compiler raises "Python exception
-  raised" whenever any Python callback is installed, so the compile entry points
-  (``MjModel.from_xml_string / from_xml_path / from_binary_path``, ``MjSpec.compile / recompile``) are
-  wrapped to suspend the callback for the duration of the call. The wrappers are removed when the last
-  handle detaches;
+* chains a control callback the user had installed before (called first, so ``ctrl`` is final); also
+  a passive one that evaluates the sand when ``mjDSBL_ACTUATION`` makes MuJoCo skip ``mjcb_control``;
+* routes each evaluation to the handles of its model (models and datas work independently);
+* owns the ``xfrc_applied`` bookkeeping per MjData: the row always ends as user wrench + sand wrench,
+  whatever the user wrote between steps (:func:`untouched_components`);
+* keeps model compilation working (mujoco 4.0's compiler raises "Python exception raised" while any
+  Python callback is installed): the compile entry points are wrapped to suspend the callback, until the
+  last handle detaches;
 * keeps the sand's state with the simulation it belongs to while installed (docs/architecture.md, "State
   and copies"): copies of an MjData for the same model (``copy.copy``, ``mj_copyData``) get its book and
   the handles' workspaces; deep copies and pickles of an MjData, and copies, pickles and ``mj_saveModel``
@@ -23,16 +19,14 @@ one dispatcher installed with ``mujoco.set_mjcb_control``. It
   ``set_mjcb_control`` / ``set_mjcb_passive`` set the user callback it chains; ``model.opt.disableflags``
   that would leave no callback for the sand are refused; and every evaluation compares the model's
   timestep, gravity and geom sizes with what the handles last checked (:meth:`SandHandle._check_model`);
-* never keeps a model alive: a handle holds its model weakly and is unregistered by a finalizer of the model
-  when the model is garbage collected (docs/architecture.md, "Lifetime").
+* never keeps a model alive: a model's finalizer unregisters its handles (docs/architecture.md, "Lifetime").
 
 Where it can (:func:`rft_mujoco.compiled.native.support`), the dispatcher installs native callbacks
 (:mod:`rft_mujoco.compiled.native`) in MuJoCo's place of its Python ones: the bindings still hold the
 Python callbacks (``mujoco.get_mjcb_control()`` returns the dispatcher), MuJoCo calls compiled code that
 runs the native route of each (model, data) and hands everything else to the bindings' trampoline of
-the Python callback, so that behaviour and errors are those of the Python path. Only a callback the user
-had installed before keeps its slot Python (it is chained from Python). ``Dispatcher.native = False``
-before the first attach keeps both Python.
+the Python callback, so that behaviour and errors are those of the Python path. A callback the user had
+installed before keeps its slot Python; ``Dispatcher.native = False`` before the first attach keeps both.
 """
 
 from __future__ import annotations

@@ -21,14 +21,11 @@ times for RK4) the dispatcher (:mod:`rft_mujoco.coupling.dispatch`) evaluates ev
 5. every ``monitor.every`` evaluations, the loaded bodies are checked against the validity range of 3D-RFT
    (:mod:`rft_mujoco.coupling.monitor`; ``attach(monitor=False)`` switches it off).
 
-Steps 1-4 run compiled (:mod:`rft_mujoco.compiled`; ``backend="numba"``, the default where numba imports)
-or in the numpy reference (:mod:`rft_mujoco.coupling.reference`, ``backend="numpy"``); the tests compare
-the two. Costs are measured by ``python -m rft_mujoco bench``.
+Steps 1-4 run compiled (:mod:`rft_mujoco.compiled`, the default) or in the numpy reference
+(:mod:`rft_mujoco.coupling.reference`, ``backend="numpy"``); the tests compare the two.
 
-Why the constraint forces of the previous solve: MuJoCo calls ``mjcb_control`` before its constraint
-solve, so no force computed there can know this step's contact, weld or limit forces; the previous
-solve's are the best estimate, exact once the scene rests (``../shared/reference/mujoco-notes.md``;
-the design and its alternatives are measured in docs/rest.md).
+Why the previous solve's constraint forces: MuJoCo calls ``mjcb_control`` before its constraint solve;
+they are the best estimate, exact once the scene rests (docs/rest.md measures the alternatives).
 """
 
 from __future__ import annotations
