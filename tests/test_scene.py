@@ -100,3 +100,14 @@ def test_viewer_camera_tracks_the_trunk():
         np.testing.assert_allclose(cam.lookat, data.subtree_com[scene.trunk], atol=1e-12)
     assert cam.distance == demo.VIEW_DISTANCE_M
     scene.close()
+
+
+def test_demo_refuses_to_overwrite_an_explicit_out(tmp_path, capsys):
+    """``demo --out DIR`` never replaces a plot or video already there without ``--overwrite`` (the default
+    out/ is the demo's own folder and is replaced)."""
+    from rft_mujoco.studies import demo
+    (tmp_path / "demo_quadruped.png").write_bytes(b"mine")
+    with pytest.raises(SystemExit) as exc:
+        demo.main(["--out", str(tmp_path), "--no-video", "--seconds", "0.01"])
+    assert exc.value.code == 2 and "--overwrite" in capsys.readouterr().err
+    assert (tmp_path / "demo_quadruped.png").read_bytes() == b"mine"

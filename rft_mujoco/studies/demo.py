@@ -292,7 +292,10 @@ def parser(command: str = "demo") -> argparse.ArgumentParser:
                    help="simulated time in s")
     p.add_argument("--stand", type=float, default=1.0, help="standing time before trotting, s")
     if command == "demo":
-        p.add_argument("--out", type=Path, default=Path("out"), help="folder for the plot and video")
+        p.add_argument("--out", type=Path, default=None,
+                       help="folder for the plot and video (default: out/, replaced on every run; a folder given "
+                            "here must not hold them already, unless --overwrite)")
+        p.add_argument("--overwrite", action="store_true", help="replace the plot and video in --out")
         p.add_argument("--no-video", action="store_true", help="skip the video")
     return p
 
@@ -302,5 +305,11 @@ def main(argv: list[str] | None = None, command: str = "demo") -> int:
     if command == "view":
         view(args.seconds, args.stand)
     else:
-        run(args.seconds, args.stand, args.out, video=not args.no_video)
+        out = Path("out") if args.out is None else args.out
+        names = ("demo_quadruped.png",) + (() if args.no_video else ("demo_quadruped.mp4",))
+        existing = [str(out / n) for n in names if (out / n).exists()]
+        if args.out is not None and existing and not args.overwrite:
+            parser(command).error(f"--out {out} already holds {', '.join(existing)}: pass --overwrite to replace "
+                                  "them, or choose another folder")
+        run(args.seconds, args.stand, out, video=not args.no_video)
     return 0
