@@ -44,7 +44,7 @@ BASH = {f"{page.name}:{i}": code for page in sorted(DOCS.glob("*.md"))
 
 RUN = {
     "training.md:2": "the sand gap of the shipped runs: 12 episodes of 10 s (about 1 min on this 2-core VM)",
-    "training.md:4": "a shipped run written in rl-zoo3's layout and one episode of it in rl_zoo3.enjoy (~20 s)",
+    "training.md:5": "a shipped run written in rl-zoo3's layout and one episode of it in rl_zoo3.enjoy (~20 s)",
 }
 """The bash blocks run as written, and what they cost."""
 
@@ -53,7 +53,9 @@ NOT_RUN = {
     "training.md:0": "an hour of training (tests/test_train.py trains with the same command on a tiny budget)",
     "training.md:1": "10 episodes of 20 s per policy, the command table and a video, several minutes "
                      "(tests/test_train.py evaluates the shipped run on fewer episodes)",
-    "training.md:3": "a million steps of rl-zoo3 training (tests/test_zoo.py runs the zoo's train, evaluation and "
+    "training.md:3": "resumes a run of your own (tests/test_train.py interrupts a tiny run with SIGTERM and resumes "
+                     "it by folder and by name)",
+    "training.md:4": "a million steps of rl-zoo3 training (tests/test_zoo.py runs the zoo's train, evaluation and "
                      "enjoy with the same YAML on a tiny budget)",
 }
 """The bash blocks not run, and why: their commands are checked (:func:`test_costly_bash_block_commands_exist`)."""
@@ -91,7 +93,7 @@ def test_bash_block_runs_as_written(key, tmp_path):
         assert len(printed) == 4 and set(_doc_gap_rows()) == {(a, b) for a, b, _ in printed}, out
         for a, b, vx in printed:
             assert float(vx) == pytest.approx(_doc_gap_rows()[a, b], abs=0.005), (a, b, out)
-    if key == "training.md:4":
+    if key == "training.md:5":
         assert "Mean episode length: 1000.00" in out, out
 
 
