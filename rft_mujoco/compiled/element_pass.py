@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from rft_mujoco.compiled.elements import LANES, _inside, _outside_ball
+from rft_mujoco.compiled.elements import LANES, _inside, _nearest_face, _outside_ball
 from rft_mujoco.compiled.jit import INLINE, JIT_LAW, njit
 from rft_mujoco.compiled.law import _coef, _stress
 from rft_mujoco.compiled.terrain import FLAT, _depth
@@ -167,17 +167,21 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
                     gm[2] * ex + gm[5] * ey + gm[8] * ez
                 s0, s1, s2 = occ_size[o, 0], occ_size[o, 1], occ_size[o, 2]
                 hs0, hs1, ok = occ_hs_start[o], occ_hs_start[o + 1], occ_kind[o]
-                if _outside_ball(t0 + (m00 * q0 + m01 * q1 + m02 * q2), t1 + (m10 * q0 + m11 * q1 + m12 * q2),
-                                 t2 + (m20 * q0 + m21 * q1 + m22 * q2), cluster_radius[q], ok, s0, s1, s2, occ_hs,
-                                 hs0, hs1, margin):
+                x0, x1, x2 = t0 + (m00 * q0 + m01 * q1 + m02 * q2), t1 + (m10 * q0 + m11 * q1 + m12 * q2), \
+                    t2 + (m20 * q0 + m21 * q1 + m22 * q2)
+                if _outside_ball(x0, x1, x2, cluster_radius[q], ok, s0, s1, s2, occ_hs, hs0, hs1, margin):
                     continue                                 # a face of the geom separates the whole cluster
+                kf = _nearest_face(x0, x1, x2, ok, occ_hs, hs0, hs1)
                 for jj in range(ms):
                     i = sub[jj]
                     if not dep[i] > 0.0:
                         continue
                     l0, l1, l2 = cl0[i], cl1[i], cl2[i]
-                    if _inside(t0 + (m00 * l0 + m01 * l1 + m02 * l2), t1 + (m10 * l0 + m11 * l1 + m12 * l2),
-                               t2 + (m20 * l0 + m21 * l1 + m22 * l2), ok, s0, s1, s2, occ_hs, hs0, hs1, margin):
+                    e0, e1, e2 = t0 + (m00 * l0 + m01 * l1 + m02 * l2), t1 + (m10 * l0 + m11 * l1 + m12 * l2), \
+                        t2 + (m20 * l0 + m21 * l1 + m22 * l2)
+                    if kf >= 0 and not occ_hs[kf, 0] * e0 + occ_hs[kf, 1] * e1 + occ_hs[kf, 2] * e2 < occ_hs[kf, 3] - margin:
+                        continue                             # outside the face nearest the cluster (as _inside)
+                    if _inside(e0, e1, e2, ok, s0, s1, s2, occ_hs, hs0, hs1, margin):
                         occluded[j] += areas[s + i]
                         dep[i] = -np.inf
             # 3. the loaded elements (submerged, moving, leading), in increasing index

@@ -5,8 +5,9 @@ Nothing here is copied from a public model: every mesh is generated below (numpy
 to MuJoCo as in-memory assets. Used by the bench (section 5, :func:`standing_cost`) and by
 tests/test_mesh_robots.py.
 
-* :func:`mesh_humanoid`: a 34 kg biped (its servos only hold the joint angles: on loose sand its soles
-  sink a few cm and it falls backwards, then lies at rest, like the public humanoids with a pose holder);
+* :func:`mesh_humanoid`: a 34 kg biped, standing by an ankle strategy (:func:`balance_humanoid`: its ankle
+  servos answer the torso's tilt, as an IMU would report it; with its servos only holding the joint angles
+  it falls on loose sand, like the public humanoids with a pose holder, and lies in it);
   torso, thighs, shins and soles are STL meshes made of two
   closed boxes that share an edge (non-manifold edges, consistently wound, like a humanoid's shipped
   links); the head is a visual-only mesh body; servos hold ``home``.
@@ -114,14 +115,16 @@ def mesh_humanoid() -> mujoco.MjModel:
             <geom type="mesh" mesh="shin" pos="0 0 -0.18"/>
             <body name="{side}_foot" pos="0 0 -0.36">
               <joint name="{side}_ankle" axis="0 1 0" range="-1 1"/>
+              <joint name="{side}_ankle_roll" axis="1 0 0" range="-0.5 0.5"/>
               <inertial pos="0 0 -0.02" mass="1.2" diaginertia="0.004 0.006 0.008"/>
               <geom type="mesh" mesh="sole" pos="0 0 -0.02"/>
             </body>
           </body>
         </body>"""
-    actuators = "".join(f'<position joint="{s}_{j}" kp="{kp}" kv="{kv}"/>'
+    actuators = "".join(f'<position name="{s}_{j}" joint="{s}_{j}" kp="{kp}" kv="{kv}"/>'
                         for s in ("left", "right") for j, kp, kv in (("hip", 3000, 60), ("knee", 3000, 60),
-                                                                     ("ankle", 3000, 60)))
+                                                                     ("ankle", 3000, 60),
+                                                                     ("ankle_roll", 3000, 60)))
     xml = f"""
     <mujoco model="mesh_humanoid">
       {_OPTION}
@@ -143,7 +146,7 @@ def mesh_humanoid() -> mujoco.MjModel:
         </body>
       </worldbody>
       <actuator>{actuators}</actuator>
-      <keyframe><key name="home" qpos="0 0 0.98 1 0 0 0 0 0 0 0 0 0" ctrl="0 0 0 0 0 0"/></keyframe>
+      <keyframe><key name="home" qpos="0 0 0.98 1 0 0 0 0 0 0 0 0 0 0 0" ctrl="0 0 0 0 0 0 0 0"/></keyframe>
     </mujoco>"""
     return mujoco.MjModel.from_xml_string(xml, assets)
 
@@ -251,14 +254,44 @@ def slanted_quadruped(trunk_mass: float = 45.0, slant: float = 0.5, foot: float 
     return mujoco.MjModel.from_xml_string(xml, assets)
 
 
+BALANCE_GAIN = 0.4
+"""rad per rad: the ankle targets' shift per radian of torso tilt in :func:`balance_humanoid` (torque
+``kp * gain`` N m/rad per ankle, kp = 3000 N m/rad; 0.3-0.8 measured to stand on loose glass beads)."""
+
+BALANCE_DAMPING = 0.03
+"""s: the ankle targets' shift per rad/s of torso rate in :func:`balance_humanoid` (0.02-0.05 measured to
+stand; 0.1 rolls it over: the servos' own lag)."""
+
+
+def balance_humanoid(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    """Set the ankle servos' targets of :func:`mesh_humanoid` from the torso's tilt (an ankle strategy): each
+    ankle target is its current angle plus ``BALANCE_GAIN`` times the torso's pitch (roll) and
+    ``BALANCE_DAMPING`` times its rate, so that the ankles push the body upright whatever the feet's own
+    tilt in the sand. Call it before each ``mj_step``. Why it needs one: a statue rests on loose glass beads
+    only where its soles resist rocking more than its weight tips it; the soles give about
+    alpha sum(A x^2) = 68 N m/rad in pitch against m g h = 230 N m/rad (docs/robots.md)."""
+    z = data.xmat[model.body("torso").id].reshape(3, 3)[:, 2]
+    pitch, roll = np.arctan2(z[0], z[2]), np.arctan2(-z[1], z[2])
+    rate = data.qvel[3:6]                                    # the free joint's angular velocity, torso frame
+    for side in ("left", "right"):
+        for joint, tilt, w in (("ankle", pitch, rate[1]), ("ankle_roll", roll, rate[0])):
+            name = f"{side}_{joint}"
+            q = data.qpos[model.jnt_qposadr[model.joint(name).id]]
+            data.ctrl[model.actuator(name).id] = q + BALANCE_GAIN * tilt + BALANCE_DAMPING * w
+
+
 ROBOTS = {"mesh humanoid": mesh_humanoid, "mesh quadruped": mesh_quadruped}
 """The mesh robots of :func:`standing_cost`, by name."""
 
+CONTROLLERS = {"mesh humanoid": balance_humanoid}
+"""What sets a robot's servo targets before each step (robots not named hold ``home``)."""
+
 
 # --- cost ------------------------------------------------------------------------------------------------
-def standing_cost(names=None, resolution="default", settle_s: float = 1.5, steps: int = 500,
+def standing_cost(names=None, resolution="default", settle_s: float = 2.5, steps: int = 500,
                   repeats: int = 5) -> list[dict]:
-    """Each robot standing on sand (every body attached, the floor replaced, servos holding ``home``):
+    """Each robot standing on sand (every body attached, the floor replaced, servos holding ``home``, or set by
+    the robot's :data:`CONTROLLERS` entry before each step, untimed):
     us per mj_step against the same model's bare step (floor kept, no sand), timed side by side
     (alternating runs of ``steps`` steps from the state reached after ``settle_s`` s; medians of
     ``repeats``), with the element counts and the exposed area.
@@ -285,9 +318,11 @@ def standing_cost(names=None, resolution="default", settle_s: float = 1.5, steps
             handle.replace_rigid(["floor"])
         attach_s = time.perf_counter() - t0
         data, bare = mujoco.MjData(model), mujoco.MjData(bare_model)
+        control = CONTROLLERS.get(name, lambda m, d: None)
         for m, d in ((model, data), (bare_model, bare)):
             mujoco.mj_resetDataKeyframe(m, d, 0)
             for _ in range(int(round(settle_s / m.opt.timestep))):
+                control(m, d)
                 mujoco.mj_step(m, d)
         diag = handle.diagnostics(data)
         weight = float(model.body_subtreemass[1] * -model.opt.gravity[2])
@@ -303,10 +338,13 @@ def standing_cost(names=None, resolution="default", settle_s: float = 1.5, steps
         for _ in range(repeats):
             for m, d, s, out in ((model, data, state, sand_t), (bare_model, bare, bstate, bare_t)):
                 mujoco.mj_setState(m, d, s, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-                t0 = time.perf_counter()
+                spent = 0.0
                 for _ in range(steps):
+                    control(m, d)                    # not timed: the same Python for both
+                    t0 = time.perf_counter()
                     mujoco.mj_step(m, d)
-                out.append((time.perf_counter() - t0) / steps)
+                    spent += time.perf_counter() - t0
+                out.append(spent / steps)
         area = float(handle.areas.sum())
         rows.append(dict(name=name, elements=handle.n_elements, area=area,
                          count_ratio=handle.n_elements / (area / size**2), attach_s=attach_s,
