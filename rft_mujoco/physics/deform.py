@@ -1,0 +1,368 @@
+"""A free surface that bodies deform: footprints, berms and a loading memory (pure numpy, no MuJoCo).
+
+3D-RFT (Agarwal, Goldman & Kamrin, PNAS 2023) gives the stress on an element from its depth below the
+free surface and says nothing about what the intrusion does to that surface or to the sand under it. This
+module adds that memory, in the terms of terramechanics, on a grid of nodes laid over the world xy-plane
+(gravity along -z):
+
+* **Footprint.** Where a body's downward-facing surface is below a node's surface, the sand cannot stay
+  there: the node is lowered to the body's surface (plus the elastic depth below). Sand is measured at
+  nodes: each node stands for one ``cell x cell`` patch, and volumes are ``sum(height change) * cell^2``.
+* **Conservation.** The volume a body pushes out of the nodes it occupies is, less a compaction fraction
+  (``compaction``, 0 by default: none compacted), deposited evenly on the ring of nodes within
+  ``berm_width`` of the footprint that the body does not occupy: a berm. Volume leaves the grid only when
+  that ring is empty (the body covers the whole grid); :func:`press` reports it.
+* **Loading memory.** Each node keeps ``preload`` q (m): the depth at which virgin sand carries the
+  largest stress that node has carried (3D-RFT stress is proportional to depth for a given element
+  orientation and motion, so a depth stands for a pressure: ``p = xi_n |alpha_gen| q``). An element at
+  depth ``d`` below the *local deformed surface* (bilinear in the grid) is loaded as if at the
+  effective depth (:func:`effective_depth`)
+
+      d_eff = reload_ratio * d          while d <= q / reload_ratio   (reloading: stiff, elastic)
+      d_eff = q + d - q / reload_ratio  beyond                         (the virgin line resumed)
+
+  so sand reloads ``reload_ratio`` times stiffer than virgin sand up to the stress it has carried and
+  follows the virgin behaviour beyond it. A node pressed past its elastic depth ``q / reload_ratio`` by
+  ``delta`` yields plastically: ``q += delta`` and the node is lowered so that the pressing point's
+  effective depth is unchanged (:func:`press`). On virgin sand (q = 0 everywhere) ``d_eff = d``: the
+  published law, depth from the undeformed surface, whatever the grid update's frequency.
+
+What this is and is not. The loading/unloading/reloading behaviour is the repetitive-loading model of
+terramechanics: Wong, *Theory of Ground Vehicles* (Wiley), and Bekker's pressure-sinkage work describe
+plate tests in which soil unloaded from a sinkage rebounds little and, reloaded, follows a steep line back
+to the largest pressure reached, then the virgin pressure-sinkage curve again. Chrono's Soil Contact Model
+(SCM, Project Chrono ``SCMTerrain``) implements it on a height grid: per node a sinkage split into plastic
+and elastic parts and a yield pressure, an elastic stiffness ``elastic_K`` (Pa/m, documented as larger
+than the Bekker ``Kphi``), and optional bulldozing of displaced soil into berms. Here the virgin curve is
+3D-RFT's (linear in depth, any element orientation) instead of Bekker's ``(k_c/b + k_phi) z^n``, and the
+reload stiffness is a ratio to the virgin stiffness (``reload_ratio``, a modelling parameter, not measured
+here: neither 3D-RFT nor this project has data for it). 3D-RFT claims the virgin, quasi-static stress on
+fresh, level-surfaced media; the footprint, berm and memory rules are this module's additions, not
+predictions of the paper.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from rft_mujoco import tol
+
+FACING_DOWN = 1e-6
+"""An element presses the sand below it when its world normal has ``n_z < -FACING_DOWN``."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class DeformableSurface:
+    """A sand surface that bodies deform, initially flat at ``height`` m (world z; gravity along -z).
+
+    Attributes:
+        height: initial surface height in m.
+        size: (Lx, Ly) in m, the extent of the deformable grid; outside it the surface is the flat,
+            undeformed one at ``height`` and keeps no memory.
+        cell: node spacing in m (the grid has ``round(Lx / cell) + 1`` nodes along x; the spacing used is
+            ``Lx / (nx - 1)``, and likewise along y).
+        center: (x, y) in m, the centre of the grid.
+        reload_ratio: stiffness of reloading over the virgin stiffness (dimensionless, > 1; default 20):
+            a node that carried the stress of depth q reloads to it within ``q / reload_ratio`` of sinkage.
+        compaction: fraction of the displaced volume that compacts instead of going to the berm (0 to 1,
+            default 0: volume conserved).
+        berm_width: m, the displaced volume is spread evenly over the nodes within this distance (at
+            least one node) of the footprint (default 0.05 m).
+    """
+
+    height: float = 0.0
+    size: tuple[float, float] = (1.0, 1.0)
+    cell: float = 0.005
+    center: tuple[float, float] = (0.0, 0.0)
+    reload_ratio: float = 20.0
+    compaction: float = 0.0
+    berm_width: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not math.isfinite(self.height):
+            raise ValueError(f"height must be finite (m), got {self.height!r}")
+        if not (math.isfinite(self.cell) and self.cell > 0.0):
+            raise ValueError(f"cell must be a node spacing > 0 in m, e.g. 0.005, got {self.cell!r}")
+        try:
+            lx, ly = (float(v) for v in self.size)
+            cx, cy = (float(v) for v in self.center)
+        except (TypeError, ValueError):
+            raise ValueError(f"size and center must be pairs of numbers in m, got size={self.size!r}, "
+                             f"center={self.center!r}") from None
+        if not (math.isfinite(lx) and math.isfinite(ly) and lx >= self.cell and ly >= self.cell):
+            raise ValueError(f"size must be (Lx, Ly) in m, each at least one cell ({self.cell} m), got {self.size!r}")
+        if not (math.isfinite(cx) and math.isfinite(cy)):
+            raise ValueError(f"center must be a finite (x, y) in m, got {self.center!r}")
+        nx, ny = int(round(lx / self.cell)) + 1, int(round(ly / self.cell)) + 1
+        if nx * ny > 4_000_000:
+            raise ValueError(f"the grid would have {nx} x {ny} nodes ({self.size!r} m at {self.cell} m); at most "
+                             "4,000,000: use a coarser cell or a smaller size")
+        if not (math.isfinite(self.reload_ratio) and self.reload_ratio > 1.0):
+            raise ValueError(f"reload_ratio must be > 1 (reload stiffness over virgin stiffness), got "
+                             f"{self.reload_ratio!r}")
+        if not (0.0 <= self.compaction <= 1.0):
+            raise ValueError(f"compaction must be a fraction in [0, 1], got {self.compaction!r}")
+        if not (math.isfinite(self.berm_width) and self.berm_width >= 0.0):
+            raise ValueError(f"berm_width must be >= 0 m, got {self.berm_width!r}")
+        object.__setattr__(self, "size", (lx, ly))
+        object.__setattr__(self, "center", (cx, cy))
+        object.__setattr__(self, "shape", (ny, nx))
+        object.__setattr__(self, "spacing", (lx / (nx - 1) if nx > 1 else lx, ly / (ny - 1) if ny > 1 else ly))
+        object.__setattr__(self, "origin", (cx - lx / 2, cy - ly / 2))
+
+    @property
+    def x(self) -> np.ndarray:
+        """(nx,) m, world x of the node columns."""
+        return self.origin[0] + self.spacing[0] * np.arange(self.shape[1])
+
+    @property
+    def y(self) -> np.ndarray:
+        """(ny,) m, world y of the node rows."""
+        return self.origin[1] + self.spacing[1] * np.arange(self.shape[0])
+
+    @property
+    def max_height(self) -> float:
+        """m, the initial surface height (the deformed surfaces of each MjData: :class:`DeformedSurface`)."""
+        return float(self.height)
+
+    def depth(self, points: np.ndarray, g_hat: np.ndarray) -> np.ndarray:
+        """(n,) m, depth of ``points`` (n, 3) below the *initial* surface (checks at attach use it)."""
+        _check_gravity(g_hat)
+        return self.height - np.asarray(points, float)[:, 2]
+
+    def initial(self) -> "DeformedSurface":
+        """A fresh, undeformed surface state of this grid."""
+        return DeformedSurface(self, np.full(self.shape, float(self.height)), np.zeros(self.shape))
+
+
+def _check_gravity(g_hat: np.ndarray) -> None:
+    if g_hat[2] > -1.0 + tol.VERTICAL_GRAVITY_TOL:
+        raise ValueError(f"a deformable surface needs gravity along -z (heights are world z), got gravity "
+                         f"direction {np.round(g_hat, 6).tolist()}")
+
+
+def effective_depth(d: np.ndarray, q: np.ndarray, reload_ratio: float) -> np.ndarray:
+    """(n,) m, the depth at which virgin sand carries the stress of an element ``d`` (n,) m below the local
+    deformed surface where the sand has carried the stress of depth ``q`` (n,) m (module docstring).
+    ``d <= 0`` (above the surface) is returned unchanged."""
+    e = q / reload_ratio
+    return np.where(d <= 0.0, d, np.where(d <= e, reload_ratio * d, q + d - e))
+
+
+def bilinear(grid: DeformableSurface, values: np.ndarray, x: np.ndarray, y: np.ndarray):
+    """``(v (n,), inside (n,) bool)``: ``values`` (ny, nx) bilinearly interpolated at world (x, y) (n,) m;
+    ``inside`` marks points over the grid (``v`` there; clamped to the border elsewhere)."""
+    ny, nx = grid.shape
+    u = (np.asarray(x, float) - grid.origin[0]) / grid.spacing[0]
+    w = (np.asarray(y, float) - grid.origin[1]) / grid.spacing[1]
+    inside = (u >= 0) & (u <= nx - 1) & (w >= 0) & (w <= ny - 1)
+    u = np.clip(np.nan_to_num(u), 0, nx - 1)
+    w = np.clip(np.nan_to_num(w), 0, ny - 1)
+    i0 = np.minimum(np.floor(w).astype(np.int64), max(ny - 2, 0))
+    j0 = np.minimum(np.floor(u).astype(np.int64), max(nx - 2, 0))
+    i1, j1 = np.minimum(i0 + 1, ny - 1), np.minimum(j0 + 1, nx - 1)
+    fu, fw = u - j0, w - i0
+    v = ((1 - fw) * ((1 - fu) * values[i0, j0] + fu * values[i0, j1])
+         + fw * ((1 - fu) * values[i1, j0] + fu * values[i1, j1]))
+    return v, inside
+
+
+class DeformedSurface:
+    """The state of a :class:`DeformableSurface` in one simulation: a terrain (``depth``, ``max_height``).
+
+    Attributes:
+        grid: the :class:`DeformableSurface` it belongs to.
+        heights: (ny, nx) m, surface height at the nodes (row i at ``y[i]``, column j at ``x[j]``).
+        preload: (ny, nx) m, the depth-equivalent of the largest stress each node has carried (module
+            docstring); 0 on virgin sand.
+    The arrays may be views of a caller's memory (the coupling keeps them in a handle's workspace).
+    """
+
+    __slots__ = ("grid", "heights", "preload")
+
+    def __init__(self, grid: DeformableSurface, heights: np.ndarray, preload: np.ndarray) -> None:
+        if heights.shape != grid.shape or preload.shape != grid.shape:
+            raise ValueError(f"heights and preload must have the grid's shape {grid.shape}, got {heights.shape} "
+                             f"and {preload.shape}")
+        self.grid, self.heights, self.preload = grid, heights, preload
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.grid.x
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.grid.y
+
+    @property
+    def max_height(self) -> float:
+        """m, the highest point of the surface (a berm may be above the initial height)."""
+        return max(float(self.heights.max()), float(self.grid.height))
+
+    def height_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(n,) m, the surface height at world (x, y) (n,): bilinear over the grid, ``height`` outside."""
+        h, inside = bilinear(self.grid, self.heights, x, y)
+        return np.where(inside, h, self.grid.height)
+
+    def depth(self, points: np.ndarray, g_hat: np.ndarray) -> np.ndarray:
+        """(n,) m, the effective depth (:func:`effective_depth`) of ``points`` (n, 3), measured from the local
+        deformed surface with the local preload; > 0 below the surface."""
+        _check_gravity(g_hat)
+        points = np.asarray(points, float)
+        h, inside = bilinear(self.grid, self.heights, points[:, 0], points[:, 1])
+        q, _ = bilinear(self.grid, self.preload, points[:, 0], points[:, 1])
+        h = np.where(inside, h, self.grid.height)
+        q = np.where(inside, q, 0.0)
+        return effective_depth(h - points[:, 2], q, self.grid.reload_ratio)
+
+    def copy(self) -> "DeformedSurface":
+        return DeformedSurface(self.grid, self.heights.copy(), self.preload.copy())
+
+
+@dataclasses.dataclass(frozen=True)
+class PressResult:
+    """What one :func:`press` did (volumes in m^3, measured as ``sum(height change) * cell area``).
+
+    Attributes:
+        covered: nodes under a downward-facing element.
+        yielded: nodes lowered (pressed past their elastic depth).
+        displaced: volume pushed out of the yielded nodes.
+        deposited: volume added to the berm (``(1 - compaction) * displaced`` unless ``lost``).
+        lost: volume that found no berm node (the footprint covers the whole grid).
+    """
+
+    covered: int
+    yielded: int
+    displaced: float
+    deposited: float
+    lost: float
+
+
+_NOTHING = PressResult(0, 0, 0.0, 0.0, 0.0)
+
+
+def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, areas: np.ndarray):
+    """The nodes under the downward-facing elements and the lowest body surface over each.
+
+    Each element with ``n_z < -FACING_DOWN`` stands for the square of side ``sqrt(area |n_z|)`` (its
+    projected area) centred on its centroid in the xy-plane; the nodes in that square (boundary included)
+    are covered, at the height of the element's plane over the node. Returns ``(flat node indices (m,),
+    lowest body height over each (m,) m)``.
+
+    Args:
+        points: (n, 3) m, element centroids (world).
+        normals: (n, 3) outward unit normals (world).
+        areas: (n,) m^2.
+    """
+    nz = normals[:, 2]
+    down = np.flatnonzero(nz < -FACING_DOWN)
+    if down.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    p, n = points[down], normals[down]
+    half = 0.5 * np.sqrt(areas[down] * -n[:, 2])                                      # (k,) m
+    sx, sy = grid.spacing
+    ny, nx = grid.shape
+    k = int(math.ceil(float(half.max()) / min(sx, sy))) + 1
+    off = np.arange(-k, k + 1)
+    jc = np.rint((p[:, 0] - grid.origin[0]) / sx).astype(np.int64)
+    ic = np.rint((p[:, 1] - grid.origin[1]) / sy).astype(np.int64)
+    jj = jc[:, None, None] + off[None, None, :]                                       # (k, 1, o)
+    ii = ic[:, None, None] + off[None, :, None]                                       # (k, o, 1)
+    xn = grid.origin[0] + sx * jj
+    yn = grid.origin[1] + sy * ii
+    dx, dy = xn - p[:, 0, None, None], yn - p[:, 1, None, None]
+    slack = 1e-9 * max(sx, sy)
+    hit = ((np.abs(dx) <= half[:, None, None] + slack) & (np.abs(dy) <= half[:, None, None] + slack)
+           & (jj >= 0) & (jj < nx) & (ii >= 0) & (ii < ny))
+    z = p[:, 2, None, None] - (n[:, 0, None, None] * dx + n[:, 1, None, None] * dy) / n[:, 2, None, None]
+    e, a, b = np.nonzero(hit)
+    flat = ii[e, a, 0] * nx + jj[e, 0, b]
+    zb = z[e, a, b]
+    nodes, inv = np.unique(flat, return_inverse=True)
+    low = np.full(nodes.size, np.inf)
+    np.minimum.at(low, inv, zb)
+    return nodes, low
+
+
+def press(surface: DeformedSurface, points: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> PressResult:
+    """Deform ``surface`` in place under a body's exposed surface elements (module docstring).
+
+    Args:
+        surface: the state to update.
+        points: (n, 3) m, element centroids (world), e.g. the submerged elements of one evaluation.
+        normals: (n, 3) their outward unit normals (world).
+        areas: (n,) m^2.
+    Returns:
+        a :class:`PressResult`.
+    """
+    grid = surface.grid
+    points = np.asarray(points, float).reshape(-1, 3)
+    normals = np.asarray(normals, float).reshape(-1, 3)
+    areas = np.asarray(areas, float).reshape(-1)
+    if not (normals.shape[0] == points.shape[0] == areas.shape[0]):
+        raise ValueError(f"points (n, 3), normals (n, 3) and areas (n,) must have one row per element, got "
+                         f"{points.shape}, {normals.shape}, {areas.shape}")
+    nodes, low = covering(grid, points, normals, areas)
+    if nodes.size == 0:
+        return _NOTHING
+    h = surface.heights.reshape(-1)
+    q = surface.preload.reshape(-1)
+    ratio = grid.reload_ratio
+    d = h[nodes] - low
+    plastic = d - q[nodes] / ratio
+    y = np.flatnonzero(plastic > 0.0)
+    if y.size == 0:
+        return PressResult(int(nodes.size), 0, 0.0, 0.0, 0.0)
+    yn = nodes[y]
+    q[yn] += plastic[y]
+    new_h = low[y] + q[yn] / ratio
+    cell_area = grid.spacing[0] * grid.spacing[1]
+    displaced = float(np.sum(h[yn] - new_h)) * cell_area
+    h[yn] = new_h
+    volume = (1.0 - grid.compaction) * displaced
+    rim = berm_nodes(grid, nodes)
+    if rim.size == 0:
+        return PressResult(int(nodes.size), int(y.size), displaced, 0.0, volume)
+    h[rim] += volume / (rim.size * cell_area)
+    return PressResult(int(nodes.size), int(y.size), displaced, volume, 0.0)
+
+
+def berm_nodes(grid: DeformableSurface, covered: np.ndarray) -> np.ndarray:
+    """(r,) flat indices of the nodes within ``berm_width`` (Chebyshev distance, at least one node) of the
+    ``covered`` nodes (flat indices) and not covered themselves."""
+    ny, nx = grid.shape
+    r = max(1, int(math.floor(grid.berm_width / min(grid.spacing) + tol.ROUND_RTOL)))
+    ci, cj = np.divmod(covered, nx)
+    i0, i1 = max(int(ci.min()) - r, 0), min(int(ci.max()) + r, ny - 1)
+    j0, j1 = max(int(cj.min()) - r, 0), min(int(cj.max()) + r, nx - 1)
+    win = np.zeros((i1 - i0 + 1 + 2 * r, j1 - j0 + 1 + 2 * r), dtype=bool)
+    win[ci - i0 + r, cj - j0 + r] = True
+    rows, cols = win.shape
+    wide = win.copy()                                # dilation by the (2r+1)^2 square: along x, then along y
+    for b in range(1, r + 1):
+        wide[:, b:] |= win[:, :cols - b]
+        wide[:, :cols - b] |= win[:, b:]
+    grown = wide.copy()
+    for a in range(1, r + 1):
+        grown[a:, :] |= wide[:rows - a, :]
+        grown[:rows - a, :] |= wide[a:, :]
+    ring = grown & ~win
+    wi, wj = np.nonzero(ring[r:rows - r, r:cols - r])
+    return (wi + i0) * nx + (wj + j0)
+
+
+def volume_change(surface: DeformedSurface) -> float:
+    """m^3, the net change of sand volume over the grid since the surface was flat at its initial height
+    (``sum(heights - height) * cell area``; 0 when volume was conserved)."""
+    g = surface.grid
+    return float(np.sum(surface.heights - g.height)) * g.spacing[0] * g.spacing[1]
+
+
+def footprint_volume(surface: DeformedSurface) -> float:
+    """m^3, the volume of the depressions below the initial height (``sum(max(height - h, 0)) * cell
+    area``)."""
+    g = surface.grid
+    return float(np.sum(np.maximum(g.height - surface.heights, 0.0))) * g.spacing[0] * g.spacing[1]
