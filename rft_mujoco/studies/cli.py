@@ -1,4 +1,4 @@
-"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide}`` (``--help`` on each)."""
+"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide,footprint}`` (``--help`` on each)."""
 
 from __future__ import annotations
 
@@ -19,6 +19,8 @@ COMMANDS = {
                 "against the quasi-static limit"),
     "glide": ("rft_mujoco.studies.glide", "a quadruped on slanted mesh lower legs set down on sand: does it "
               "stand still?"),
+    "footprint": ("rft_mujoco.studies.footprint", "a box's footprint in a deformable surface, set back into it and "
+                  "loaded twice as much"),
 }
 
 
