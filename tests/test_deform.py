@@ -49,15 +49,20 @@ def test_effective_depth_branches_and_continuity():
 
 
 def _covering_loop(grid, points, normals, areas):
-    """The plain loop: every node, every downward element, the plane height where the square covers it."""
+    """The plain loop: every node, every downward element, the plane height where its projected square (half-sides
+    sqrt(area)/2 across the tilt, |n_z| sqrt(area)/2 along it), grown by COVER_GROW cells, covers it."""
     low = {}
     for (px, py, pz), n, a in zip(points, normals, areas):
         if n[2] >= -deform.FACING_DOWN:
             continue
-        half = 0.5 * np.sqrt(a * -n[2])
+        half = 0.5 * np.sqrt(a)
+        t = n[:2] / np.linalg.norm(n[:2]) if np.linalg.norm(n[:2]) > deform.FACING_DOWN else np.array([1.0, 0.0])
         for i, y in enumerate(grid.y):
             for j, x in enumerate(grid.x):
-                if abs(x - px) <= half + 1e-12 and abs(y - py) <= half + 1e-12:
+                along = (x - px) * t[0] + (y - py) * t[1]
+                across = (y - py) * t[0] - (x - px) * t[1]
+                grow = deform.COVER_GROW * grid.cell
+                if abs(along) <= half * -n[2] + grow and abs(across) <= half + grow:
                     z = pz - (n[0] * (x - px) + n[1] * (y - py)) / n[2]
                     k = i * grid.shape[1] + j
                     low[k] = min(low.get(k, np.inf), z)
@@ -65,10 +70,13 @@ def _covering_loop(grid, points, normals, areas):
     return keys, np.array([low[k] for k in keys])
 
 
-@pytest.mark.parametrize("tilt", [0.0, 0.3])
-def test_covering_matches_a_plain_loop(tilt):
+@pytest.mark.parametrize("tilt, spin", [(0.0, 0.0), (0.3, 0.0), (0.5, 0.7)])
+def test_covering_matches_a_plain_loop(tilt, spin):
     grid = DeformableSurface(size=(0.1, 0.08), cell=0.005)
     p, n, a = plate(0.02, -0.01, size=0.007, center=(0.011, -0.004), tilt=tilt)
+    c, s_ = np.cos(spin), np.sin(spin)                 # the tilted plate turned about z: tilt along x and y
+    rz = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1.0]])
+    p, n = p @ rz.T, n @ rz.T
     nodes, low = deform.covering(grid, p, n, a)
     ref_nodes, ref_low = _covering_loop(grid, p, n, a)
     np.testing.assert_array_equal(nodes, ref_nodes)
@@ -181,3 +189,37 @@ def test_tilted_gravity_is_refused():
     s = DeformableSurface().initial()
     with pytest.raises(ValueError, match="gravity along -z"):
         s.depth(np.zeros((1, 3)), np.array([0.6, 0.0, -0.8]))
+
+
+def test_the_berm_avoids_earlier_footprints():
+    """A plate pressed beside an earlier footprint puts its berm on virgin sand only, not into that footprint."""
+    grid = DeformableSurface(size=(0.4, 0.2), cell=0.005)
+    s = grid.initial()
+    deform.press(s, *plate(0.03, -0.01, center=(-0.05, 0.0)))
+    first = s.heights.copy()
+    old = s.preload > 0
+    second = plate(0.03, -0.01, center=(0.02, 0.0))
+    res = deform.press(s, *second)
+    covered = np.zeros(grid.shape[0] * grid.shape[1], bool)
+    covered[deform.covering(grid, *second)[0]] = True
+    stay = old & ~covered.reshape(grid.shape)          # the first footprint's nodes the second plate left alone
+    assert stay.any() and np.array_equal(s.heights[stay], first[stay])
+    assert abs(deform.volume_change(s)) < 1e-12 * res.displaced + 1e-18
+
+
+def test_a_cylinder_lowers_every_node_under_it():
+    """The lower half of a horizontal cylinder (axis y, radius 0.1 m, 6 cm wide, 14.3 x 15 mm elements) sunk 2 cm:
+    every node within its chord and width is lowered, none is left standing between elements."""
+    r, width, size = 0.1, 0.06, 0.015
+    step = 2 * np.pi / 44                                                # arcs of 14.3 mm: elements not square
+    th = np.arange(np.pi + step / 2, 2 * np.pi, step)                    # angles of the lower half
+    ys = -width / 2 + size * (np.arange(int(width / size)) + 0.5)
+    T, Y = np.meshgrid(th, ys)
+    n = np.column_stack([np.cos(T).ravel(), np.zeros(T.size), np.sin(T).ravel()])
+    p = np.column_stack([r * n[:, 0], Y.ravel(), r * n[:, 2] + r - 0.02])
+    grid = DeformableSurface(size=(0.3, 0.2), cell=0.005)
+    s = grid.initial()
+    deform.press(s, p, n, np.full(len(p), step * r * size))
+    chord = np.sqrt(r ** 2 - (r - 0.02) ** 2)
+    inside = (np.abs(grid.x)[None, :] < 0.8 * chord) & (np.abs(grid.y)[:, None] <= width / 2 - 1e-9)
+    assert np.all(s.heights[inside] < -0.005) and np.all(s.preload[inside] > 0.0)

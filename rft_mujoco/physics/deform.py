@@ -10,8 +10,10 @@ module adds that memory, in the terms of terramechanics, on a grid of nodes laid
   nodes: each node stands for one ``cell x cell`` patch, and volumes are ``sum(height change) * cell^2``.
 * **Conservation.** The volume a body pushes out of the nodes it occupies is, less a compaction fraction
   (``compaction``, 0 by default: none compacted), deposited evenly on the ring of nodes within
-  ``berm_width`` of the footprint that the body does not occupy: a berm. Volume leaves the grid only when
-  that ring is empty (the body covers the whole grid); :func:`press` reports it.
+  ``berm_width`` of the nodes it occupies that it does not occupy itself and that were never pressed
+  (``preload == 0``; all the ring's nodes when none is virgin): a berm, kept out of earlier footprints (a
+  wheel's rut is not refilled behind it). Volume leaves the grid only when that ring is empty (the body
+  covers the whole grid); :func:`press` reports it.
 * **Loading memory.** Each node keeps ``preload`` q (m): the depth at which virgin sand carries the
   largest stress that node has carried (3D-RFT stress is proportional to depth for a given element
   orientation and motion, so a depth stands for a pressure: ``p = xi_n |alpha_gen| q``). An element at
@@ -52,6 +54,9 @@ from rft_mujoco import tol
 
 FACING_DOWN = 1e-6
 """An element presses the sand below it when its world normal has ``n_z < -FACING_DOWN``."""
+COVER_GROW = 0.5 - 1e-6
+"""Cells by which an element's projected rectangle is grown to find the nodes it covers (:func:`covering`):
+just under half a cell, so that a node half a cell beyond a body's outline is not covered."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -69,8 +74,8 @@ class DeformableSurface:
             a node that carried the stress of depth q reloads to it within ``q / reload_ratio`` of sinkage.
         compaction: fraction of the displaced volume that compacts instead of going to the berm (0 to 1,
             default 0: volume conserved).
-        berm_width: m, the displaced volume is spread evenly over the nodes within this distance (at
-            least one node) of the footprint (default 0.05 m).
+        berm_width: m, the displaced volume is spread evenly over the never-pressed nodes within this
+            distance (at least one node) of the nodes the body occupies (default 0.05 m).
     """
 
     height: float = 0.0
@@ -247,10 +252,13 @@ _NOTHING = PressResult(0, 0, 0.0, 0.0, 0.0)
 def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, areas: np.ndarray):
     """The nodes under the downward-facing elements and the lowest body surface over each.
 
-    Each element with ``n_z < -FACING_DOWN`` stands for the square of side ``sqrt(area |n_z|)`` (its
-    projected area) centred on its centroid in the xy-plane; the nodes in that square (boundary included)
-    are covered, at the height of the element's plane over the node. Returns ``(flat node indices (m,),
-    lowest body height over each (m,) m)``.
+    Each element with ``n_z < -FACING_DOWN`` stands for a square of side ``L = sqrt(area)`` in its own plane,
+    with one side along the plane's horizontal direction; its projection on the xy-plane is the rectangle
+    centred on the centroid with half-sides ``L / 2`` across the tilt direction ``t`` (the horizontal part of
+    the normal) and ``|n_z| L / 2`` along it (``t = x`` for a level element). The nodes in that rectangle
+    grown by :data:`COVER_GROW` of a cell on each side (elements are not all square: without it, nodes
+    between the elements of a body's bottom could stay uncovered) are covered, at the height of the
+    element's plane over the node. Returns ``(flat node indices (m,), lowest body height over each (m,) m)``.
 
     Args:
         points: (n, 3) m, element centroids (world).
@@ -262,20 +270,26 @@ def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, a
     if down.size == 0:
         return np.zeros(0, np.int64), np.zeros(0)
     p, n = points[down], normals[down]
-    half = 0.5 * np.sqrt(areas[down] * -n[:, 2])                                      # (k,) m
+    half = 0.5 * np.sqrt(areas[down])                                                 # (k,) m
+    flat_h = np.hypot(n[:, 0], n[:, 1])
+    level = flat_h <= FACING_DOWN
+    tx = np.where(level, 1.0, n[:, 0] / np.where(level, 1.0, flat_h))                 # tilt direction (k,)
+    ty = np.where(level, 0.0, n[:, 1] / np.where(level, 1.0, flat_h))
+    along = half * -n[:, 2]
     sx, sy = grid.spacing
     ny, nx = grid.shape
-    k = int(math.ceil(float(half.max()) / min(sx, sy))) + 1
+    k = int(math.ceil(float(half.max()) / min(sx, sy))) + 2
     off = np.arange(-k, k + 1)
     jc = np.rint((p[:, 0] - grid.origin[0]) / sx).astype(np.int64)
     ic = np.rint((p[:, 1] - grid.origin[1]) / sy).astype(np.int64)
     jj = jc[:, None, None] + off[None, None, :]                                       # (k, 1, o)
     ii = ic[:, None, None] + off[None, :, None]                                       # (k, o, 1)
-    xn = grid.origin[0] + sx * jj
-    yn = grid.origin[1] + sy * ii
-    dx, dy = xn - p[:, 0, None, None], yn - p[:, 1, None, None]
-    slack = 1e-9 * max(sx, sy)
-    hit = ((np.abs(dx) <= half[:, None, None] + slack) & (np.abs(dy) <= half[:, None, None] + slack)
+    dx = grid.origin[0] + sx * jj - p[:, 0, None, None]
+    dy = grid.origin[1] + sy * ii - p[:, 1, None, None]
+    u = dx * tx[:, None, None] + dy * ty[:, None, None]                               # along the tilt
+    w = dy * tx[:, None, None] - dx * ty[:, None, None]                               # across it
+    grow = COVER_GROW * min(sx, sy)
+    hit = ((np.abs(u) <= along[:, None, None] + grow) & (np.abs(w) <= half[:, None, None] + grow)
            & (jj >= 0) & (jj < nx) & (ii >= 0) & (ii < ny))
     z = p[:, 2, None, None] - (n[:, 0, None, None] * dx + n[:, 1, None, None] * dy) / n[:, 2, None, None]
     e, a, b = np.nonzero(hit)
@@ -324,6 +338,8 @@ def press(surface: DeformedSurface, points: np.ndarray, normals: np.ndarray, are
     h[yn] = new_h
     volume = (1.0 - grid.compaction) * displaced
     rim = berm_nodes(grid, nodes)
+    virgin = rim[q[rim] == 0.0]
+    rim = virgin if virgin.size else rim
     if rim.size == 0:
         return PressResult(int(nodes.size), int(y.size), displaced, 0.0, volume)
     h[rim] += volume / (rim.size * cell_area)

@@ -1,4 +1,4 @@
-"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide,footprint}`` (``--help`` on each)."""
+"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide,footprint,ruts}`` (``--help`` on each)."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ COMMANDS = {
               "stand still?"),
     "footprint": ("rft_mujoco.studies.footprint", "a box's footprint in a deformable surface, set back into it and "
                   "loaded twice as much"),
+    "ruts": ("rft_mujoco.studies.ruts", "the sand wheel rig driven over its own rut on a deformable surface"),
 }
 
 
