@@ -114,3 +114,21 @@ def test_a_new_terrain_starts_every_data_fresh():
     handle.terrain = rft_mujoco.DeformableSurface(height=0.001, **GRID)
     np.testing.assert_array_equal(handle.surface(data).heights, np.full((61, 61), 0.001))
     handle.detach()
+
+
+def test_env_deformable_option_deforms_and_resets():
+    gym = pytest.importorskip("gymnasium")
+    import rft_mujoco.envs  # noqa: F401  (registers the tasks)
+
+    env = gym.make("rft_mujoco/SandWheel-v0", drive="slip", deformable=True)
+    env.reset(seed=0)
+    handle, data = env.unwrapped.sand.handle, env.unwrapped.data
+    assert isinstance(handle.terrain, rft_mujoco.DeformableSurface) and handle.backend == "numpy"
+    for _ in range(30):
+        env.step(np.array([0.2], np.float32))
+    assert handle.surface(data).heights.min() < -0.01              # the wheel's rut
+    env.reset(seed=0)
+    np.testing.assert_array_equal(handle.surface(data).heights, np.zeros(handle.terrain.shape))
+    env.close()
+    with pytest.raises(TypeError, match="deformable must be"):
+        gym.make("rft_mujoco/SandWheel-v0", deformable="yes")
