@@ -63,7 +63,8 @@ def _covering_loop(grid, points, normals, areas):
                 across = (y - py) * t[0] - (x - px) * t[1]
                 grow = deform.COVER_GROW * grid.cell
                 if abs(along) <= half * -n[2] + grow and abs(across) <= half + grow:
-                    z = pz - (n[0] * (x - px) + n[1] * (y - py)) / n[2]
+                    clamped = min(max(along, half * n[2]), -half * n[2])      # on the element, along the tilt
+                    z = pz - np.hypot(n[0], n[1]) * clamped / n[2]
                     k = i * grid.shape[1] + j
                     low[k] = min(low.get(k, np.inf), z)
     keys = np.array(sorted(low), dtype=np.int64)
@@ -223,3 +224,12 @@ def test_a_cylinder_lowers_every_node_under_it():
     chord = np.sqrt(r ** 2 - (r - 0.02) ** 2)
     inside = (np.abs(grid.x)[None, :] < 0.8 * chord) & (np.abs(grid.y)[:, None] <= width / 2 - 1e-9)
     assert np.all(s.heights[inside] < -0.005) and np.all(s.preload[inside] > 0.0)
+
+
+def test_nearly_vertical_elements_do_not_dig():
+    """A wall element tilted 1e-5 from vertical covers a node or two; it lowers them by at most its half-size."""
+    grid = DeformableSurface(size=(0.1, 0.1), cell=0.005)
+    s = grid.initial()
+    n = np.array([[np.sqrt(1 - 1e-10), 0.0, -1e-5]])
+    deform.press(s, np.array([[0.001, 0.0, -0.01]]), n, np.array([1e-4]))
+    assert s.heights.min() >= -0.01 - 0.005 - 1e-12

@@ -258,7 +258,8 @@ def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, a
     the normal) and ``|n_z| L / 2`` along it (``t = x`` for a level element). The nodes in that rectangle
     grown by :data:`COVER_GROW` of a cell on each side (elements are not all square: without it, nodes
     between the elements of a body's bottom could stay uncovered) are covered, at the height of the
-    element's plane over the node. Returns ``(flat node indices (m,), lowest body height over each (m,) m)``.
+    element's plane over the node, the node's offset along the tilt clamped to the element (no plane is
+    extrapolated beyond its element). Returns ``(flat node indices (m,), lowest body height over each (m,) m)``.
 
     Args:
         points: (n, 3) m, element centroids (world).
@@ -291,7 +292,10 @@ def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, a
     grow = COVER_GROW * min(sx, sy)
     hit = ((np.abs(u) <= along[:, None, None] + grow) & (np.abs(w) <= half[:, None, None] + grow)
            & (jj >= 0) & (jj < nx) & (ii >= 0) & (ii < ny))
-    z = p[:, 2, None, None] - (n[:, 0, None, None] * dx + n[:, 1, None, None] * dy) / n[:, 2, None, None]
+    # the element's plane over the node, at the node's offset along the tilt clamped to the element (grown
+    # nodes and nearly vertical elements do not extrapolate the plane beyond the element)
+    u = np.clip(u, -along[:, None, None], along[:, None, None])
+    z = p[:, 2, None, None] - (flat_h / n[:, 2])[:, None, None] * u
     e, a, b = np.nonzero(hit)
     flat = ii[e, a, 0] * nx + jj[e, 0, b]
     zb = z[e, a, b]
