@@ -95,7 +95,7 @@ def test_berm_nodes_match_a_distance_test():
 
 
 def test_plate_footprint_outline_depth_and_conservation():
-    grid = DeformableSurface(size=(0.3, 0.3), cell=0.005)
+    grid = DeformableSurface(size=(0.3, 0.3), cell=0.005, repose_angle=None)     # the deposit rule alone
     s = grid.initial()
     p, n, a = plate(0.05, -0.012)
     res = deform.press(s, p, n, a)
@@ -179,7 +179,7 @@ def test_upward_and_vertical_elements_do_not_press():
 @pytest.mark.parametrize("kwargs, match", [
     (dict(cell=0.0), "cell"), (dict(size=(0.001, 1.0)), "size"), (dict(size="big"), "size"),
     (dict(reload_ratio=1.0), "reload_ratio"), (dict(compaction=1.5), "compaction"),
-    (dict(berm_width=-1.0), "berm_width"), (dict(height=np.inf), "height"),
+    (dict(berm_width=-1.0), "berm_width"), (dict(height=np.inf), "height"), (dict(repose_angle=90.0), "repose"),
     (dict(size=(100.0, 100.0), cell=0.001), "nodes")])
 def test_bad_settings_say_what_is_allowed(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -194,7 +194,7 @@ def test_tilted_gravity_is_refused():
 
 def test_the_berm_avoids_earlier_footprints():
     """A plate pressed beside an earlier footprint puts its berm on virgin sand only, not into that footprint."""
-    grid = DeformableSurface(size=(0.4, 0.2), cell=0.005)
+    grid = DeformableSurface(size=(0.4, 0.2), cell=0.005, repose_angle=None)
     s = grid.initial()
     deform.press(s, *plate(0.03, -0.01, center=(-0.05, 0.0)))
     first = s.heights.copy()
@@ -233,3 +233,24 @@ def test_nearly_vertical_elements_do_not_dig():
     n = np.array([[np.sqrt(1 - 1e-10), 0.0, -1e-5]])
     deform.press(s, np.array([[0.001, 0.0, -0.01]]), n, np.array([1e-4]))
     assert s.heights.min() >= -0.01 - 0.005 - 1e-12
+
+
+def test_relax_flows_steep_slopes_down_and_conserves_volume():
+    """A berm's steep edges and a trench's walls flow toward the angle of repose; the nodes under the body
+    keep their heights; the volume is unchanged."""
+    grid = DeformableSurface(size=(0.2, 0.2), cell=0.005, repose_angle=30.0)
+    s = grid.initial()
+    s.heights[15:26, 15:26] = -0.02                  # a footprint under a body (covered) ...
+    s.heights[8:15, 15:26] = 0.01                    # ... a berm beside it, and a trench beyond
+    s.heights[30:33, 5:35] = -0.015
+    covered = np.flatnonzero((np.zeros(grid.shape, bool) | (s.heights == -0.02)).ravel())
+    before, under = deform.volume_change(s), s.heights[15:26, 15:26].copy()
+    steep = lambda: np.abs(np.diff(s.heights[:14, :], axis=0)).max()       # noqa: E731  (berm side)
+    start = steep()
+    for _ in range(200):
+        deform.relax(s, covered)
+    np.testing.assert_array_equal(s.heights[15:26, 15:26], under)
+    assert deform.volume_change(s) == pytest.approx(before, abs=1e-15)
+    limit = np.tan(np.radians(30.0)) * 0.005
+    assert start > 2 * limit and steep() <= limit * 1.05
+    assert s.heights[30:33, 5:35].min() > -0.015     # the trench walls slumped into it

@@ -13,7 +13,9 @@ module adds that memory, in the terms of terramechanics, on a grid of nodes laid
   ``berm_width`` of the nodes it occupies that it does not occupy itself and that were never pressed
   (``preload == 0``; all the ring's nodes when none is virgin): a berm, kept out of earlier footprints (a
   wheel's rut is not refilled behind it). Volume leaves the grid only when that ring is empty (the body
-  covers the whole grid); :func:`press` reports it.
+  covers the whole grid); :func:`press` reports it. Then, around the body, slopes steeper than the angle
+  of repose (``repose_angle``) flow downhill (:func:`relax`): the ring becomes a pile, trench walls slump;
+  the nodes under the body take no part.
 * **Loading memory.** Each node keeps ``preload`` q (m): the depth at which virgin sand carries the
   largest stress that node has carried (3D-RFT stress is proportional to depth for a given element
   orientation and motion, so a depth stands for a pressure: ``p = xi_n |alpha_gen| q``). An element at
@@ -76,6 +78,9 @@ class DeformableSurface:
             default 0: volume conserved).
         berm_width: m, the displaced volume is spread evenly over the never-pressed nodes within this
             distance (at least one node) of the nodes the body occupies (default 0.05 m).
+        repose_angle: degrees, around a pressing body slopes steeper than this flow until they are not
+            (:func:`relax`: berms become piles, trench walls slump); None: no flow. Default 30 (dry sands and
+            glass beads rest at roughly 20-35 degrees; a modelling parameter here, not measured).
     """
 
     height: float = 0.0
@@ -85,6 +90,7 @@ class DeformableSurface:
     reload_ratio: float = 20.0
     compaction: float = 0.0
     berm_width: float = 0.05
+    repose_angle: float | None = 30.0
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.height):
@@ -112,6 +118,8 @@ class DeformableSurface:
             raise ValueError(f"compaction must be a fraction in [0, 1], got {self.compaction!r}")
         if not (math.isfinite(self.berm_width) and self.berm_width >= 0.0):
             raise ValueError(f"berm_width must be >= 0 m, got {self.berm_width!r}")
+        if self.repose_angle is not None and not (0.0 < self.repose_angle < 90.0):
+            raise ValueError(f"repose_angle must be None or degrees in (0, 90), e.g. 30, got {self.repose_angle!r}")
         object.__setattr__(self, "size", (lx, ly))
         object.__setattr__(self, "center", (cx, cy))
         object.__setattr__(self, "shape", (ny, nx))
@@ -347,7 +355,45 @@ def press(surface: DeformedSurface, points: np.ndarray, normals: np.ndarray, are
     if rim.size == 0:
         return PressResult(int(nodes.size), int(y.size), displaced, 0.0, volume)
     h[rim] += volume / (rim.size * cell_area)
+    if grid.repose_angle is not None:
+        relax(surface, nodes)
     return PressResult(int(nodes.size), int(y.size), displaced, volume, 0.0)
+
+
+RELAX_ITERATIONS = 10
+"""Sweeps of :func:`relax` per :func:`press`."""
+RELAX_SHARE = 0.125
+"""Fraction of a pair's excess height difference moved per sweep (1/8: a node can give to its four neighbours in
+one sweep without overshooting)."""
+
+
+def relax(surface: DeformedSurface, covered: np.ndarray) -> None:
+    """Let slopes steeper than the angle of repose flow (in place, volume conserved): around the ``covered``
+    nodes (flat indices; they exchange nothing: the body holds them), within the berm width and two cells
+    more, :data:`RELAX_ITERATIONS` sweeps move :data:`RELAX_SHARE` of each neighbouring pair's height difference
+    beyond ``tan(repose_angle) * spacing`` from the higher node to the lower one (along x and along y)."""
+    grid = surface.grid
+    ny, nx = grid.shape
+    sx, sy = grid.spacing
+    r = max(1, int(math.floor(grid.berm_width / min(sx, sy) + tol.ROUND_RTOL))) + 2
+    ci, cj = np.divmod(covered, nx)
+    i0, i1 = max(int(ci.min()) - r, 0), min(int(ci.max()) + r, ny - 1) + 1
+    j0, j1 = max(int(cj.min()) - r, 0), min(int(cj.max()) + r, nx - 1) + 1
+    h = surface.heights[i0:i1, j0:j1]                 # a view: updated in place
+    free = np.ones(h.shape, dtype=bool)
+    free[ci - i0, cj - j0] = False
+    slope = math.tan(math.radians(grid.repose_angle))
+    pair_x = free[:, 1:] & free[:, :-1]
+    pair_y = free[1:, :] & free[:-1, :]
+    for _ in range(RELAX_ITERATIONS):
+        d = h[:, 1:] - h[:, :-1]
+        f = np.where(pair_x, RELAX_SHARE * np.sign(d) * np.maximum(np.abs(d) - slope * sx, 0.0), 0.0)
+        h[:, 1:] -= f
+        h[:, :-1] += f
+        d = h[1:, :] - h[:-1, :]
+        f = np.where(pair_y, RELAX_SHARE * np.sign(d) * np.maximum(np.abs(d) - slope * sy, 0.0), 0.0)
+        h[1:, :] -= f
+        h[:-1, :] += f
 
 
 def berm_nodes(grid: DeformableSurface, covered: np.ndarray) -> np.ndarray:

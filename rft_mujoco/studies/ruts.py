@@ -4,7 +4,7 @@
 (``models/sand_wheel.xml``: wheel 0.10 m radius, 0.06 m wide, 30 N on the axle) on loose glass beads
 (``li_loose_glass_beads``, element size 0.015 m as the SandWheel env), a
 :class:`~rft_mujoco.DeformableSurface` 1.0 x 0.3 m with 5 mm cells (defaults otherwise), numpy backend,
-timestep 2 ms. Each pass the wheel is set down (still) at x = 0 on the surface as the previous passes left
+timestep 2 ms (``--repose`` sets its angle of repose, ``none`` for no slope flow). Each pass the wheel is set down (still) at x = 0 on the surface as the previous passes left
 it, spun at :data:`WHEEL_SPEED` rad/s with the carriage servoed to ``w r (1 - slip)`` (the SandWheel env's
 slip drive), and driven :data:`TRAVEL` m. Reported per pass: the wheel's mean sinkage below the *initial*
 surface over the middle of the track (:data:`WINDOW`), the rut depth left under the wheel's centre line
@@ -39,8 +39,9 @@ WINDOW = (0.15, 0.40)
 GRID = dict(size=(1.0, 0.3), cell=0.005, center=(0.35, 0.0))
 
 
-def rig():
-    """The wheel rig with deformable sand on its wheel: (model, data, handle)."""
+def rig(repose_angle: float | None = 30.0):
+    """The wheel rig with deformable sand on its wheel (``repose_angle``: of the DeformableSurface, degrees or
+    None): (model, data, handle)."""
     path = str(importlib.resources.files("rft_mujoco.models") / "sand_wheel.xml")
     model = mujoco.MjModel.from_xml_path(path)
     for name, kv in (("wheel_speed", 50.0), ("carriage_speed", 2000.0)):
@@ -49,7 +50,7 @@ def rig():
         act.biasprm[2] = -kv
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        handle = attach(model, MEDIA, bodies=["wheel"], surface_height=DeformableSurface(**GRID),
+        handle = attach(model, MEDIA, bodies=["wheel"], surface_height=DeformableSurface(**GRID, repose_angle=repose_angle),
                         resolution=0.015, backend="numpy", monitor=False)
         handle.replace_rigid("floor")
     return model, mujoco.MjData(model), handle
@@ -82,11 +83,11 @@ def drive_pass(model, data, handle, slip: float = SLIP) -> dict:
             "pull": float(pull[w].mean()) if w.any() else float("nan"), "x": xs, "track": sink}
 
 
-def run(passes: int = 3, slip: float = SLIP) -> dict:
+def run(passes: int = 3, slip: float = SLIP, repose_angle: float | None = 30.0) -> dict:
     """``passes`` passes (module docstring); per pass its sinkage (m), rut depth (m, below the initial
     surface under the centre line, mean over WINDOW), pull (N); the surfaces after each pass."""
     t0 = time.perf_counter()
-    model, data, handle = rig()
+    model, data, handle = rig(repose_angle)
     out = {"sinkage": [], "rut": [], "pull": [], "surfaces": [], "tracks": []}
     for _ in range(passes):
         p = drive_pass(model, data, handle, slip)
@@ -115,7 +116,7 @@ def plot(r: dict, path: str) -> None:
         ax.plot(s.x * 1e3, s.heights[row] * 1e3, label=f"after pass {i + 1}")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("surface height at y = 0 (mm)")
-    ax.set_title("sand wheel rig, slip 0.2: the rut after each pass", fontsize=9)
+    ax.set_title("sand wheel rig: the surface along the track after each pass", fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -127,11 +128,14 @@ def main(argv: list[str] | None = None, command: str = "ruts") -> int:
                                      description="The sand wheel rig driven over its own rut (issue 31)")
     parser.add_argument("--passes", type=int, default=3)
     parser.add_argument("--slip", type=float, default=SLIP)
+    parser.add_argument("--repose", default="30", help="angle of repose of the surface, degrees, or 'none' (no "
+                        "slope flow; default 30)")
     parser.add_argument("--plot", default=None, help="also save the rut sections to this PNG")
     args = parser.parse_args(argv)
+    repose = None if args.repose.lower() == "none" else float(args.repose)
     if args.passes < 1 or not -1.0 <= args.slip <= 1.0:
         parser.error(f"--passes must be >= 1 and --slip in [-1, 1], got {args.passes}, {args.slip}")
-    r = run(args.passes, args.slip)
+    r = run(args.passes, args.slip, repose)
     table = Columns(["pass", "wheel sinkage mm", "increment mm", "rut depth mm", "drawbar pull N"])
     print(table.header())
     prev = 0.0
