@@ -1,4 +1,5 @@
-"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide,footprint,ruts}`` (``--help`` on each)."""
+"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide,
+footprint,ruts,prints}`` (``--help`` on each)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ COMMANDS = {
     "footprint": ("rft_mujoco.studies.footprint", "a box's footprint in a deformable surface, set back into it and "
                   "loaded twice as much"),
     "ruts": ("rft_mujoco.studies.ruts", "the sand wheel rig driven over its own rut on a deformable surface"),
+    "prints": ("rft_mujoco.studies.prints", "the demo quadruped trotting on a deformable surface: footprints, a "
+               "frame, the cost"),
 }
 
 

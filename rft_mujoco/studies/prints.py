@@ -103,7 +103,8 @@ def trot(seconds: float, terrain: str = "deformable", draw: bool = False) -> dic
             try:
                 drawing = SurfaceDrawing(str(scene_path()), demo.sand.terrain)
             except Exception as exc:  # no GL context: say so and go on
-                print(f"frame skipped: offscreen rendering unavailable ({type(exc).__name__}: {exc}); set MUJOCO_GL=egl")
+                print(f"frame skipped: offscreen rendering unavailable ({type(exc).__name__}: {exc}); "
+                      "set MUJOCO_GL=egl")
             else:
                 out["frame"] = drawing.frame(demo.data.qpos, out["surface"].heights, camera="track")
                 drawing.close()

@@ -4,8 +4,8 @@
 (``models/sand_wheel.xml``: wheel 0.10 m radius, 0.06 m wide, 30 N on the axle) on loose glass beads
 (``li_loose_glass_beads``, element size 0.015 m as the SandWheel env), a
 :class:`~rft_mujoco.DeformableSurface` 1.0 x 0.3 m with 5 mm cells (defaults otherwise), numpy backend,
-timestep 2 ms (``--repose`` sets its angle of repose, ``none`` for no slope flow). Each pass the wheel is set down (still) at x = 0 on the surface as the previous passes left
-it, spun at :data:`WHEEL_SPEED` rad/s with the carriage servoed to ``w r (1 - slip)`` (the SandWheel env's
+timestep 2 ms (``--repose`` sets its angle of repose, ``none`` for no slope flow). Each pass the wheel is
+set down (still) at x = 0 on the surface as the previous passes left it, spun at :data:`WHEEL_SPEED` rad/s with the carriage servoed to ``w r (1 - slip)`` (the SandWheel env's
 slip drive), and driven :data:`TRAVEL` m. Reported per pass: the wheel's mean sinkage below the *initial*
 surface over the middle of the track (:data:`WINDOW`), the rut depth left under the wheel's centre line
 there, and the drawbar pull (N, the force the carriage servo needs to hold the speed: positive pulls
@@ -50,7 +50,8 @@ def rig(repose_angle: float | None = 30.0):
         act.biasprm[2] = -kv
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        handle = attach(model, MEDIA, bodies=["wheel"], surface_height=DeformableSurface(**GRID, repose_angle=repose_angle),
+        handle = attach(model, MEDIA, bodies=["wheel"],
+                        surface_height=DeformableSurface(**GRID, repose_angle=repose_angle),
                         resolution=0.015, backend="numpy", monitor=False)
         handle.replace_rigid("floor")
     return model, mujoco.MjData(model), handle
