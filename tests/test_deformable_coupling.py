@@ -132,3 +132,24 @@ def test_env_deformable_option_deforms_and_resets():
     env.close()
     with pytest.raises(TypeError, match="deformable must be"):
         gym.make("rft_mujoco/SandWheel-v0", deformable="yes")
+
+
+def test_attach_scene_declares_a_deformable_surface():
+    model = mujoco.MjModel.from_xml_string("""<mujoco><option timestep="0.002"/>
+    <custom><text name="rft/media" data="li_loose_glass_beads"/><numeric name="rft/surface_height" data="0.01"/>
+    <numeric name="rft/deformable" data="0.3 0.2 0.005 0.05 0"/></custom>
+    <worldbody><body name="box" pos="0 0 0.0301"><freejoint/><geom type="box" size="0.05 0.05 0.02" mass="5"/>
+    </body></worldbody></mujoco>""")
+    (handle,) = rft_mujoco.attach_scene(model)
+    grid = handle.terrain
+    assert isinstance(grid, rft_mujoco.DeformableSurface)
+    assert (grid.height, grid.size, grid.cell, grid.center) == (0.01, (0.3, 0.2), 0.005, (0.05, 0.0))
+    data = mujoco.MjData(model)
+    run(model, data, 100)
+    assert handle.surface(data).heights.min() < 0.0
+    handle.detach()
+    bad = mujoco.MjModel.from_xml_string("""<mujoco><custom><text name="rft/media" data="li_loose_glass_beads"/>
+    <numeric name="rft/deformable" data="0.3 0.2"/></custom><worldbody><body><freejoint/>
+    <geom type="sphere" size="0.05"/></body></worldbody></mujoco>""")
+    with pytest.raises(ValueError, match="rft/deformable"):
+        rft_mujoco.attach_scene(bad)
