@@ -254,3 +254,34 @@ def test_relax_flows_steep_slopes_down_and_conserves_volume():
     limit = np.tan(np.radians(30.0)) * 0.005
     assert start > 2 * limit and steep() <= limit * 1.05
     assert s.heights[30:33, 5:35].min() > -0.015     # the trench walls slumped into it
+
+
+def test_a_buried_body_leaves_the_surface_alone():
+    """A box entirely under the surface (its top 1 cm deep) lowers no node and keeps its virgin depth; the same
+    box piercing the surface (top above it) leaves its footprint."""
+    grid = DeformableSurface(size=(0.2, 0.2), cell=0.005)
+    bottom, _, area = plate(0.03, -0.05)
+    top_pts = bottom.copy()
+    top_pts[:, 2] = -0.01
+    pts = np.vstack([bottom, top_pts])
+    nrm = np.vstack([np.tile([0, 0, -1.0], (len(bottom), 1)), np.tile([0, 0, 1.0], (len(bottom), 1))])
+    areas = np.concatenate([area, area])
+    s = grid.initial()
+    assert deform.press(s, pts, nrm, areas).yielded == 0 and np.all(s.heights == 0.0)
+    pts[len(bottom):, 2] = 0.01                     # the top above the surface: it pierces
+    assert deform.press(s, pts, nrm, areas).yielded > 0 and s.heights.min() < -0.04
+
+
+def test_stacked_bodies_keep_the_sand_between_them():
+    """A lower leg (its bottom 2 cm deep, its top out of the sand) over a foot (bottom 5 cm, top 4 cm deep): the
+    column is lowered to the leg's bottom, not the foot's, and the foot keeps its virgin effective depth."""
+    grid = DeformableSurface(size=(0.2, 0.2), cell=0.005)
+    leg, nl, al = plate(0.02, -0.02)
+    foot, nf, af = plate(0.02, -0.05)
+    up = np.tile([0, 0, 1.0], (len(leg), 1))
+    pts = np.vstack([leg, leg + [0, 0, 0.04], foot, foot + [0, 0, 0.01]])
+    nrm = np.vstack([nl, up, nf, up])
+    s = grid.initial()
+    deform.press(s, pts, nrm, np.concatenate([al, al, af, af]))
+    assert s.heights.min() == pytest.approx(-0.02 + 0.02 / grid.reload_ratio)
+    np.testing.assert_allclose(s.depth(foot, G), 0.05, rtol=1e-12)

@@ -5,8 +5,12 @@ free surface and says nothing about what the intrusion does to that surface or t
 module adds that memory, in the terms of terramechanics, on a grid of nodes laid over the world xy-plane
 (gravity along -z):
 
-* **Footprint.** Where a body's downward-facing surface is below a node's surface, the sand cannot stay
-  there: the node is lowered to the body's surface (plus the elastic depth below). Sand is measured at
+* **Footprint.** Where a body pierces the surface (its upward-facing surface over a node, if any, is above
+  the node's surface) and its downward-facing surface is below the node's surface, the sand cannot stay
+  there: the node is lowered to the body's surface (plus the elastic depth below); with several surfaces
+  below a node (a lower leg over its foot), to the highest: the sand between them stays. A body entirely under
+  the surface at a node (buried there) leaves the surface above it as it is: a heightfield cannot hold sand
+  above a body, and removing it would take a buried body's depth away. Sand is measured at
   nodes: each node stands for one ``cell x cell`` patch, and volumes are ``sum(height change) * cell^2``.
 * **Conservation.** The volume a body pushes out of the nodes it occupies is, less a compaction fraction
   (``compaction``, 0 by default: none compacted), deposited evenly on the ring of nodes within
@@ -257,8 +261,12 @@ class PressResult:
 _NOTHING = PressResult(0, 0, 0.0, 0.0, 0.0)
 
 
-def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, areas: np.ndarray):
-    """The nodes under the downward-facing elements and the lowest body surface over each.
+def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, areas: np.ndarray,
+             facing: int = -1, below: np.ndarray | None = None):
+    """The nodes under the downward-facing elements and the lowest body surface over each (``facing=+1``: the
+    nodes under the upward-facing elements and the highest body surface over each; ``below`` (ny * nx,) m:
+    downward-facing surfaces only where they are below it, and the *highest* of them over each node: the first
+    body surface that sand coming down the node's column meets).
 
     Each element with ``n_z < -FACING_DOWN`` stands for a square of side ``L = sqrt(area)`` in its own plane,
     with one side along the plane's horizontal direction; its projection on the xy-plane is the rectangle
@@ -274,7 +282,7 @@ def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, a
         normals: (n, 3) outward unit normals (world).
         areas: (n,) m^2.
     """
-    nz = normals[:, 2]
+    nz = normals[:, 2] * -facing
     down = np.flatnonzero(nz < -FACING_DOWN)
     if down.size == 0:
         return np.zeros(0, np.int64), np.zeros(0)
@@ -284,7 +292,7 @@ def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, a
     level = flat_h <= FACING_DOWN
     tx = np.where(level, 1.0, n[:, 0] / np.where(level, 1.0, flat_h))                 # tilt direction (k,)
     ty = np.where(level, 0.0, n[:, 1] / np.where(level, 1.0, flat_h))
-    along = half * -n[:, 2]
+    along = half * np.abs(n[:, 2])
     sx, sy = grid.spacing
     ny, nx = grid.shape
     k = int(math.ceil(float(half.max()) / min(sx, sy))) + 2
@@ -307,7 +315,14 @@ def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, a
     e, a, b = np.nonzero(hit)
     flat = ii[e, a, 0] * nx + jj[e, 0, b]
     zb = z[e, a, b]
+    if below is not None:
+        under = zb < below[flat]
+        flat, zb = flat[under], zb[under]
     nodes, inv = np.unique(flat, return_inverse=True)
+    if facing > 0 or below is not None:
+        high = np.full(nodes.size, -np.inf)
+        np.maximum.at(high, inv, zb)
+        return nodes, high
     low = np.full(nodes.size, np.inf)
     np.minimum.at(low, inv, zb)
     return nodes, low
@@ -331,11 +346,23 @@ def press(surface: DeformedSurface, points: np.ndarray, normals: np.ndarray, are
     if not (normals.shape[0] == points.shape[0] == areas.shape[0]):
         raise ValueError(f"points (n, 3), normals (n, 3) and areas (n,) must have one row per element, got "
                          f"{points.shape}, {normals.shape}, {areas.shape}")
-    nodes, low = covering(grid, points, normals, areas)
-    if nodes.size == 0:
-        return _NOTHING
     h = surface.heights.reshape(-1)
     q = surface.preload.reshape(-1)
+    nodes, low = covering(grid, points, normals, areas, below=h)
+    if nodes.size == 0:
+        return _NOTHING
+    # only where the body pierces the surface (no upward-facing surface of it below the sand there): a buried
+    # body leaves the sand above it in place
+    up, high = covering(grid, points, normals, areas, facing=+1)
+    top = np.full(nodes.size, np.inf)
+    at = np.searchsorted(up, nodes)
+    found = at < up.size
+    found[found] = up[at[found]] == nodes[found]
+    top[found] = high[at[found]]
+    keep = top >= h[nodes]
+    nodes, low = nodes[keep], low[keep]
+    if nodes.size == 0:
+        return _NOTHING
     ratio = grid.reload_ratio
     d = h[nodes] - low
     plastic = d - q[nodes] / ratio

@@ -27,30 +27,49 @@ STAND_S = 0.5
 """s standing before the trot."""
 
 
+HFIELD = "rft_surface"
+"""Name of the visual heightfield (asset and geom) that draws a deformable surface."""
+SPAN = 0.1
+"""m: the drawn elevation range, +- around the initial height."""
+
+
+def add_surface_hfield(spec: mujoco.MjSpec, grid: DeformableSurface, span: float = SPAN) -> None:
+    """Add to ``spec`` a visual heightfield geom over ``grid`` (no collisions), initially flat at its height."""
+    ny, nx = grid.shape
+    lx, ly = grid.size
+    spec.add_hfield(name=HFIELD, nrow=ny, ncol=nx, size=[lx / 2, ly / 2, 2 * span, 0.01],
+                    userdata=list(np.full(ny * nx, 0.5)))
+    spec.worldbody.add_geom(name=HFIELD, type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=HFIELD,
+                            pos=[grid.center[0], grid.center[1], grid.height - span], contype=0, conaffinity=0,
+                            rgba=[0.82, 0.72, 0.52, 1.0])
+
+
+def write_surface(model, heights: np.ndarray, grid: DeformableSurface, span: float = SPAN) -> int:
+    """Write ``heights`` (ny, nx) m into the model's :data:`HFIELD` data (clipped to +-span); returns its id (upload
+    it to a renderer with ``mujoco.mjr_uploadHField``, or ``viewer.update_hfield``)."""
+    hid = model.hfield(HFIELD).id
+    adr = model.hfield_adr[hid]
+    values = np.clip((heights - (grid.height - span)) / (2 * span), 0.0, 1.0)
+    model.hfield_data[adr:adr + values.size] = values.ravel()
+    return hid
+
+
 class SurfaceDrawing:
     """Draws a deformable surface in MuJoCo's renderer: a copy of the model with a heightfield geom over the
-    grid (visual only), its elevation data rewritten from the surface at every frame and uploaded to the
-    renderer's GPU context (``mujoco.mjr_uploadHField``). The simulated model is not changed: a separate
-    MjData of the copy takes the simulation's ``qpos`` for each frame.
+    grid (visual only, :func:`add_surface_hfield`), its elevation data rewritten from the surface at every frame
+    and uploaded to the renderer's GPU context (``mujoco.mjr_uploadHField``). The simulated model is not
+    changed: a separate MjData of the copy takes the simulation's ``qpos`` for each frame.
 
     Args:
-        model: the simulated model (its XML is re-read through ``mujoco.MjSpec``).
-        xml_path: the path of that model's XML.
+        xml_path: the path of the simulated model's XML.
         grid: the :class:`DeformableSurface`.
         hide: names of geoms to make invisible in the drawing (the floor the heightfield replaces).
-        span: m, the elevation range drawn around the initial height (+-).
+        size: (height, width) of the images, pixels.
     """
 
-    def __init__(self, xml_path: str, grid: DeformableSurface, hide=("floor",), span: float = 0.1,
-                 size=(368, 640)) -> None:
+    def __init__(self, xml_path: str, grid: DeformableSurface, hide=("floor",), size=(368, 640)) -> None:
         spec = mujoco.MjSpec.from_file(xml_path)
-        ny, nx = grid.shape
-        lx, ly = grid.size
-        spec.add_hfield(name="rft_surface", nrow=ny, ncol=nx, size=[lx / 2, ly / 2, 2 * span, 0.01],
-                        userdata=list(np.full(ny * nx, 0.5)))
-        spec.worldbody.add_geom(name="rft_surface", type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="rft_surface",
-                                pos=[grid.center[0], grid.center[1], grid.height - span], contype=0, conaffinity=0,
-                                rgba=[0.82, 0.72, 0.52, 1.0])
+        add_surface_hfield(spec, grid)
         self.model = spec.compile()
         for name in hide:
             gid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, name)
@@ -58,18 +77,15 @@ class SurfaceDrawing:
                 self.model.geom_rgba[gid, 3] = 0.0
         self.model.vis.quality.offsamples = 0
         self.data = mujoco.MjData(self.model)
-        self.hid = self.model.hfield("rft_surface").id
-        self.grid, self.span = grid, span
+        self.grid = grid
         self.renderer = mujoco.Renderer(self.model, *size)
 
     def frame(self, qpos: np.ndarray, heights: np.ndarray, camera: str | int = -1) -> np.ndarray:
         """An RGB image (h, w, 3) of the pose ``qpos`` over the surface ``heights`` (ny, nx) m."""
         self.data.qpos[:] = qpos
         mujoco.mj_forward(self.model, self.data)
-        adr = self.model.hfield_adr[self.hid]
-        values = np.clip((heights - (self.grid.height - self.span)) / (2 * self.span), 0.0, 1.0)
-        self.model.hfield_data[adr:adr + values.size] = values.ravel()
-        mujoco.mjr_uploadHField(self.model, self.renderer._mjr_context, self.hid)
+        hid = write_surface(self.model, heights, self.grid)
+        mujoco.mjr_uploadHField(self.model, self.renderer._mjr_context, hid)
         self.renderer.update_scene(self.data, camera=camera)
         return self.renderer.render()
 
