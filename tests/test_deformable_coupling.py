@@ -153,3 +153,24 @@ def test_attach_scene_declares_a_deformable_surface():
     <geom type="sphere" size="0.05"/></body></worldbody></mujoco>""")
     with pytest.raises(ValueError, match="rft/deformable"):
         rft_mujoco.attach_scene(bad)
+
+
+def test_demo_on_a_deformable_surface_fills_its_heightfield():
+    """demo/view --deformable: the scene gets a visual heightfield (no collisions) whose data follow the surface."""
+    from rft_mujoco.studies import prints
+    from rft_mujoco.studies.demo import Demo
+
+    demo = Demo(stand_s=0.5, deformable=True)
+    assert demo.sand.backend == "numpy" and isinstance(demo.sand.terrain, rft_mujoco.DeformableSurface)
+    geom = demo.model.geom(prints.HFIELD)
+    assert geom.contype[0] == 0 and geom.conaffinity[0] == 0
+    for _ in range(40):
+        demo.step()
+    hid = demo.surface_hfield()
+    adr, n = demo.model.hfield_adr[hid], demo.model.hfield_nrow[hid] * demo.model.hfield_ncol[hid]
+    drawn = demo.model.hfield_data[adr:adr + n]
+    heights = demo.sand.surface(demo.data).heights.ravel()
+    span = prints.SPAN
+    np.testing.assert_allclose(drawn, np.clip((heights - (demo.grid.height - span)) / (2 * span), 0, 1), atol=1e-6)
+    assert drawn.min() < 0.5                                   # the feet's prints are drawn
+    demo.close()
