@@ -79,7 +79,8 @@ def test_view_has_its_own_options(monkeypatch, capsys):
     calls = []
     monkeypatch.setattr(demo, "view", lambda *args: calls.append(args))
     assert cli.main(["view", "--seconds", "3", "--stand", "0.5"]) == 0
-    assert calls == [(3.0, 0.5)]
+    assert cli.main(["view", "--deformable"]) == 0
+    assert calls == [(3.0, 0.5, False), (60.0, 1.0, True)]
     with pytest.raises(SystemExit):
         cli.main(["demo", "--help"])
     text = capsys.readouterr().out

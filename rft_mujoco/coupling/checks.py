@@ -423,3 +423,35 @@ def checked_terrain(surface) -> Terrain:
         raise ValueError(f"surface height {terrain.max_height!r} m is beyond +-{SURFACE_HEIGHT_MAX:g} m: the sand's "
                          "stresses would overflow. Give the height in m of the sand surface (e.g. 0.0)")
     return terrain
+
+
+def check_model_edits(handle) -> None:
+    """Raise ValueError on a model edit since attach that the sand cannot follow: a timestep that is not
+    finite and > 0, a zero or non-finite gravity (or one off -z under a heightfield or region), a geom of
+    the sand's bodies or of their occluders resized (the elements were built from the sizes at attach).
+    A new positive timestep is checked as at attach (:func:`check_timestep`); ``handle`` is a
+    :class:`~rft_mujoco.SandHandle` (its :meth:`_check_model`, called by the dispatcher:
+    :func:`rft_mujoco.compiled.route.model_changed`)."""
+    dt = float(handle.model.opt.timestep)
+    if not (np.isfinite(dt) and dt > 0.0):
+        raise ValueError(f"model.opt.timestep is {dt!r} s, set after attach; the sand needs a finite timestep "
+                         "> 0 s (its rest treatment stops bodies within one step). Set a positive timestep, "
+                         f"e.g. the {handle._timestep_checked:g} s of before")
+    if dt != handle._timestep_checked:
+        check_timestep(handle.model)
+        handle._timestep_checked = dt
+    try:
+        handle._gravity()
+    except ValueError as exc:
+        raise ValueError(f"model.opt.gravity is {handle._opt_gravity.tolist()} m/s^2, set after attach: {exc}") \
+            from None
+    sizes = handle.model.geom_size[handle._geoms]
+    if not np.array_equal(sizes, handle._geom_size0):
+        i = int(np.flatnonzero(np.any(sizes != handle._geom_size0, axis=1))[0])
+        g = int(handle._geoms[i])
+        name = handle.model.geom(g).name or f"#{g}"
+        body = handle.model.body(int(handle.model.geom_bodyid[g])).name or f"#{int(handle.model.geom_bodyid[g])}"
+        raise ValueError(f"geom {name!r} (body {body!r}) was resized after attach: geom_size "
+                         f"{handle._geom_size0[i].tolist()} -> {sizes[i].tolist()} m, but the sand's surface "
+                         "elements and occluders were built from the sizes at attach. Detach and attach the "
+                         "sand again after resizing geoms (or set geom_size back)")

@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco import compiled, tol
-from rft_mujoco.coupling import checks, reference, setup
+from rft_mujoco.coupling import checks, deformable, reference, setup
 from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.monitor import ValidityMonitor
 from rft_mujoco.coupling.workspace import Diagnostics, _Workspace
@@ -47,6 +47,7 @@ from rft_mujoco.geometry import surface
 from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
 from rft_mujoco.physics.media import Media, f_hat, get_media
+from rft_mujoco.physics.deform import DeformedSurface
 from rft_mujoco.physics.terrain import Terrain
 
 BACKENDS = ("auto", "numba", "numpy")
@@ -237,6 +238,12 @@ class SandHandle:
         """Per-body force, torque, submerged element count, max depth and rest state of the latest
         evaluation of ``data`` (a live view, updated by later steps; ``.copy()`` keeps a snapshot)."""
         return self._workspace(data).diag
+
+    def surface(self, data) -> DeformedSurface:
+        """A copy of the deformed free surface of ``data`` now: ``.heights`` (ny, nx) m, ``.x`` (nx,) m, ``.y`` (ny,)
+        m, ``.preload`` (ny, nx) m (:mod:`rft_mujoco.physics.deform`); ValueError unless the terrain is a
+        :class:`~rft_mujoco.DeformableSurface`."""
+        return deformable.snapshot(self, self._workspace(data))
 
     @property
     def terrain(self) -> Terrain:
@@ -429,6 +436,8 @@ class SandHandle:
             status = reference.evaluate_naive(self, data, work, touch, g_hat, sand_out)
         if status < 0:
             self._raise_not_finite(work.diag, touch)
+        if work.surface is not None and stage < 2:
+            deformable.press_touching(self, data, work, touch)
         self._check_validity(data, work, touch, self._evaluations)
         return bool(status)
 
@@ -460,35 +469,10 @@ class SandHandle:
             self.monitor.check(self, data, touch, a["v_com"][:k], a["omega"][:k], work.diag.max_depth[touch])
 
     def _check_model(self) -> None:
-        """Raise ValueError on a model edit since attach that the sand cannot follow: a timestep that is not
-        finite and > 0, a zero or non-finite gravity (or one off -z under a heightfield or region), a geom of
-        the sand's bodies or of their occluders resized (the elements were built from the sizes at attach).
-        A new positive timestep is checked as at attach (:func:`checks.check_timestep`). The dispatcher calls
-        this at the first evaluation of each MjData and whenever the model's timestep, gravity or geom sizes
-        change (:func:`rft_mujoco.compiled.route.model_changed`)."""
-        dt = float(self.model.opt.timestep)
-        if not (np.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"model.opt.timestep is {dt!r} s, set after attach; the sand needs a finite timestep "
-                             "> 0 s (its rest treatment stops bodies within one step). Set a positive timestep, "
-                             f"e.g. the {self._timestep_checked:g} s of before")
-        if dt != self._timestep_checked:
-            checks.check_timestep(self.model)
-            self._timestep_checked = dt
-        try:
-            self._gravity()
-        except ValueError as exc:
-            raise ValueError(f"model.opt.gravity is {self._opt_gravity.tolist()} m/s^2, set after attach: {exc}") \
-                from None
-        sizes = self.model.geom_size[self._geoms]
-        if not np.array_equal(sizes, self._geom_size0):
-            i = int(np.flatnonzero(np.any(sizes != self._geom_size0, axis=1))[0])
-            g = int(self._geoms[i])
-            name = self.model.geom(g).name or f"#{g}"
-            body = self.model.body(int(self.model.geom_bodyid[g])).name or f"#{int(self.model.geom_bodyid[g])}"
-            raise ValueError(f"geom {name!r} (body {body!r}) was resized after attach: geom_size "
-                             f"{self._geom_size0[i].tolist()} -> {sizes[i].tolist()} m, but the sand's surface "
-                             "elements and occluders were built from the sizes at attach. Detach and attach the "
-                             "sand again after resizing geoms (or set geom_size back)")
+        """Raise ValueError on a model edit since attach that the sand cannot follow
+        (:func:`rft_mujoco.coupling.checks.check_model_edits`); the dispatcher calls this at the first evaluation
+        of each MjData and whenever the model's timestep, gravity or geom sizes change."""
+        checks.check_model_edits(self)
 
     def _gravity(self) -> np.ndarray:
         """Unit gravity direction (3,), recomputed only when ``model.opt.gravity`` changed."""
@@ -523,7 +507,8 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         media: a :class:`Media` or a preset name (see ``rft_mujoco.PRESETS``).
         bodies: body names (or ids) whose geoms touch the sand; None means every body but the world.
         surface_height: a flat free surface height in m, or a terrain (:class:`FlatSurface`,
-            :class:`HeightfieldSurface`, :class:`SandRegion`).
+            :class:`HeightfieldSurface`, :class:`SandRegion`, or :class:`DeformableSurface`: footprints, numpy
+            backend, :meth:`SandHandle.surface`).
         resolution: element size: a preset name (``rft_mujoco.geometry.surface.RESOLUTIONS``) or metres.
         guards: clean-ups of the fit's artefacts (default none: the published law).
         stabilize: the rest treatment (default True, :mod:`rft_mujoco.physics.rest`): a body the sand can hold is

@@ -22,7 +22,7 @@ def touching(handle, data, g_hat, work) -> np.ndarray:
     xmat = data.xmat[ids].reshape(-1, 3, 3)
     centers = data.xpos[ids] + np.einsum("bij,bj->bi", xmat, handle._bound_center)
     low = -(centers @ g_hat) - handle._bound_radius
-    cand = np.flatnonzero(low < handle.terrain.max_height)
+    cand = np.flatnonzero(low < work.terrain.max_height)
     if cand.size == 0:
         return cand
     if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
@@ -35,7 +35,7 @@ def touching(handle, data, g_hat, work) -> np.ndarray:
     remap[cand] = np.arange(cand.size)
     b = remap[handle.elem_body[sel]]
     pos = data.xpos[ids[cand]][b] + np.einsum("eij,ej->ei", xmat[cand][b], handle.local_centroids[sel])
-    hit = np.bincount(b, weights=handle.terrain.depth(pos, g_hat) > 0.0, minlength=cand.size) > 0
+    hit = np.bincount(b, weights=work.terrain.depth(pos, g_hat) > 0.0, minlength=cand.size) > 0
     touch = cand[hit]
     k, bids = touch.size, ids[touch]
     a = work.arrays
@@ -87,11 +87,11 @@ def rft(handle, data, work, touch, v_com, omega, g_hat):
     sel, b, hidden = _touching_elements(handle, data, touch)
     pos = a["body_pos"][:k][b] + np.einsum("eij,ej->ei", a["body_mat"][:k].reshape(k, 3, 3)[b],
                                            handle.local_centroids[sel])
-    submerged = handle.terrain.depth(pos, g_hat) > 0.0
+    submerged = work.terrain.depth(pos, g_hat) > 0.0
     occluded = np.bincount(b, weights=handle.areas[sel] * (hidden & submerged), minlength=k)
     wrench, count, max_depth = elements.body_wrenches(
         handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
-        a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, handle.terrain, g_hat,
+        a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, work.terrain, g_hat,
         handle._gravity_vec, handle._media, handle.guards, active=~hidden)
     return wrench, count, max_depth, occluded
 
@@ -447,7 +447,7 @@ def rft_jacobian(handle, data, work, touch, v_com, omega, g_hat, speed_scale, el
     sel, b, hidden = _touching_elements(handle, data, touch) if elements_ is None else elements_
     return elements.body_wrench_jacobians(
         handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
-        a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, handle.terrain, g_hat,
+        a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, work.terrain, g_hat,
         handle._gravity_vec, handle._media, handle.guards, speed_scale, active=~hidden)
 
 

@@ -9,6 +9,7 @@ A scene file says which bodies touch which sand::
       <numeric name="rft/surface_height" data="0"/>                     <!-- m (flat surface) -->
       <text    name="rft/heightfield"    data="terrain"/>               <!-- hfield geom as the surface -->
       <numeric name="rft/region"         data="-1 1 -0.5 0.5"/>         <!-- xmin xmax ymin ymax, m -->
+      <numeric name="rft/deformable"     data="2 1 0.01 0.5 0"/>        <!-- Lx Ly cell [cx cy], m: footprints -->
       <numeric name="rft/resolution"     data="0.01"/>                  <!-- m, or text preset name -->
       <text    name="rft/replaces"       data="floor"/>                 <!-- rigid geoms the sand replaces -->
     </custom>
@@ -16,7 +17,9 @@ A scene file says which bodies touch which sand::
 Several sands: put a name between ``rft`` and the key (``rft/beach/media``, ``rft/beach/bodies``, ...);
 each named group is one :class:`~rft_mujoco.SandHandle`. The geoms listed in ``replaces`` stop
 colliding while the sand is attached (their ``contype``/``conaffinity`` are set to 0 on the MjModel and
-restored at detach): that is how a rigid floor becomes a sand bed.
+restored at detach): that is how a rigid floor becomes a sand bed. ``deformable`` makes the flat surface a
+:class:`~rft_mujoco.DeformableSurface` of that size, cell and centre (default centre 0 0; not with a
+heightfield or a region).
 """
 
 from __future__ import annotations
@@ -25,11 +28,12 @@ import mujoco
 import numpy as np
 
 from rft_mujoco.coupling.handle import SandHandle, attach
+from rft_mujoco.physics.deform import DeformableSurface
 from rft_mujoco.physics.media import Media, get_media
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
 
 PREFIX = "rft/"
-KEYS = ("media", "bodies", "surface_height", "heightfield", "region", "resolution", "replaces")
+KEYS = ("media", "bodies", "surface_height", "heightfield", "region", "resolution", "replaces", "deformable")
 
 
 def _custom_fields(model) -> dict[str, dict[str, object]]:
@@ -92,6 +96,14 @@ def attach_scene(model, **kwargs) -> list[SandHandle]:
                 surf = HeightfieldSurface.from_model(model, f["heightfield"])
             else:
                 surf = FlatSurface(_one_number(f.get("surface_height", 0.0), f"{where}: rft/surface_height", "m"))
+            if "deformable" in f:
+                d = np.atleast_1d(f["deformable"])
+                if isinstance(f["deformable"], str) or d.size not in (3, 5) or "heightfield" in f or "region" in f:
+                    raise ValueError(f"{where}: rft/deformable must be a <numeric> 'Lx Ly cell' or 'Lx Ly cell cx "
+                                     "cy' in m over a flat surface (no rft/heightfield or rft/region), got "
+                                     f"{f['deformable']!r}")
+                surf = DeformableSurface(surf.height, (d[0], d[1]), float(d[2]),
+                                         (d[3], d[4]) if d.size == 5 else (0.0, 0.0))
             if "region" in f:
                 r = np.atleast_1d(f["region"])
                 if r.size != 4:

@@ -9,6 +9,7 @@ import numpy as np
 
 from rft_mujoco import tol
 from rft_mujoco.coupling import reference
+from rft_mujoco.physics.deform import DeformableSurface
 
 
 @dataclasses.dataclass
@@ -60,9 +61,13 @@ class Diagnostics:
 class _Workspace:
     """Per-MjData state of one handle (datas may be stepped in different threads): the arrays of
     :data:`rft_mujoco.compiled.evaluate.WORK_FIELDS` (the diagnostics are views of them), their tuple for the
-    compiled calls, and the tuple of the MjData's arrays."""
+    compiled calls, and the tuple of the MjData's arrays. With a
+    :class:`~rft_mujoco.physics.deform.DeformableSurface` terrain, ``surface`` is this MjData's deformed surface
+    (its arrays are ``arrays["surface_heights"]`` and ``arrays["surface_preload"]``, so that copies of the
+    workspace copy it) and ``terrain`` is that surface; otherwise ``surface`` is None and ``terrain`` the
+    handle's."""
 
-    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing")
+    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing", "surface", "terrain")
 
     def __init__(self, handle, data) -> None:
         from rft_mujoco.compiled import evaluate
@@ -75,6 +80,12 @@ class _Workspace:
                                 a["rft_force"], a["resting"], a["occluded_area"])
         self.keep = reference.StepKeep()
         self.flowing = None                 # the implicit solve's (touching groups, flowed) of the last evaluation
+        self.surface = None
+        self.terrain = handle.terrain
+        if isinstance(self.terrain, DeformableSurface):
+            fresh = self.terrain.initial()
+            a["surface_heights"], a["surface_preload"] = fresh.heights, fresh.preload
+            self.surface = self.terrain = fresh
 
     @property
     def state(self) -> np.ndarray:

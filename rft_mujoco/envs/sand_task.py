@@ -20,9 +20,27 @@ import mujoco
 import numpy as np
 from gymnasium.envs.mujoco import MujocoEnv
 
+from rft_mujoco.physics.deform import DeformableSurface
 from rft_mujoco.physics.media import Media
+from rft_mujoco.physics.terrain import FlatSurface
 
 from .sand_bed import FEATURES_PER_BODY, MediaRanges, SandBed, initialize_sand_simulation, step_with_sand
+
+
+DEFORMABLE_GRID = {"size": (4.0, 2.0), "cell": 0.01, "center": (1.0, 0.0)}
+"""The grid of ``deformable=True`` (m): 4 x 2 m around x = 1 m (the tasks move toward +x), 1 cm cells."""
+
+
+def deformable_surface(deformable, terrain) -> DeformableSurface:
+    """The terrain of a task's ``deformable`` argument (True or a DeformableSurface) over its flat ``terrain``."""
+    if isinstance(deformable, DeformableSurface):
+        return deformable
+    if deformable is not True:
+        raise TypeError(f"deformable must be None, False, True or a rft_mujoco.DeformableSurface, got {deformable!r}")
+    if not isinstance(terrain, FlatSurface):
+        raise ValueError(f"deformable=True needs a flat floor, this task's sand surface is a {type(terrain).__name__}; "
+                         "pass deformable=rft_mujoco.DeformableSurface(height=..., size=..., center=...) instead")
+    return DeformableSurface(height=terrain.height, **DEFORMABLE_GRID)
 
 
 def model_path(xml_file: str) -> str:
@@ -38,7 +56,14 @@ def model_path(xml_file: str) -> str:
 
 
 class SandTaskEnv(MujocoEnv):
-    """A MujocoEnv whose model is a bundled MJCF on sand. Subclasses set ``self._sand_*`` first."""
+    """A MujocoEnv whose model is a bundled MJCF on sand. Subclasses set ``self._sand_*`` first.
+
+    Every task takes ``deformable`` (keyword, default None: the sand's free surface never changes): True for
+    a :class:`~rft_mujoco.DeformableSurface` at the floor's height with :data:`DEFORMABLE_GRID`, or a
+    ``DeformableSurface`` of the caller's. Its bodies then leave footprints and ruts that later steps of the
+    episode feel (:mod:`rft_mujoco.physics.deform`); a reset restores the initial surface. It runs on the
+    numpy backend (docs/deformable.md: about 40 times the compiled cost for the quadruped).
+    """
 
     def __init__(self, xml_file: str, frame_skip: int, *, media: Media | str, resolution: str | float,
                  sand_bodies: str | Sequence[str | int], bed_depth_m: float | None,
@@ -48,9 +73,12 @@ class SandTaskEnv(MujocoEnv):
         self.sand = None
         self._include_sand_in_observation = bool(include_sand_in_observation)
         self._bed_depth_m = bed_depth_m
+        deformable = kwargs.pop("deformable", None)
         MujocoEnv.__init__(self, model_path(xml_file), frame_skip, observation_space=None, **kwargs)
         self.sand = SandBed(self.model, media, bodies=sand_bodies, resolution=resolution,
                             surface=self._surface_geoms, media_ranges=media_ranges)
+        if deformable is not None and deformable is not False:
+            self.sand.handle.terrain = deformable_surface(deformable, self.sand.handle.terrain)
 
     # --- model -----------------------------------------------------------------------------------
     def _edit_spec(self, spec: mujoco.MjSpec) -> None:

@@ -1,4 +1,5 @@
-"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide}`` (``--help`` on each)."""
+"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide,
+footprint,ruts,prints}`` (``--help`` on each)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,11 @@ COMMANDS = {
                 "against the quasi-static limit"),
     "glide": ("rft_mujoco.studies.glide", "a quadruped on slanted mesh lower legs set down on sand: does it "
               "stand still?"),
+    "footprint": ("rft_mujoco.studies.footprint", "a box's footprint in a deformable surface, set back into it and "
+                  "loaded twice as much"),
+    "ruts": ("rft_mujoco.studies.ruts", "the sand wheel rig driven over its own rut on a deformable surface"),
+    "prints": ("rft_mujoco.studies.prints", "the demo quadruped trotting on a deformable surface: footprints, a "
+               "frame, the cost"),
 }
 
 

@@ -66,9 +66,24 @@ class DemoLog:
 class Demo:
     """The scene, its sand and the scripted gait, stepped one control period at a time."""
 
-    def __init__(self, stand_s: float = 1.0, **gait_kwargs):
-        self.model = mujoco.MjModel.from_xml_path(str(scene_path()))
+    def __init__(self, stand_s: float = 1.0, deformable: bool = False, **gait_kwargs):
+        self.grid = None
+        if deformable:   # a DeformableSurface, drawn by a visual heightfield in place of the floor
+            from rft_mujoco.physics.deform import DeformableSurface
+            from rft_mujoco.studies.prints import GRID, add_surface_hfield
+
+            spec = mujoco.MjSpec.from_file(str(scene_path()))
+            plain = spec.compile()
+            height = float(plain.numeric("rft/surface_height").data[0])
+            self.grid = DeformableSurface(height=height, **GRID)
+            add_surface_hfield(spec, self.grid)
+            self.model = spec.compile()
+            self.model.geom_rgba[self.model.geom("floor").id, 3] = 0.0
+        else:
+            self.model = mujoco.MjModel.from_xml_path(str(scene_path()))
         self.sand = attach_scene(self.model)[0]
+        if self.grid is not None:
+            self.sand.terrain = self.grid
         self.data = mujoco.MjData(self.model)
         mujoco.mj_resetDataKeyframe(self.model, self.data, self.model.key("home").id)
         self.gait = TrotGait.from_model(self.model, **{**DEMO_GAIT, **gait_kwargs})
@@ -92,6 +107,14 @@ class Demo:
         log.foot_depth.append(d.max_depth[self.feet].copy())
         log.leg_force.append([d.force[leg, 2].sum() for leg in self.legs])
         log.total_force.append(d.force[:, 2].sum())
+
+    def surface_hfield(self) -> int | None:
+        """With ``deformable``: write the current surface into the model's heightfield; returns its id (to upload
+        to a renderer or viewer), else None."""
+        if self.grid is None:
+            return None
+        from rft_mujoco.studies.prints import write_surface
+        return write_surface(self.model, self.sand.surface(self.data).heights, self.grid)
 
     def close(self) -> None:
         self.sand.detach()
@@ -165,6 +188,9 @@ class _Video:
 
     def frame(self, demo: "Demo") -> None:
         start = time.perf_counter()
+        hid = demo.surface_hfield()
+        if hid is not None:
+            mujoco.mjr_uploadHField(demo.model, self.renderer._mjr_context, hid)
         self.renderer.update_scene(demo.data, camera=VIDEO_CAMERA)
         flags = self.renderer.scene.flags
         flags[mujoco.mjtRndFlag.mjRND_SHADOW] = flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
@@ -191,10 +217,12 @@ def _video_or_none(demo: "Demo") -> "_Video | None":
         return None
 
 
-def run(seconds: float = 5.0, stand_s: float = 1.0, out: Path = Path("out"), video: bool = True) -> dict:
-    """Run the demo; returns the summary numbers (also printed)."""
+def run(seconds: float = 5.0, stand_s: float = 1.0, out: Path = Path("out"), video: bool = True,
+        deformable: bool = False) -> dict:
+    """Run the demo (``deformable``: on a DeformableSurface, drawn in the video); returns the summary numbers
+    (also printed)."""
     out.mkdir(parents=True, exist_ok=True)
-    demo = Demo(stand_s=stand_s)
+    demo = Demo(stand_s=stand_s, deformable=deformable)
     log = DemoLog()
     n = int(round(seconds / demo.model.opt.timestep))
     print(f"scene: {scene_path().name}; {demo.sand!r}")
@@ -250,21 +278,26 @@ def run(seconds: float = 5.0, stand_s: float = 1.0, out: Path = Path("out"), vid
     return summary
 
 
-def view(seconds: float = 60.0, stand_s: float = 1.0) -> None:
-    """The demo in the interactive viewer with force arrows (needs a display)."""
+def view(seconds: float = 60.0, stand_s: float = 1.0, deformable: bool = False) -> None:
+    """The demo in the interactive viewer with force arrows (needs a display); ``deformable``: on a
+    DeformableSurface, its heightfield updated every step (``viewer.update_hfield``; not run on this project's
+    display-less machine)."""
     import mujoco.viewer
 
     if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         raise SystemExit("the interactive viewer needs a display (DISPLAY is not set); try "
                          "xvfb-run -s '-screen 0 1280x720x24 +extension GLX' python -m rft_mujoco view, "
                          "or the headless 'python -m rft_mujoco demo'")
-    demo = Demo(stand_s=stand_s)
+    demo = Demo(stand_s=stand_s, deformable=deformable)
     with mujoco.viewer.launch_passive(demo.model, demo.data) as viewer:
         with viewer.lock():
             track(viewer.cam, demo.trunk)
         start = time.perf_counter()
         while viewer.is_running() and demo.data.time < seconds:
             demo.step()
+            hid = demo.surface_hfield()
+            if hid is not None:
+                viewer.update_hfield(hid)
             with viewer.lock():
                 viewer.user_scn.ngeom = 0
                 add_force_arrows(viewer.user_scn, demo.sand, demo.data)
@@ -291,6 +324,8 @@ def parser(command: str = "demo") -> argparse.ArgumentParser:
     p.add_argument("--seconds", type=float, default=5.0 if command == "demo" else 60.0,
                    help="simulated time in s")
     p.add_argument("--stand", type=float, default=1.0, help="standing time before trotting, s")
+    p.add_argument("--deformable", action="store_true", help="a deformable surface (footprints; numpy backend, "
+                   "about 40x slower; docs/deformable.md)")
     if command == "demo":
         p.add_argument("--out", type=Path, default=None,
                        help="folder for the plot and video (default: out/, replaced on every run; a folder given "
@@ -303,7 +338,7 @@ def parser(command: str = "demo") -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None, command: str = "demo") -> int:
     args = parser(command).parse_args(argv)
     if command == "view":
-        view(args.seconds, args.stand)
+        view(args.seconds, args.stand, args.deformable)
     else:
         out = Path("out") if args.out is None else args.out
         names = ("demo_quadruped.png",) + (() if args.no_video else ("demo_quadruped.mp4",))
@@ -311,5 +346,5 @@ def main(argv: list[str] | None = None, command: str = "demo") -> int:
         if args.out is not None and existing and not args.overwrite:
             parser(command).error(f"--out {out} already holds {', '.join(existing)}: pass --overwrite to replace "
                                   "them, or choose another folder")
-        run(args.seconds, args.stand, out, video=not args.no_video)
+        run(args.seconds, args.stand, out, video=not args.no_video, deformable=args.deformable)
     return 0
