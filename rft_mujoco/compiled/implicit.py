@@ -536,3 +536,21 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
         end[i // 6, i % 6] = s / sv[i]
         w_out[i // 6, i % 6] = w[i] / sw[i]
     return its
+
+
+TRN_JOINT, BIAS_AFFINE = 0, 1
+"""MuJoCo's ``mjTRN_JOINT`` and ``mjBIAS_AFFINE`` (checked against the bindings by tests/test_fastimplicit.py)."""
+
+
+@njit(**JIT)
+def velocity_damping(implicit_integrator, dof_damping, jnt_dofadr, trntype, trnid, biastype, biasprm, gear, out):
+    """:func:`rft_mujoco.coupling.reference.velocity_damping` into ``out`` (nv,): joint damping plus each
+    affine joint actuator's ``-biasprm[2] gear^2`` (N s/m, N m s/rad) with an implicit integrator, else
+    zeros."""
+    for i in range(out.shape[0]):
+        out[i] = dof_damping[i] if implicit_integrator else 0.0
+    if not implicit_integrator:
+        return
+    for a in range(trntype.shape[0]):
+        if trntype[a] == TRN_JOINT and biastype[a] == BIAS_AFFINE:
+            out[jnt_dofadr[trnid[a, 0]]] += -biasprm[a, 2] * gear[a, 0] ** 2

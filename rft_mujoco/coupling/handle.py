@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco import compiled, tol
-from rft_mujoco.coupling import checks, reference, setup
+from rft_mujoco.coupling import checks, implicit, reference, setup
 from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.monitor import ValidityMonitor
 from rft_mujoco.coupling.workspace import Diagnostics, _Workspace
@@ -56,7 +56,7 @@ otherwise."""
 SOLVES = ("explicit", "implicit")
 """Values of ``attach(solve=...)``: the explicit rest/flow treatment (:func:`rft_mujoco.physics.rest.rest_wrenches`)
 or the implicit solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`, this step's constraints linearized:
-:func:`rft_mujoco.coupling.reference.constrained_free_motion`; numpy backend only for now)."""
+:func:`rft_mujoco.coupling.reference.constrained_free_motion`; compiled: :mod:`rft_mujoco.coupling.implicit`)."""
 RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
 
@@ -139,6 +139,8 @@ class SandHandle:
     # --- settings that the compiled code reads (hc.params): every setter refreshes them -------------------
     def __setattr__(self, name, value) -> None:
         object.__setattr__(self, name, value)
+        if name == "solve" and getattr(self, "_ready", False):
+            DISPATCHER.invalidate()                      # the native route is built for solve="explicit" only
         if name in ("_media", "guards", "stabilize", "passive", "monitor", "_terrain", "rk4_stages") \
                 and getattr(self, "_ready", False):
             self._refresh()
@@ -381,7 +383,7 @@ class SandHandle:
         new = self._workspace(dst)
         for name, a in work.arrays.items():
             np.copyto(new.arrays[name], a)
-        new.keep = copy.deepcopy(work.keep)
+        new.keep, new.implicit = copy.deepcopy(work.keep), work.implicit and work.implicit.copy(self)
 
     def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, stage: int = 0) -> bool:
         """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero (the
@@ -442,8 +444,9 @@ class SandHandle:
             return False
         if self.stabilize:
             mujoco.mj_fwdActuation(self.model, data)
-        status = evaluate.evaluate(work.md, self._hc, work.tuple, user_xfrc, dt, sand_out,
-                                   evaluate.friction_arrays(data))
+        status = implicit.evaluate_compiled(self, data, work, user_xfrc, dt, sand_out) \
+            if self.stabilize and self.solve == "implicit" else \
+            evaluate.evaluate(work.md, self._hc, work.tuple, user_xfrc, dt, sand_out, evaluate.friction_arrays(data))
         touch = work.arrays["touch"][:k]
         if status == evaluate.BAD_ACCELERATION:
             reference.free_twists(self, data, user_xfrc, self.body_ids[self.groups.ref], dt, False)  # raises
@@ -551,8 +554,8 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             False: every geom's whole surface feels sand (overlaps count twice; for comparisons).
         solve: with ``stabilize=True``, "explicit" (default: rest, or flow scaled not to reverse the motion,
             constraint forces of the previous solve) or "implicit" (the law at the twist the step ends with,
-            per direction, this step's constraints linearized; docs/rest.md "The implicit solve"). "implicit"
-            runs on ``backend="numpy"`` only, for now.
+            per direction, this step's constraints linearized; docs/rest.md "The implicit solve"). On the
+            compiled backend "implicit" takes the Python callback path (no native route), which costs more.
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """
@@ -560,9 +563,6 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         raise TypeError(f"model must be a mujoco.MjModel, got {type(model).__name__}")
     if solve not in SOLVES:
         raise ValueError(f"solve must be one of {SOLVES}, got {solve!r}")
-    if solve == "implicit" and backend != "numpy":
-        raise ValueError(f"solve='implicit' runs on backend='numpy' only for now, got backend={backend!r}; "
-                         "pass backend='numpy'")
     if rk4_stages not in RK4_STAGES:
         raise ValueError(f"rk4_stages must be one of {RK4_STAGES}, got {rk4_stages!r}")
     if not isinstance(guards, Guards):

@@ -62,7 +62,7 @@ class _Workspace:
     :data:`rft_mujoco.compiled.evaluate.WORK_FIELDS` (the diagnostics are views of them), their tuple for the
     compiled calls, and the tuple of the MjData's arrays."""
 
-    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing")
+    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing", "implicit")
 
     def __init__(self, handle, data) -> None:
         from rft_mujoco.compiled import evaluate
@@ -75,6 +75,7 @@ class _Workspace:
                                 a["rft_force"], a["resting"], a["occluded_area"])
         self.keep = reference.StepKeep()
         self.flowing = None                 # the implicit solve's (touching groups, flowed) of the last evaluation
+        self.implicit = None                # the compiled implicit solve's buffers (coupling.implicit.ImplicitWork)
 
     @property
     def state(self) -> np.ndarray:
