@@ -41,14 +41,14 @@ class Problem:
         self.e = (sub.size, self.body[sub].copy(), pos[sub].copy(), nrm[sub].copy(), -pos[sub, 2].copy(),
                   self.area[sub].copy())
         self.xi_n = MEDIA.rho_c * f_hat(MEDIA.mu_int) * 9.81
-        self.work = (np.zeros((k, 3)), np.zeros((k, 3)), np.zeros(k, dtype=np.bool_), np.zeros((k, 6)),
+        self.work = (np.zeros((k, 3)), np.zeros((k, 3)), np.zeros(k, dtype=np.bool_),
+                     np.zeros((implicit_law.SCRATCH_ROWS, n)), np.zeros(n, dtype=np.int64), np.zeros((k, 6)),
                      np.zeros((k, 6, 6)), np.zeros(k, dtype=np.int64), np.zeros(k))
 
     def lw(self):
         n_e, es, ea, en, ed, ear = self.e
-        lin, ang, on, wrench, jac, count, depth = self.work
         return (self.k, self.slot, self.arm, n_e, es, ea, en, ed, ear, G_HAT, self.xi_n, plaw.COEFFICIENTS,
-                MEDIA.mu_surf, False, False, False, tolerances(), lin, ang, on, wrench, jac, count, depth)
+                MEDIA.mu_surf, False, False, False, tolerances()) + self.work
 
     def numpy_law(self, u, groups=None):
         shift = reference._shift(self.arm)
@@ -88,10 +88,11 @@ def test_group_law_and_derivative_match_the_numpy_law(seed):
     np.testing.assert_allclose(f, f_ref, rtol=1e-10, atol=1e-12 * np.abs(f_ref).max())
     # the forward differences amplify the law's round-off by 1 / FD_STEP
     np.testing.assert_allclose(df, df_ref, rtol=0, atol=1e-6 * np.abs(df_ref).max())
-    off = on.copy()
+    off = on.copy()                                   # a group not asked for keeps its rows
     off[0] = False
+    f[:] = 7.0
     cimp._law(p.lw(), u, off, p.ng, cimp.settings(), False, f, df)
-    assert np.all(f[0] == 0.0) and np.allclose(f[1:], f_ref[1:], rtol=1e-10, atol=1e-12 * np.abs(f_ref).max())
+    assert np.all(f[0] == 7.0) and np.allclose(f[1:], f_ref[1:], rtol=1e-10, atol=1e-12 * np.abs(f_ref).max())
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -33,8 +33,8 @@ SETTINGS = ("speed_scale", "rest_retry", "newton_iterations", "newton_rtol", "fd
 ``NEWTON_RTOL``, :data:`rft_mujoco.physics.elements.FD_STEP`, :data:`rft_mujoco.physics.rest.DEPENDENT_TOL`,
 ``WEIGHT_FLOOR``, ``CAPACITY_TOL`` and :data:`rft_mujoco.tol.TINY` (:func:`settings`)."""
 LAW_FIELDS = ("k", "slot", "arm", "n_e", "e_slot", "e_arm", "e_nrm", "e_depth", "e_area", "g_hat", "xi_n", "coef",
-              "mu_surf", "no_tension", "no_forward", "no_power", "tol", "lin", "ang", "on", "wrench", "jac", "count",
-              "max_depth")
+              "mu_surf", "no_tension", "no_forward", "no_power", "tol", "lin", "ang", "on", "scr", "pk", "wrench", "jac",
+              "count", "max_depth")
 """The ``lw`` tuple: the arguments of :func:`rft_mujoco.compiled.implicit_law.group_law` that stay fixed
 within one evaluation, in its order."""
 
@@ -198,7 +198,7 @@ def _law(lw, u, groups_on, ng, st, derivative, f, df):
     """:func:`rft_mujoco.compiled.implicit_law.group_law` with the fixed arguments of ``lw``."""
     group_law(u, groups_on, ng, lw[0], lw[1], lw[2], lw[3], lw[4], lw[5], lw[6], lw[7], lw[8], lw[9], lw[10], lw[11],
               lw[12], lw[13], lw[14], lw[15], lw[16], st[0], st[4], derivative, lw[17], lw[18], lw[19], lw[20], lw[21],
-              lw[22], lw[23], f, df)
+              lw[22], lw[23], lw[24], lw[25], f, df)
 
 
 @njit(**JIT)
@@ -368,8 +368,9 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
     (m/s, rad/s), ``mob`` (6 ng, 6 ng), ``radius`` (ng,) m, ``dt`` s, ``flowing`` (ng,) bool the groups
     that flowed at the last evaluation (used with ``prior``), the law ``lw`` (:data:`LAW_FIELDS`).
     Outputs: ``w_out`` (ng, 6) wrenches (N, N m), ``rest`` (ng,) bool, ``end`` (ng, 6) end twists, ``probe``
-    (ng, 6) the blended twists of the capacity test; ``f``, ``df``: work space of the law. Returns the
-    Newton iterations."""
+    (ng, 6) the blended twists of the capacity test, ``flowing`` (overwritten): the groups solved in flow at
+    some point. ``f``, ``df``: the law's outputs; the rows of the groups never in flow (and their bodies' rows
+    in ``lw``) hold the law at the probe. Returns the Newton iterations."""
     n6 = 6 * ng
     sv = np.empty(n6)
     sw = np.empty(n6)
@@ -409,6 +410,7 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
             flow[g] = True
             rest[g] = False
             untried[g] = True
+        flowing[g] = flow[g]                   # from here on: whether the group was solved in flow
     w = np.zeros(n6)
     full = np.empty((ng, 6))
     its = 0
@@ -511,6 +513,7 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
                 if demand > max(capacity[g], 0.0) * (1.0 + st[7]):
                     rest[g] = False
                     flow[g] = True
+                    flowing[g] = True
                     over = True
             if over:
                 continue

@@ -19,14 +19,15 @@ import numpy as np
 
 from rft_mujoco.compiled.evaluate import BAD_ACCELERATION, NOT_FINITE, _clear, _gravity, _norm6
 from rft_mujoco.compiled.implicit import cholesky, constrained_system, free_motion, implicit_wrenches
-from rft_mujoco.compiled.implicit_law import group_law, loaded_candidates
+from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled.rest import jacobian
 
 IMPLICIT_FIELDS = (("e_slot", "i1"), ("e_arm", "f2"), ("e_nrm", "f2"), ("e_depth", "f1"), ("e_area", "f1"),
                    ("jac", "f3"), ("lin", "f2"), ("ang", "f2"), ("on", "b1"), ("jrows", "f2"), ("h", "f2"),
                    ("f", "f1"), ("y", "f2"), ("end", "f2"), ("probe", "f2"), ("gf", "f2"), ("gdf", "f3"),
-                   ("flowing", "b1"), ("prev_active", "b1"), ("prev_flow", "b1"), ("istate", "f1"))
+                   ("flowing", "b1"), ("prev_active", "b1"), ("prev_flow", "b1"), ("istate", "f1"), ("scr", "f2"),
+                   ("pk", "i1"))
 """(name, kind) of the ``iw`` buffers: the evaluation's elements (:func:`rft_mujoco.compiled.implicit_law.
 loaded_candidates`), the law's work space, the free motion's (``jrows`` J, ``h`` H and its factor, ``f``, ``y``),
 the solve's outputs, the groups that touched and flowed at the last evaluation (``prev_*``: the
@@ -41,7 +42,8 @@ def build_implicit(n_elements: int, n_bodies: int, n_groups: int, nv: int) -> di
     e, b, g, n6, nv1 = max(n_elements, 1), n_bodies, n_groups, 6 * n_groups, max(nv, 1)
     shapes = dict(e_slot=(e,), e_arm=(e, 3), e_nrm=(e, 3), e_depth=(e,), e_area=(e,), jac=(b, 6, 6), lin=(b, 3),
                   ang=(b, 3), on=(b,), jrows=(n6, nv), h=(nv1, nv1), f=(nv,), y=(nv, n6), end=(g, 6), probe=(g, 6),
-                  gf=(g, 6), gdf=(g, 6, 6), flowing=(g,), prev_active=(g,), prev_flow=(g,), istate=(1,))
+                  gf=(g, 6), gdf=(g, 6, 6), flowing=(g,), prev_active=(g,), prev_flow=(g,), istate=(1,),
+                  scr=(SCRATCH_ROWS, e), pk=(e,))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     return {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in IMPLICIT_FIELDS}
 
@@ -72,7 +74,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     e_slot, e_arm, e_nrm, e_depth, e_area = iw[0], iw[1], iw[2], iw[3], iw[4]
     jac_b, lin, ang, on = iw[5], iw[6], iw[7], iw[8]
     jrows, h, f, y, end, probe, gf, gdf = iw[9], iw[10], iw[11], iw[12], iw[13], iw[14], iw[15], iw[16]
-    flowing, prev_active, prev_flow, istate = iw[17], iw[18], iw[19], iw[20]
+    flowing, prev_active, prev_flow, istate, scr, pk = iw[17], iw[18], iw[19], iw[20], iw[21], iw[22]
     k = int(state[2])
     state[1] = 0.0
     nv = qvel.shape[0]
@@ -133,11 +135,11 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         b_ref = ids[group_ref[active[slot[j]]]]
         for c in range(3):
             arm[j, c] = body_com[j, c] - xipos[b_ref, c]
-    n_e = loaded_candidates(touch, k, hc[21], hc[22], hc[23], hc[4], hc[5], ws[1], ws[2], body_com, g_hat,
-                            int(params[6]), hc[26], hc[27], hc[14], hc[15], hc[16], hc[31], hc[17], hc[33], params[9],
-                            md[15], md[16], e_slot, e_arm, e_nrm, e_depth, e_area, occluded)
+    n_e = loaded_candidates(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com,
+                            g_hat, params[0], int(params[6]), hc[26], hc[27], hc[14], hc[15], hc[16], hc[31], hc[32],
+                            hc[17], hc[33], params[9], md[15], md[16], e_slot, e_arm, e_nrm, e_depth, e_area, occluded)
     lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28], params[2], params[3] != 0.0,
-          params[4] != 0.0, params[5] != 0.0, hc[29], lin, ang, on, wrench, jac_b, count, depth_max)
+          params[4] != 0.0, params[5] != 0.0, hc[29], lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)
     # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups
     rad_g = total                                   # (G,) the active groups' radii
     for r in range(ng):
@@ -158,14 +160,17 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         prev_flow[active[r]] = not resting[r]
     istate[0] = 1.0
     state[9] = its
-    # 6. the bodies' own law wrenches: at the end twists (flow), at the probe (rest: capacities, sharing)
+    # 6. the bodies' own law wrenches: at the end twists (flow), at the probe (rest: capacities, sharing); the
+    #    groups never in flow still hold the law at the probe from the solve's capacity test
+    again = False
     for r in range(ng):
-        rest[r] = True                              # ``rest`` as every group's flag
+        again = again or flowing[r]
         for c in range(6):
             end[r, c] = probe[r, c] if resting[r] else end[r, c]
-    group_law(end, rest, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28], params[2],
-              params[3] != 0.0, params[4] != 0.0, params[5] != 0.0, hc[29], st[0], st[4], False, lin, ang, on, wrench,
-              jac_b, count, depth_max, gf, gdf)
+    if again:
+        group_law(end, flowing, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28],
+                  params[2], params[3] != 0.0, params[4] != 0.0, params[5] != 0.0, hc[29], st[0], st[4], False, lin,
+                  ang, on, scr, pk, wrench, jac_b, count, depth_max, gf, gdf)
     # 7. each body's part (reference.share) and the diagnostics (reference.commit)
     for j in range(k):
         size[j] = _norm6(wrench[j], rad_g[slot[j]])
