@@ -140,11 +140,12 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
                             hc[17], hc[33], params[9], md[15], md[16], e_slot, e_arm, e_nrm, e_depth, e_area, occluded)
     lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28], params[2], params[3] != 0.0,
           params[4] != 0.0, params[5] != 0.0, hc[29], lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)
-    # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups
+    # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
+    #    this motion: not after a state restore)
     rad_g = total                                   # (G,) the active groups' radii
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
-    prior = istate[0] != 0.0
+    prior = istate[0] != 0.0 and state[3] != 0.0      # the last evaluation was of this motion (time continuous)
     for g in range(ng_all):
         prior = prior and prev_active[g] == rest[g]
     for r in range(ng):

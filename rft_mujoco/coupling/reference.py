@@ -487,8 +487,8 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
         last.update(w_b=w_b, count=count, max_depth=max_depth, u=u)
         return f, df
 
-    prior = work.flowing                              # (groups, flowed) of the last evaluation
-    flowing = prior[1] if prior is not None and np.array_equal(prior[0], active) else None
+    prior = work.flowing                              # (groups, flowed) of the last evaluation of this motion
+    flowing = prior[1] if prior is not None and work.state[3] and np.array_equal(prior[0], active) else None
     applied_g, resting_g, end, its = implicit.implicit_wrenches(free, mobility, law, twist, radius, dt, flowing)
     work.flowing = (active, ~resting_g)
     # The bodies' own law wrenches at the end twists (flow) and at the probe (capacities, rest sharing).
