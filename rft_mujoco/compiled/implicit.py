@@ -9,8 +9,8 @@ Pure array functions (nothing here calls MuJoCo), the same algorithms as the num
 * :func:`free_motion`: the groups' twists now, their free twists and the mobility ``J H^-1 J^T``
   (:func:`rft_mujoco.coupling.reference.implicit_free`), with a dense Cholesky factor of ``H``;
 * :func:`implicit_wrenches`: :func:`rft_mujoco.physics.implicit.implicit_wrenches` with its Newton flow
-  solve (:func:`_newton_flow`) and rest operator (:func:`rest_operator`, on the compiled
-  :func:`rft_mujoco.physics.rest.pivoted_factor` / ``pivoted_apply``), the law being
+  solve (:func:`_newton_flow`) and its rest operator (the compiled :func:`rft_mujoco.physics.rest.pivoted_factor`,
+  and ``pivoted_apply`` on the vectors the operator meets instead of forming it), the law being
   :func:`rft_mujoco.compiled.implicit_law.group_law` on the evaluation's elements (the tuple ``lw``,
   :data:`LAW_FIELDS`).
 
@@ -230,23 +230,6 @@ def lu_solve(n, a, b):
 
 
 @njit(**JIT)
-def rest_operator(block, weight, dependent_tol, tiny):
-    """:func:`rft_mujoco.physics.implicit.rest_operator`: (m, m) the map ``rhs -> x`` of the pivoted
-    minimum-norm solve on ``block``."""
-    m = block.shape[0]
-    order, g, w = pivoted_factor(block, weight, dependent_tol, tiny)
-    p = np.empty((m, m))
-    e = np.zeros(m)
-    for i in range(m):
-        e[i] = 1.0
-        x = pivoted_apply(block, e, order, g, w)
-        e[i] = 0.0
-        for r in range(m):
-            p[r, i] = x[r]
-    return p
-
-
-@njit(**JIT)
 def _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf, jac):
     """The Newton solve's law: ``wf`` (6 k,) the flowing groups' scaled wrenches at scaled twists ``u`` (6 k,),
     ``jac`` (k, 6, 6) their scaled derivative blocks."""
@@ -435,30 +418,40 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
                     f_idx[jf] = 6 * g + c
                     jf += 1
         mr, mf = 6 * nr, 6 * nf
-        p = np.zeros((mr, mr))
+        block = np.empty((mr, mr))
+        weight = np.empty(mr)
+        order, gfac, wfac = pivoted_factor(block, weight, st[5], st[8])     # (typed; replaced below when mr)
         if mr:
-            weight = np.empty(mr)
             top = 0.0
             for i in range(mr):
                 weight[i] = weight_all[r_idx[i] // 6]
                 top = max(top, weight[i])
             for i in range(mr):
                 weight[i] = max(weight[i], st[6] * top)
-            block = np.empty((mr, mr))
             for i in range(mr):
                 for j in range(mr):
                     block[i, j] = a[r_idx[i], r_idx[j]]
-            p = rest_operator(block, weight, st[5], st[8])
+            order, gfac, wfac = pivoted_factor(block, weight, st[5], st[8])
         for i in range(n6):
             w[i] = 0.0
         if mf:
-            fp = np.zeros((mf, mr))            # a_fr P
-            for i in range(mf):
-                for j in range(mr):
-                    s = 0.0
-                    for l in range(mr):
-                        s += a[f_idx[i], r_idx[l]] * p[l, j]
-                    fp[i, j] = s
+            # the resting groups' wrenches follow the flowing ones: -P (v_r + a_rf w_f), P the rest operator
+            # (physics.implicit.rest_operator) applied to the vectors it meets rather than formed
+            pa = np.zeros((mr, mf))            # P a_rf
+            col = np.empty(mr)
+            for j in range(mf):
+                if mr == 0:
+                    break
+                for l in range(mr):
+                    col[l] = a[r_idx[l], f_idx[j]]
+                x = pivoted_apply(block, col, order, gfac, wfac)
+                for l in range(mr):
+                    pa[l, j] = x[l]
+            pv = np.zeros(mr)                  # P v_r
+            if mr:
+                for l in range(mr):
+                    col[l] = v[r_idx[l]]
+                pv = pivoted_apply(block, col, order, gfac, wfac)
             a_eff = np.empty((mf, mf))
             v_eff = np.empty(mf)
             u_flow = np.empty(mf)
@@ -466,11 +459,11 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
                 for j in range(mf):
                     s = 0.0
                     for l in range(mr):
-                        s += fp[i, l] * a[r_idx[l], f_idx[j]]
+                        s += a[f_idx[i], r_idx[l]] * pa[l, j]
                     a_eff[i, j] = a[f_idx[i], f_idx[j]] - s
                 s = 0.0
                 for l in range(mr):
-                    s += fp[i, l] * v[r_idx[l]]
+                    s += a[f_idx[i], r_idx[l]] * pv[l]
                 v_eff[i] = v[f_idx[i]] - s
                 u_flow[i] = twist[f_idx[i] // 6, f_idx[i] % 6] * sv[f_idx[i]]
             w_f, it = _newton_flow(lw, flow, ng, a_eff, v_eff, u_flow, sv, sw, st, full, f, df)
@@ -498,11 +491,9 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
                 for j in range(mf):
                     s += a[r_idx[i], f_idx[j]] * w[f_idx[j]]
                 rhs[i] = s
+            x = pivoted_apply(block, rhs, order, gfac, wfac)
             for i in range(mr):
-                s = 0.0
-                for j in range(mr):
-                    s += p[i, j] * rhs[j]
-                w[r_idx[i]] = -s
+                w[r_idx[i]] = -x[i]
             over = False
             for g in range(ng):
                 if not rest[g]:
