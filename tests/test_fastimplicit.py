@@ -253,3 +253,31 @@ def test_compiled_and_numpy_implicit_agree_on_a_heightfield():
         scale = np.abs(ref[key]).max() if key in ("force", "rft_force") else 1.0
         scale = max(np.abs(ref[key]).max(), 0.05 * np.abs(ref["force"]).max()) if key == "torque" else scale
         assert np.abs(new[key] - ref[key]).max() <= tol * scale, key
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_copy_of_the_data_continues_bit_for_bit(backend):
+    """mj_copyData mid-run, while a loaded body flows: the copy (with a copy of the implicit solve's buffers and
+    of the groups that flowed, which set where its solve starts, not its answer) and the original step on
+    alike (docs/architecture.md, "State and copies")."""
+    from test_implicit import SCENES
+    m = mujoco.MjModel.from_xml_string(SCENES["weld_friction"])
+    d = mujoco.MjData(m)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        h = rft_mujoco.attach(m, "li_loose_glass_beads", surface_height=0.08, resolution=0.01, solve="implicit",
+                              backend=backend)
+        try:
+            for _ in range(20):
+                mujoco.mj_step(m, d)
+            diag = h.diagnostics(d)
+            assert ((diag.submerged > 0) & ~diag.resting).any()
+            c = mujoco.MjData(m)
+            mujoco.mj_copyData(c, m, d)
+            for _ in range(30):
+                mujoco.mj_step(m, d)
+                mujoco.mj_step(m, c)
+            np.testing.assert_array_equal(c.qpos, d.qpos)
+            np.testing.assert_array_equal(c.qvel, d.qvel)
+        finally:
+            h.detach()

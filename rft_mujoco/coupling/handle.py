@@ -383,7 +383,8 @@ class SandHandle:
         new = self._workspace(dst)
         for name, a in work.arrays.items():
             np.copyto(new.arrays[name], a)
-        new.keep, new.implicit = copy.deepcopy(work.keep), work.implicit and work.implicit.copy(self)
+        new.keep, new.flowing = copy.deepcopy(work.keep), work.flowing
+        new.implicit = work.implicit and work.implicit.copy(self)
 
     def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, stage: int = 0) -> bool:
         """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero (the
@@ -553,9 +554,8 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             body (a calf inside its thigh at the knee, a rock) carry nothing while they are inside it.
             False: every geom's whole surface feels sand (overlaps count twice; for comparisons).
         solve: with ``stabilize=True``, "explicit" (default: rest, or flow scaled not to reverse the motion,
-            constraint forces of the previous solve) or "implicit" (the law at the twist the step ends with,
-            per direction, this step's constraints linearized; docs/rest.md "The implicit solve"). On the
-            compiled backend "implicit" takes the Python callback path (no native route), which costs more.
+            constraint forces of the previous solve) or "implicit" (the law at the twist the step ends with, per
+            direction, this step's constraints linearized; no native route: docs/rest.md "The implicit solve").
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """
