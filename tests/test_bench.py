@@ -71,3 +71,15 @@ def test_quick_bench_runs_every_section(tmp_path, capsys):
     assert np.isfinite(res["above"]["per_body_ns"]) and res["above"]["fixed_us"] > 0.0
     assert {r["name"] for r in res["robots"]} == {"mesh humanoid", "mesh quadruped"}
     assert all(r["ratio"] > 1.0 and 1 / 1.5 <= r["count_ratio"] <= 1.5 for r in res["robots"])
+
+
+def test_implicit_cost_times_the_quadruped_and_the_swimmer_side_by_side():
+    from rft_mujoco.studies.bench.coupling import implicit_cost
+    r = implicit_cost(names=("explicit", "implicit"), reps=1, swimmer=("implicit",))
+    assert [q["setting"] for q in r["quadruped"]] == ["explicit", "implicit"]
+    for q in r["quadruped"]:
+        assert q["loaded_elements"] > 0                   # the quadruped stands on the sand
+        for key in ("bare_us", "sand_us", "ratio"):
+            assert math.isfinite(q[key]) and q[key] > 0.0, key
+    (s,) = r["swimmer"]
+    assert s["steps"] == 1000 and math.isfinite(s["s_per_step"]) and s["s_per_step"] > 0.0

@@ -165,15 +165,28 @@ def test_linearized_constraints_predict_mujocos_next_acceleration(name):
     assert checked == 5
 
 
-def test_implicit_solve_needs_the_numpy_backend():
+def test_implicit_solve_runs_on_both_backends_without_the_native_route():
+    """solve="implicit" on the compiled backend (the default's) takes the Python callback path (the native route
+    is built for the explicit solve only); a solve that does not exist is refused."""
+    from rft_mujoco.coupling.dispatch import DISPATCHER
     m = mujoco.MjModel.from_xml_string(SCENES["joint_limit"])
-    with pytest.raises(ValueError, match="backend='numpy'"):
-        rft_mujoco.attach(m, "li_loose_glass_beads", bodies=["foot"], solve="implicit", backend="numba")
+    d = mujoco.MjData(m)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        h = rft_mujoco.attach(m, "li_loose_glass_beads", bodies=["foot"], solve="implicit")
+    try:
+        assert h.backend == "numba" and h.solve == "implicit"
+        for _ in range(20):
+            mujoco.mj_step(m, d)
+        assert h.evaluations == 20 and h.diagnostics(d).submerged[0] > 0
+        assert DISPATCHER._registry is None or not DISPATCHER._registry.routed(m, d)
+    finally:
+        h.detach()
     with pytest.raises(ValueError, match="solve must be one of"):
         rft_mujoco.attach(m, "li_loose_glass_beads", bodies=["foot"], solve="newton")
 
 
-def _glide(solve):
+def _glide(solve, backend="numpy", steps=500):
     """A 20 kg trunk on three light shins (stiff PD knees), set on loose glass beads moving forward at 0.6 m/s."""
     xml = """<mujoco><option timestep='0.002' integrator='implicitfast'/><worldbody>
     <body name='trunk' pos='0 0 0.25'><freejoint/><geom type='box' size='0.2 0.1 0.05' mass='20'/>
@@ -187,14 +200,14 @@ def _glide(solve):
     <position joint='knee3' kp='2000' kv='20'/></actuator></mujoco>"""
     m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)
-    kw = dict(backend="numpy", solve=solve) if solve == "implicit" else dict(backend="numpy")
+    kw = dict(backend=backend, solve=solve) if solve == "implicit" else dict(backend=backend)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         h = rft_mujoco.attach(m, "li_loose_glass_beads", bodies=["shin", "shin2", "shin3"], resolution=0.02, **kw)
         try:
             d.qvel[0] = 0.6
             xs = []
-            for _ in range(500):
+            for _ in range(steps):
                 mujoco.mj_step(m, d)
                 xs.append(d.qpos[0])
             return np.array(xs), h.diagnostics(d).resting.copy(), d.qpos[2]

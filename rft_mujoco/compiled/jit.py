@@ -77,7 +77,8 @@ and 149 s of CPU (docs/performance.md "First use"; 248 s of wall before, 273 s i
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",
-                  "compiled/route.py", "compiled/native.py", "physics/rest.py", "tol.py")
+                  "compiled/route.py", "compiled/native.py", "compiled/implicit_law.py", "compiled/implicit.py",
+                  "compiled/implicit_eval.py", "physics/rest.py", "tol.py")
 """Every source file (relative to the package) whose code ends up in compiled machine code."""
 
 

@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco import compiled, tol
-from rft_mujoco.coupling import checks, deformable, reference, setup
+from rft_mujoco.coupling import checks, deformable, implicit, reference, setup
 from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.monitor import ValidityMonitor
 from rft_mujoco.coupling.workspace import Diagnostics, _Workspace
@@ -57,7 +57,7 @@ otherwise."""
 SOLVES = ("explicit", "implicit")
 """Values of ``attach(solve=...)``: the explicit rest/flow treatment (:func:`rft_mujoco.physics.rest.rest_wrenches`)
 or the implicit solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`, this step's constraints linearized:
-:func:`rft_mujoco.coupling.reference.constrained_free_motion`; numpy backend only for now)."""
+:func:`rft_mujoco.coupling.reference.constrained_free_motion`; compiled: :mod:`rft_mujoco.coupling.implicit`)."""
 RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
 
@@ -140,6 +140,8 @@ class SandHandle:
     # --- settings that the compiled code reads (hc.params): every setter refreshes them -------------------
     def __setattr__(self, name, value) -> None:
         object.__setattr__(self, name, value)
+        if name == "solve" and getattr(self, "_ready", False):
+            DISPATCHER.invalidate()                      # the native route is built for solve="explicit" only
         if name in ("_media", "guards", "stabilize", "passive", "monitor", "_terrain", "rk4_stages") \
                 and getattr(self, "_ready", False):
             self._refresh()
@@ -388,7 +390,8 @@ class SandHandle:
         new = self._workspace(dst)
         for name, a in work.arrays.items():
             np.copyto(new.arrays[name], a)
-        new.keep = copy.deepcopy(work.keep)
+        new.keep, new.flowing = copy.deepcopy(work.keep), work.flowing
+        new.implicit = work.implicit and work.implicit.copy(self)
 
     def _evaluate(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, stage: int = 0) -> bool:
         """Add this handle's wrenches (nbody, 6) into ``sand_out``; True when any of them is non-zero (the
@@ -451,8 +454,9 @@ class SandHandle:
             return False
         if self.stabilize:
             mujoco.mj_fwdActuation(self.model, data)
-        status = evaluate.evaluate(work.md, self._hc, work.tuple, user_xfrc, dt, sand_out,
-                                   evaluate.friction_arrays(data))
+        status = implicit.evaluate_compiled(self, data, work, user_xfrc, dt, sand_out) \
+            if self.stabilize and self.solve == "implicit" else \
+            evaluate.evaluate(work.md, self._hc, work.tuple, user_xfrc, dt, sand_out, evaluate.friction_arrays(data))
         touch = work.arrays["touch"][:k]
         if status == evaluate.BAD_ACCELERATION:
             reference.free_twists(self, data, user_xfrc, self.body_ids[self.groups.ref], dt, False)  # raises
@@ -535,9 +539,8 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             body (a calf inside its thigh at the knee, a rock) carry nothing while they are inside it.
             False: every geom's whole surface feels sand (overlaps count twice; for comparisons).
         solve: with ``stabilize=True``, "explicit" (default: rest, or flow scaled not to reverse the motion,
-            constraint forces of the previous solve) or "implicit" (the law at the twist the step ends with,
-            per direction, this step's constraints linearized; docs/rest.md "The implicit solve"). "implicit"
-            runs on ``backend="numpy"`` only, for now.
+            constraint forces of the previous solve) or "implicit" (the law at the twist the step ends with, per
+            direction, this step's constraints linearized; no native route: docs/rest.md "The implicit solve").
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """
@@ -545,9 +548,6 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         raise TypeError(f"model must be a mujoco.MjModel, got {type(model).__name__}")
     if solve not in SOLVES:
         raise ValueError(f"solve must be one of {SOLVES}, got {solve!r}")
-    if solve == "implicit" and backend != "numpy":
-        raise ValueError(f"solve='implicit' runs on backend='numpy' only for now, got backend={backend!r}; "
-                         "pass backend='numpy'")
     if rk4_stages not in RK4_STAGES:
         raise ValueError(f"rk4_stages must be one of {RK4_STAGES}, got {rk4_stages!r}")
     if not isinstance(guards, Guards):

@@ -487,8 +487,8 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
         last.update(w_b=w_b, count=count, max_depth=max_depth, u=u)
         return f, df
 
-    prior = work.flowing                              # (groups, flowed) of the last evaluation
-    flowing = prior[1] if prior is not None and np.array_equal(prior[0], active) else None
+    prior = work.flowing                              # (groups, flowed) of the last evaluation of this motion
+    flowing = prior[1] if prior is not None and work.state[3] and np.array_equal(prior[0], active) else None
     applied_g, resting_g, end, its = implicit.implicit_wrenches(free, mobility, law, twist, radius, dt, flowing)
     work.flowing = (active, ~resting_g)
     # The bodies' own law wrenches at the end twists (flow) and at the probe (capacities, rest sharing).
@@ -499,6 +499,10 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
     np.add.at(rft_g, slot, np.einsum("kji,kj->ki", shift, wrench))
     applied = share(applied_g, rft_g, resting_g, wrench, slot, arm, radius)
     work.state[9] = its
-    occluded = np.zeros(touch.size)
+    sel, b, hidden = touching                          # the submerged area inside other bodies' geoms
+    mats = work.arrays["body_mat"][:touch.size].reshape(-1, 3, 3)[b]
+    pos = work.arrays["body_pos"][:touch.size][b] + np.einsum("eij,ej->ei", mats, handle.local_centroids[sel])
+    occluded = np.bincount(b, weights=handle.areas[sel] * (hidden & (handle.terrain.depth(pos, g_hat) > 0.0)),
+                           minlength=touch.size)
     return commit(handle, work.diag, touch, applied, wrench, last["count"], last["max_depth"], occluded,
                   resting_g[slot], sand_out)

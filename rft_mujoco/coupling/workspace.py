@@ -67,7 +67,7 @@ class _Workspace:
     workspace copy it) and ``terrain`` is that surface; otherwise ``surface`` is None and ``terrain`` the
     handle's."""
 
-    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing", "surface", "terrain")
+    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing", "surface", "terrain", "implicit")
 
     def __init__(self, handle, data) -> None:
         from rft_mujoco.compiled import evaluate
@@ -86,6 +86,7 @@ class _Workspace:
             fresh = self.terrain.initial()
             a["surface_heights"], a["surface_preload"] = fresh.heights, fresh.preload
             self.surface = self.terrain = fresh
+        self.implicit = None                # the compiled implicit solve's buffers (coupling.implicit.ImplicitWork)
 
     @property
     def state(self) -> np.ndarray:

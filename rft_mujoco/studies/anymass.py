@@ -10,9 +10,10 @@ and joint damping scaled with it, :func:`rft_mujoco.studies.swim.scale_density`)
 size where the limit is converged (:data:`ELEMENT_SIZE`), and reports each eta's error against the limit at
 the same element size.
 
-Cost: the implicit solve runs on the numpy backend (about 0.07 s a step at 3 mm on one core of a 2-core
-machine). Measured on this project's 2-core VM with other jobs running: the animal's half of the grid 4,760 s
-on 2 workers (the 100x half costs about as much); ``--quick`` (amplitudes 0.5 and 0.9 rad at dt 2 ms) 6 min.
+Cost: the implicit solve runs on the numpy backend by default (about 0.07 s a step at 3 mm on one core of a
+2-core machine; ``--backend numba`` runs it compiled, docs/rest.md "The implicit solve" has its cost).
+Measured on this project's 2-core VM with other jobs running: the animal's half of the grid 4,760 s on 2 workers
+(the 100x half costs about as much); ``--quick`` (amplitudes 0.5 and 0.9 rad at dt 2 ms) 6 min.
 Units: SI (s, m, rad); eta is dimensionless.
 """
 
@@ -46,7 +47,7 @@ FREQUENCY = 1.0
 TOLERANCE = 0.05
 """The target: |eta / eta_limit - 1| at most this (issue 26, item 1)."""
 BACKENDS = {"explicit": {}, "implicit": {"solve": "implicit", "backend": "numpy"}}
-"""attach() options of each solve (the implicit solve exists on the numpy backend only)."""
+"""attach() options of each solve (the implicit solve on the numpy reference unless ``--backend numba``)."""
 
 
 def _limit(amplitude: float, element_size: float, frequency: float, cycles: int) -> dict:
@@ -58,13 +59,14 @@ def _limit(amplitude: float, element_size: float, frequency: float, cycles: int)
 
 
 def _run(amplitude: float, density_scale: float, timestep: float, solve: str, element_size: float,
-         frequency: float, cycles: int) -> dict:
+         frequency: float, cycles: int, implicit_backend: str = "numpy") -> dict:
     from rft_mujoco.studies.swim import swim
 
+    options = dict(BACKENDS[solve], backend=implicit_backend) if solve == "implicit" else BACKENDS[solve]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         r = swim(amplitude, frequency, density_scale=density_scale, timestep=timestep, cycles=cycles,
-                 resolution=element_size, **BACKENDS[solve])
+                 resolution=element_size, **options)
     return dict(kind="run", amplitude_rad=amplitude, density_scale=density_scale, timestep_s=timestep,
                 solve=solve, element_size_m=element_size, eta=r["eta"], tracking_rms_rad=r["tracking_rms_rad"],
                 wall_s=r["wall_s"])
@@ -77,12 +79,13 @@ def _single_thread() -> None:
 
 def measure(amplitudes=AMPLITUDES, timesteps=TIMESTEPS, densities=DENSITIES, solves=SOLVES,
             element_size: float = ELEMENT_SIZE, frequency: float = FREQUENCY, cycles: int = 4,
-            workers: int = 1, progress=None) -> dict:
+            workers: int = 1, progress=None, implicit_backend: str = "numpy") -> dict:
     """Every (density, timestep, amplitude, solve) run and the limit at each amplitude, on ``workers``
-    processes. Returns dict(limits={amplitude: eta}, rows=[...]): each row a run with ``eta_limit`` and
-    ``error`` (eta / eta_limit - 1) added, sorted by density, timestep, amplitude, solve."""
+    processes (the implicit solve on ``implicit_backend``, "numpy" or "numba"). Returns
+    dict(limits={amplitude: eta}, rows=[...]): each row a run with ``eta_limit`` and ``error``
+    (eta / eta_limit - 1) added, sorted by density, timestep, amplitude, solve."""
     jobs = [(_limit, (a, element_size, frequency, cycles)) for a in amplitudes]
-    jobs += [(_run, (a, rho, dt, s, element_size, frequency, cycles))
+    jobs += [(_run, (a, rho, dt, s, element_size, frequency, cycles, implicit_backend))
              for rho in densities for dt in timesteps for a in amplitudes for s in solves]
     if not jobs:
         raise ValueError("nothing to measure: give at least one amplitude, timestep, density and solve")
@@ -170,12 +173,13 @@ def plot(result: dict, out: Path) -> Path:
 
 
 def run(quick: bool = False, workers: int = 2, out: str | Path = "out/anymass", plots: bool = True,
-        **grid) -> dict:
+        implicit_backend: str = "numpy", **grid) -> dict:
     """The study; ``grid`` overrides :func:`measure`'s amplitudes, timesteps, densities or solves."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     kw = dict(amplitudes=(0.5, 0.9), timesteps=(0.002,)) if quick else {}
-    result = measure(workers=workers, **{**kw, **{k: v for k, v in grid.items() if v}})
+    result = measure(workers=workers, implicit_backend=implicit_backend,
+                     **{**kw, **{k: v for k, v in grid.items() if v}})
     print("\nwave efficiency against the quasi-static limit "
           f"({result['element_size_m'] * 1e3:g} mm elements, {result['frequency_hz']:g} Hz)")
     print("\n".join(table(result)))
@@ -206,6 +210,8 @@ def main(argv: list[str] | None = None, command: str = "anymass") -> int:
     parser.add_argument("--densities", type=float, nargs="+",
                         help="density over the bundled model's (default 0.01, the animal, and 1)")
     parser.add_argument("--solves", nargs="+", choices=SOLVES, help="default both")
+    parser.add_argument("--backend", choices=("numpy", "numba"), default="numpy",
+                        help="the implicit solve's backend (default numpy, the reference; numba: compiled)")
     args = parser.parse_args(argv)
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
@@ -213,7 +219,7 @@ def main(argv: list[str] | None = None, command: str = "anymass") -> int:
         bad = [v for v in getattr(args, name) or () if not v > 0.0]
         if bad:
             parser.error(f"--{name} must be > 0, got {bad}")
-    run(quick=args.quick, workers=args.workers, out=args.out, plots=not args.no_plots,
+    run(quick=args.quick, workers=args.workers, out=args.out, plots=not args.no_plots, implicit_backend=args.backend,
         amplitudes=args.amplitudes, timesteps=args.timesteps, densities=args.densities, solves=args.solves)
     return 0
 

@@ -268,3 +268,56 @@ def above_sand(counts=(1, 1000)) -> dict:
     return dict(counts=(n0, n1), bare_us=(b0 * 1e6, b1 * 1e6), sand_us=(s0 * 1e6, s1 * 1e6),
                 callback_us=(c0 * 1e6, c1 * 1e6), elements=(e0, e1),
                 per_body_ns=(c1 - c0) / (n1 - n0) * 1e9, fixed_us=c0 * 1e6)
+
+
+IMPLICIT_SETTINGS = {"explicit": {}, "explicit, Python path": {"observe": True}, "implicit": {"solve": "implicit"},
+                     "implicit, numpy": {"solve": "implicit", "backend": "numpy"}}
+"""Named settings of :func:`implicit_cost`: the default explicit solve (native route), the same forced onto the
+dispatcher's Python callback path (a no-op observer), the implicit solve compiled (Python callback path: the
+native route is built for the explicit solve only) and on the numpy reference."""
+
+
+def implicit_cost(names=("explicit", "explicit, Python path", "implicit"), reps: int = 7,
+                  swimmer: tuple = ("implicit",), swimmer_cycles: int = 2) -> dict:
+    """The implicit solve's cost, side by side in one process (docs/rest.md, "The implicit solve").
+
+    ``quadruped``: us per ``mj_step`` of the bundled quadruped standing on sand (every body attached, default
+    resolution, the floor replaced; settled 0.5 s with that setting), 200 consecutive steps, against a copy
+    of the model stepped bare (no floor, no sand) from the same state, the two runs interleaved ``reps`` times
+    (medians; ``ratio``: the median of the per-round ratios; ``loaded_elements`` at the end), for each of
+    :data:`IMPLICIT_SETTINGS` ``names``; ``swimmer``: s per step of the swimmer driven as the anymass study does (0.5 rad, 1 Hz, dt 2 ms,
+    the animal's density, 3 mm elements) for ``swimmer_cycles`` cycles (>= 2), for each named setting."""
+    from rft_mujoco.studies import anymass
+    from rft_mujoco.studies.swim import swim
+
+    quad = []
+    for name in names:
+        kwargs = dict(IMPLICIT_SETTINGS[name])
+        observe = kwargs.pop("observe", False)
+        model = quadruped()
+        data = mujoco.MjData(model)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            handle = attach(model, LI_LOOSE_GLASS_BEADS, None, 0.0, "default", monitor=False, **kwargs)
+            handle.replace_rigid(["floor"])
+            if observe:
+                handle.observe(lambda data, wrenches, stage: None)
+            stand = settled_state(model, data)
+            bare = quadruped()
+            bare.geom_contype[0] = bare.geom_conaffinity[0] = 0
+            bare_data = mujoco.MjData(bare)
+            times = np.array([(step_time(model, data, stand, 1), step_time(bare, bare_data, stand, 1))
+                              for _ in range(reps)])
+            loaded = int(handle.diagnostics(data).submerged.sum())
+        handle.detach()
+        quad.append(dict(setting=name, loaded_elements=loaded, bare_us=float(np.median(times[:, 1])) * 1e6,
+                         sand_us=float(np.median(times[:, 0])) * 1e6,
+                         ratio=float(np.median(times[:, 0] / times[:, 1]))))
+    swim_rows = []
+    for name in swimmer:
+        kwargs = {k: v for k, v in IMPLICIT_SETTINGS[name].items() if k != "observe"}
+        r = swim(0.5, anymass.FREQUENCY, density_scale=anymass.ANIMAL, timestep=0.002, cycles=swimmer_cycles,
+                 resolution=anymass.ELEMENT_SIZE, **kwargs)
+        steps = int(round(swimmer_cycles / anymass.FREQUENCY / 0.002))
+        swim_rows.append(dict(setting=name, steps=steps, s_per_step=r["wall_s"] / steps))
+    return dict(quadruped=quad, swimmer=swim_rows)

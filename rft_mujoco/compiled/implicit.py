@@ -1,0 +1,550 @@
+"""The implicit sand solve compiled: this step's constraints linearized, backward Euler on the regularized law.
+
+Pure array functions (nothing here calls MuJoCo), the same algorithms as the numpy reference
+(tests/test_fastimplicit.py compares them):
+
+* :func:`constrained_system`: :func:`rft_mujoco.coupling.reference.constrained_free_motion` (and
+  :func:`~rft_mujoco.coupling.reference.velocity_damping`'s term) on MuJoCo's sparse mass matrix and this
+  step's constraint rows, dense or sparse;
+* :func:`free_motion`: the groups' twists now, their free twists and the mobility ``J H^-1 J^T``
+  (:func:`rft_mujoco.coupling.reference.implicit_free`), with a dense Cholesky factor of ``H``;
+* :func:`implicit_wrenches`: :func:`rft_mujoco.physics.implicit.implicit_wrenches` with its Newton flow
+  solve (:func:`_newton_flow`) and its rest operator (the compiled :func:`rft_mujoco.physics.rest.pivoted_factor`,
+  and ``pivoted_apply`` on the vectors the operator meets instead of forming it), the law being
+  :func:`rft_mujoco.compiled.implicit_law.group_law` on the evaluation's elements (the tuple ``lw``,
+  :data:`LAW_FIELDS`).
+
+``st``: the solve's settings (:data:`SETTINGS`), passed at run time (numba would freeze module globals).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rft_mujoco.compiled.implicit_law import group_law
+from rft_mujoco.compiled.jit import JIT, njit
+from rft_mujoco.compiled.rest import jacobian, pivoted_apply, pivoted_factor
+
+SETTINGS = ("speed_scale", "rest_retry", "newton_iterations", "newton_rtol", "fd_step", "dependent_tol",
+            "weight_floor", "capacity_tol", "tiny")
+"""Entries of ``st``: :data:`rft_mujoco.physics.implicit.SPEED_SCALE`, ``REST_RETRY``, ``NEWTON_ITERATIONS``,
+``NEWTON_RTOL``, :data:`rft_mujoco.physics.elements.FD_STEP`, :data:`rft_mujoco.physics.rest.DEPENDENT_TOL`,
+``WEIGHT_FLOOR``, ``CAPACITY_TOL`` and :data:`rft_mujoco.tol.TINY` (:func:`settings`)."""
+LAW_FIELDS = ("k", "slot", "arm", "n_e", "e_slot", "e_arm", "e_nrm", "e_depth", "e_area", "g_hat", "xi_n", "coef",
+              "mu_surf", "no_tension", "no_forward", "no_power", "tol", "lin", "ang", "on", "scr", "pk", "wrench", "jac",
+              "count", "max_depth")
+"""The ``lw`` tuple: the arguments of :func:`rft_mujoco.compiled.implicit_law.group_law` that stay fixed
+within one evaluation, in its order."""
+
+# MuJoCo's mjtConstraint (checked against the bindings by tests/test_fastimplicit.py)
+EQUALITY, FRICTION_DOF, FRICTION_TENDON, LIMIT_JOINT, LIMIT_TENDON = 0, 1, 2, 3, 4
+CONTACT_FRICTIONLESS, CONTACT_PYRAMIDAL, CONTACT_ELLIPTIC = 5, 6, 7
+
+
+def settings() -> np.ndarray:
+    """``st`` (:data:`SETTINGS`) from the reference modules' constants now."""
+    from rft_mujoco import tol
+    from rft_mujoco.physics import elements, implicit, rest
+    return np.array([implicit.SPEED_SCALE, implicit.REST_RETRY, implicit.NEWTON_ITERATIONS, implicit.NEWTON_RTOL,
+                     elements.FD_STEP, rest.DEPENDENT_TOL, rest.WEIGHT_FLOOR, rest.CAPACITY_TOL, tol.TINY])
+
+
+# --- this step's constraints, linearized ---------------------------------------------------------------
+@njit(**JIT)
+def constrained_system(nv, m_rowadr, m_rownnz, m_colind, m_val, nefc, sparse, efc_j, efc_rowadr, efc_rownnz,
+                       efc_colind, efc_type, efc_id, efc_d, efc_aref, efc_frictionloss, qacc_prev, linearized,
+                       damping, dt, h, f):
+    """``h`` (nv, nv) := ``M`` (from MuJoCo's CSR lower triangle ``m_val``) and, with ``linearized``,
+    ``+ Jq^T D Jq + dt diag(damping)``; ``f`` (nv,) (the smooth force on entry) ``+= Jq^T D aref + Js^T f_s``:
+    :func:`rft_mujoco.coupling.reference.constrained_free_motion`. Row i of the constraint Jacobian is dense
+    (``efc_j[i nv:(i + 1) nv]``) or, with ``sparse``, CSR (``efc_rowadr``, ``efc_rownnz``, ``efc_colind``).
+    A row's zone is that of the force it would carry at the last solve's ``qacc_prev``: equality rows
+    quadratic; dry friction quadratic inside its bound, a constant force at it; limits and contacts
+    quadratic while pushing; an elliptic contact's rows all quadratic while its first (normal) row is."""
+    for i in range(nv):
+        for j in range(nv):
+            h[i, j] = 0.0
+    for i in range(nv):
+        for a in range(m_rowadr[i], m_rowadr[i] + m_rownnz[i]):
+            c = m_colind[a]
+            h[i, c] = m_val[a]
+            h[c, i] = m_val[a]
+    if not linearized:
+        return
+    for i in range(nv):
+        h[i, i] += dt * damping[i]
+    first = 0.0
+    for e in range(nefc):
+        a0 = efc_rowadr[e] if sparse else e * nv
+        nnz = efc_rownnz[e] if sparse else nv
+        acc = 0.0
+        for a in range(a0, a0 + nnz):
+            acc += efc_j[a] * qacc_prev[efc_colind[a] if sparse else a - a0]
+        est = -efc_d[e] * (acc - efc_aref[e])
+        t = efc_type[e]
+        quad = False
+        const = 0.0
+        if t == EQUALITY:
+            quad = True
+        elif t == FRICTION_DOF or t == FRICTION_TENDON:
+            fl = efc_frictionloss[e]
+            if abs(est) < fl:
+                quad = True
+            else:
+                const = fl if est > 0.0 else (-fl if est < 0.0 else 0.0)
+        elif t == LIMIT_JOINT or t == LIMIT_TENDON or t == CONTACT_FRICTIONLESS or t == CONTACT_PYRAMIDAL:
+            quad = est > 0.0
+        elif t == CONTACT_ELLIPTIC:
+            if e == 0 or efc_type[e - 1] != CONTACT_ELLIPTIC or efc_id[e - 1] != efc_id[e]:
+                first = est
+            quad = first > 0.0
+        if quad:
+            d = efc_d[e]
+            da = d * efc_aref[e]
+            for a in range(a0, a0 + nnz):
+                p = efc_colind[a] if sparse else a - a0
+                x = efc_j[a]
+                f[p] += x * da
+                dx = d * x
+                for b in range(a0, a0 + nnz):
+                    h[p, efc_colind[b] if sparse else b - a0] += dx * efc_j[b]
+        elif const != 0.0:
+            for a in range(a0, a0 + nnz):
+                f[efc_colind[a] if sparse else a - a0] += efc_j[a] * const
+
+
+@njit(**JIT)
+def cholesky(n, h):
+    """The lower Cholesky factor of ``h[:n, :n]`` in place (lower triangle); False when ``h`` is not
+    positive definite (or not finite)."""
+    for c in range(n):
+        t = h[c, c]
+        for j in range(c):
+            t -= h[c, j] * h[c, j]
+        if not t > 0.0:
+            return False
+        d = math.sqrt(t)
+        h[c, c] = d
+        for r in range(c + 1, n):
+            t = h[r, c]
+            for j in range(c):
+                t -= h[r, j] * h[c, j]
+            h[r, c] = t / d
+    return True
+
+
+@njit(**JIT)
+def _forward(n, low, x, col):
+    """``x[:, col] <- L^-1 x[:, col]`` (x (n, m))."""
+    for r in range(n):
+        t = x[r, col]
+        for c in range(r):
+            t -= low[r, c] * x[c, col]
+        x[r, col] = t / low[r, r]
+
+
+@njit(**JIT)
+def free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
+                body_parentid, dof_parentid, qvel, low, f, dt, jrows, y, twist, free, mob):
+    """For the reference bodies (COMs) of groups ``active[:ng]``: their Jacobians into ``jrows`` (6 ng, nv),
+    twists now (``twist`` (ng, 6)), free twists ``twist + dt J H^-1 f`` (``free``) and the mobility
+    ``mob`` (6 ng, 6 ng) ``= J H^-1 J^T = Y^T Y``, ``Y = L^-1 J^T`` (``y`` (nv, 6 ng)), for the lower
+    Cholesky factor ``low`` of ``H``. ``f`` (nv,) is overwritten with ``H^-1 f``."""
+    nv = qvel.shape[0]
+    n6 = 6 * ng
+    for r in range(ng):
+        b = ids[group_ref[active[r]]]
+        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
+                 body_parentid, dof_parentid, jrows, 6 * r)
+    for i in range(nv):                       # f <- H^-1 f
+        t = f[i]
+        for c in range(i):
+            t -= low[i, c] * f[c]
+        f[i] = t / low[i, i]
+    for i in range(nv - 1, -1, -1):
+        t = f[i]
+        for c in range(i + 1, nv):
+            t -= low[c, i] * f[c]
+        f[i] = t / low[i, i]
+    for r in range(ng):
+        for c in range(6):
+            row = 6 * r + c
+            s0 = 0.0
+            s1 = 0.0
+            for i in range(nv):
+                s0 += jrows[row, i] * qvel[i]
+                s1 += jrows[row, i] * f[i]
+            twist[r, c] = s0
+            free[r, c] = s0 + dt * s1
+    for i in range(nv):
+        for col in range(n6):
+            y[i, col] = jrows[col, i]
+    for col in range(n6):
+        _forward(nv, low, y, col)
+    for p in range(n6):
+        for q in range(p + 1):
+            s = 0.0
+            for i in range(nv):
+                s += y[i, p] * y[i, q]
+            mob[p, q] = s
+            mob[q, p] = s
+
+
+# --- the solve --------------------------------------------------------------------------------------------
+@njit(**JIT)
+def _law(lw, u, groups_on, ng, st, derivative, f, df):
+    """:func:`rft_mujoco.compiled.implicit_law.group_law` with the fixed arguments of ``lw``."""
+    group_law(u, groups_on, ng, lw[0], lw[1], lw[2], lw[3], lw[4], lw[5], lw[6], lw[7], lw[8], lw[9], lw[10], lw[11],
+              lw[12], lw[13], lw[14], lw[15], lw[16], st[0], st[4], derivative, lw[17], lw[18], lw[19], lw[20], lw[21],
+              lw[22], lw[23], lw[24], lw[25], f, df)
+
+
+@njit(**JIT)
+def lu_solve(n, a, b):
+    """``b <- a^-1 b`` for ``a[:n, :n]`` (overwritten: Gaussian elimination with partial pivoting)."""
+    for c in range(n):
+        p = c
+        best = abs(a[c, c])
+        for r in range(c + 1, n):
+            if abs(a[r, c]) > best:
+                best = abs(a[r, c])
+                p = r
+        if p != c:
+            for j in range(n):
+                a[c, j], a[p, j] = a[p, j], a[c, j]
+            b[c], b[p] = b[p], b[c]
+        piv = a[c, c]
+        for r in range(c + 1, n):
+            m = a[r, c] / piv
+            if m != 0.0:
+                for j in range(c + 1, n):
+                    a[r, j] -= m * a[c, j]
+                b[r] -= m * b[c]
+    for r in range(n - 1, -1, -1):
+        t = b[r]
+        for j in range(r + 1, n):
+            t -= a[r, j] * b[j]
+        b[r] = t / a[r, r]
+
+
+@njit(**JIT)
+def _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf, jac):
+    """The Newton solve's law: ``wf`` (6 k,) the flowing groups' scaled wrenches at scaled twists ``u`` (6 k,),
+    ``jac`` (k, 6, 6) their scaled derivative blocks."""
+    kf = groups.shape[0]
+    for g in range(ng):
+        for c in range(6):
+            full[g, c] = 0.0
+    for i in range(kf):
+        g = groups[i]
+        for c in range(6):
+            full[g, c] = u[6 * i + c] / sv[6 * g + c]
+    _law(lw, full, flow, ng, st, True, f, df)
+    for i in range(kf):
+        g = groups[i]
+        for a in range(6):
+            wf[6 * i + a] = f[g, a] * sw[6 * g + a]
+            for b in range(6):
+                jac[i, a, b] = sw[6 * g + a] * df[g, a, b] / sv[6 * g + b]
+
+
+@njit(**JIT)
+def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
+    """:func:`rft_mujoco.physics.implicit._newton_flow`: Newton's method on ``u - v_eff - a_eff F(u) = 0`` for
+    the flowing groups (scaled coordinates), from ``u`` (overwritten with the answer). Returns the flowing
+    groups' scaled wrenches and the iterations."""
+    kf = 0
+    for g in range(ng):
+        if flow[g]:
+            kf += 1
+    groups = np.empty(kf, np.int64)
+    i = 0
+    for g in range(ng):
+        if flow[g]:
+            groups[i] = g
+            i += 1
+    n = 6 * kf
+    wf = np.empty(n)
+    jac = np.empty((kf, 6, 6))
+    res = np.empty(n)
+    _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf, jac)
+    scale = 0.0
+    for p in range(n):
+        res[p] = u[p] - v_eff[p]
+        for q in range(n):
+            res[p] -= a_eff[p, q] * wf[q]
+        scale = max(scale, abs(v_eff[p] - u[p]))
+    scale = max(scale, st[0]) * st[3]
+    its = 0
+    mat = np.empty((n, n))
+    step = np.empty(n)
+    u_try = np.empty(n)
+    wf_try = np.empty(n)
+    jac_try = np.empty((kf, 6, 6))
+    res_try = np.empty(n)
+    for it in range(1, int(st[2]) + 1):
+        its = it
+        top = 0.0
+        for p in range(n):
+            top = max(top, abs(res[p]))
+        if top <= scale:
+            break
+        for p in range(n):                     # I - a_eff J (J block diagonal)
+            for i in range(kf):
+                for b in range(6):
+                    s = 0.0
+                    for a in range(6):
+                        s += a_eff[p, 6 * i + a] * jac[i, a, b]
+                    mat[p, 6 * i + b] = -s
+            mat[p, p] += 1.0
+            step[p] = -res[p]
+        lu_solve(n, mat, step)
+        t = 1.0
+        norm0 = 0.0
+        for p in range(n):
+            norm0 += res[p] * res[p]
+        while t > 1e-3:
+            for p in range(n):
+                u_try[p] = u[p] + t * step[p]
+            _flow_eval(lw, u_try, groups, ng, flow, sv, sw, st, full, f, df, wf_try, jac_try)
+            norm = 0.0
+            for p in range(n):
+                r = u_try[p] - v_eff[p]
+                for q in range(n):
+                    r -= a_eff[p, q] * wf_try[q]
+                res_try[p] = r
+                norm += r * r
+            if norm < norm0:
+                break
+            t *= 0.5
+        u[:] = u_try                           # the accepted step (or the last, shortest, one tried)
+        wf[:] = wf_try
+        jac[:] = jac_try
+        res[:] = res_try
+    return wf, its
+
+
+@njit(**JIT)
+def _blend(twist, free, radius, ng, out):
+    """:func:`rft_mujoco.physics.rest.blend` into ``out`` (ng, 6)."""
+    for r in range(ng):
+        sl = sa = vl = va = 0.0
+        for c in range(3):
+            d0 = free[r, c] - twist[r, c]
+            d1 = free[r, 3 + c] - twist[r, 3 + c]
+            sl += d0 * d0
+            sa += d1 * d1
+            vl += twist[r, c] * twist[r, c]
+            va += twist[r, 3 + c] * twist[r, 3 + c]
+        s = math.sqrt(sl) + radius[r] * math.sqrt(sa)
+        v = math.sqrt(vl) + radius[r] * math.sqrt(va)
+        w = s * s / (v * v + s * s) if s > 0.0 else 0.0
+        for c in range(6):
+            out[r, c] = twist[r, c] + w * (free[r, c] - twist[r, c])
+
+
+@njit(**JIT)
+def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w_out, rest, end, probe, f, df):
+    """:func:`rft_mujoco.physics.implicit.implicit_wrenches` of groups 0..ng-1: ``free``, ``twist`` (ng, 6)
+    (m/s, rad/s), ``mob`` (6 ng, 6 ng), ``radius`` (ng,) m, ``dt`` s, ``flowing`` (ng,) bool the groups
+    that flowed at the last evaluation (used with ``prior``), the law ``lw`` (:data:`LAW_FIELDS`).
+    Outputs: ``w_out`` (ng, 6) wrenches (N, N m), ``rest`` (ng,) bool, ``end`` (ng, 6) end twists, ``probe``
+    (ng, 6) the blended twists of the capacity test, ``flowing`` (overwritten): the groups solved in flow at
+    some point. ``f``, ``df``: the law's outputs; the rows of the groups never in flow (and their bodies' rows
+    in ``lw``) hold the law at the probe. Returns the Newton iterations."""
+    n6 = 6 * ng
+    sv = np.empty(n6)
+    sw = np.empty(n6)
+    for g in range(ng):
+        for c in range(6):
+            sv[6 * g + c] = 1.0 if c < 3 else radius[g]
+            sw[6 * g + c] = 1.0 if c < 3 else 1.0 / radius[g]
+    a = np.empty((n6, n6))
+    v = np.empty(n6)
+    for p in range(n6):
+        v[p] = free[p // 6, p % 6] * sv[p]
+        for q in range(n6):
+            a[p, q] = dt * (sv[p] * mob[p, q] * sv[q])
+    _blend(twist, free, radius, ng, probe)
+    on = np.ones(ng, np.bool_)
+    _law(lw, probe, on, ng, st, False, f, df)
+    capacity = np.empty(ng)
+    weight_all = np.empty(ng)
+    u_probe = np.empty(n6)
+    flow = np.zeros(ng, np.bool_)
+    untried = np.zeros(ng, np.bool_)
+    for g in range(ng):
+        cp = 0.0
+        wa = 0.0
+        nz = False
+        for c in range(6):
+            x = f[g, c] * sw[6 * g + c]
+            up = probe[g, c] * sv[6 * g + c]
+            u_probe[6 * g + c] = up
+            cp -= x * up
+            wa += x * x
+            nz = nz or x != 0.0
+        capacity[g] = cp
+        weight_all[g] = wa
+        rest[g] = nz
+        if prior and nz and flowing[g]:
+            flow[g] = True
+            rest[g] = False
+            untried[g] = True
+        flowing[g] = flow[g]                   # from here on: whether the group was solved in flow
+    w = np.zeros(n6)
+    full = np.empty((ng, 6))
+    its = 0
+    while True:
+        nr = 0
+        nf = 0
+        for g in range(ng):
+            if rest[g]:
+                nr += 1
+            if flow[g]:
+                nf += 1
+        r_idx = np.empty(6 * nr, np.int64)
+        f_idx = np.empty(6 * nf, np.int64)
+        ir = 0
+        jf = 0
+        for g in range(ng):
+            for c in range(6):
+                if rest[g]:
+                    r_idx[ir] = 6 * g + c
+                    ir += 1
+                if flow[g]:
+                    f_idx[jf] = 6 * g + c
+                    jf += 1
+        mr, mf = 6 * nr, 6 * nf
+        block = np.empty((mr, mr))
+        weight = np.empty(mr)
+        order, gfac, wfac = pivoted_factor(block, weight, st[5], st[8])     # (typed; replaced below when mr)
+        if mr:
+            top = 0.0
+            for i in range(mr):
+                weight[i] = weight_all[r_idx[i] // 6]
+                top = max(top, weight[i])
+            for i in range(mr):
+                weight[i] = max(weight[i], st[6] * top)
+            for i in range(mr):
+                for j in range(mr):
+                    block[i, j] = a[r_idx[i], r_idx[j]]
+            order, gfac, wfac = pivoted_factor(block, weight, st[5], st[8])
+        for i in range(n6):
+            w[i] = 0.0
+        if mf:
+            # the resting groups' wrenches follow the flowing ones: -P (v_r + a_rf w_f), P the rest operator
+            # (physics.implicit.rest_operator) applied to the vectors it meets rather than formed
+            pa = np.zeros((mr, mf))            # P a_rf
+            col = np.empty(mr)
+            for j in range(mf):
+                if mr == 0:
+                    break
+                for l in range(mr):
+                    col[l] = a[r_idx[l], f_idx[j]]
+                x = pivoted_apply(block, col, order, gfac, wfac)
+                for l in range(mr):
+                    pa[l, j] = x[l]
+            pv = np.zeros(mr)                  # P v_r
+            if mr:
+                for l in range(mr):
+                    col[l] = v[r_idx[l]]
+                pv = pivoted_apply(block, col, order, gfac, wfac)
+            a_eff = np.empty((mf, mf))
+            v_eff = np.empty(mf)
+            u_flow = np.empty(mf)
+            for i in range(mf):
+                for j in range(mf):
+                    s = 0.0
+                    for l in range(mr):
+                        s += a[f_idx[i], r_idx[l]] * pa[l, j]
+                    a_eff[i, j] = a[f_idx[i], f_idx[j]] - s
+                s = 0.0
+                for l in range(mr):
+                    s += a[f_idx[i], r_idx[l]] * pv[l]
+                v_eff[i] = v[f_idx[i]] - s
+                u_flow[i] = twist[f_idx[i] // 6, f_idx[i] % 6] * sv[f_idx[i]]
+            w_f, it = _newton_flow(lw, flow, ng, a_eff, v_eff, u_flow, sv, sw, st, full, f, df)
+            its += it
+            for i in range(mf):
+                w[f_idx[i]] = w_f[i]
+            slow = False
+            for i in range(nf):                # a group started in flow that the step brings to (near) rest
+                g = f_idx[6 * i] // 6
+                sl = sa = 0.0
+                for c in range(3):
+                    sl += (u_flow[6 * i + c] / sv[6 * g + c]) ** 2
+                    sa += (u_flow[6 * i + 3 + c] / sv[6 * g + 3 + c]) ** 2
+                if untried[g] and math.sqrt(sl) + radius[g] * math.sqrt(sa) < st[1] * st[0]:
+                    untried[g] = False
+                    flow[g] = False
+                    rest[g] = True
+                    slow = True
+            if slow:
+                continue
+        if mr:
+            rhs = np.empty(mr)
+            for i in range(mr):
+                s = v[r_idx[i]]
+                for j in range(mf):
+                    s += a[r_idx[i], f_idx[j]] * w[f_idx[j]]
+                rhs[i] = s
+            x = pivoted_apply(block, rhs, order, gfac, wfac)
+            for i in range(mr):
+                w[r_idx[i]] = -x[i]
+            over = False
+            for g in range(ng):
+                if not rest[g]:
+                    continue
+                demand = 0.0
+                for c in range(6):
+                    demand -= w[6 * g + c] * u_probe[6 * g + c]
+                if demand > max(capacity[g], 0.0) * (1.0 + st[7]):
+                    rest[g] = False
+                    flow[g] = True
+                    flowing[g] = True
+                    over = True
+            if over:
+                continue
+        break
+    # passivity guard (rest.passive_scale)
+    hh = 0.0
+    q = 0.0
+    for i in range(n6):
+        hh += w[i] * v[i]
+        s = 0.0
+        for j in range(n6):
+            s += a[i, j] * w[j]
+        q += w[i] * s
+    scale = 1.0
+    if hh + 0.5 * q > 0.0:
+        scale = 0.0 if hh >= 0.0 else (1.0 if q <= 0.0 else min(1.0, -hh / q))
+    for i in range(n6):
+        w[i] *= scale
+    for i in range(n6):
+        s = v[i]
+        for j in range(n6):
+            s += a[i, j] * w[j]
+        end[i // 6, i % 6] = s / sv[i]
+        w_out[i // 6, i % 6] = w[i] / sw[i]
+    return its
+
+
+TRN_JOINT, BIAS_AFFINE = 0, 1
+"""MuJoCo's ``mjTRN_JOINT`` and ``mjBIAS_AFFINE`` (checked against the bindings by tests/test_fastimplicit.py)."""
+
+
+@njit(**JIT)
+def velocity_damping(implicit_integrator, dof_damping, jnt_dofadr, trntype, trnid, biastype, biasprm, gear, out):
+    """:func:`rft_mujoco.coupling.reference.velocity_damping` into ``out`` (nv,): joint damping plus each
+    affine joint actuator's ``-biasprm[2] gear^2`` (N s/m, N m s/rad) with an implicit integrator, else
+    zeros."""
+    for i in range(out.shape[0]):
+        out[i] = dof_damping[i] if implicit_integrator else 0.0
+    if not implicit_integrator:
+        return
+    for a in range(trntype.shape[0]):
+        if trntype[a] == TRN_JOINT and biastype[a] == BIAS_AFFINE:
+            out[jnt_dofadr[trnid[a, 0]]] += -biasprm[a, 2] * gear[a, 0] ** 2

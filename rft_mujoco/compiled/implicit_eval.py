@@ -1,0 +1,244 @@
+"""The implicit solve's evaluation of one handle on one MjData, compiled: what
+:func:`rft_mujoco.coupling.reference.evaluate_implicit` computes (tests/test_fastimplicit.py compares them).
+
+Called from Python after :func:`rft_mujoco.compiled.evaluate.broadphase` and ``mj_fwdActuation``, as the
+explicit treatment's :func:`~rft_mujoco.compiled.evaluate.evaluate`; the native route
+(:mod:`rft_mujoco.compiled.route`) is not built for a handle with ``solve="implicit"`` (its evaluations take
+the dispatcher's Python path). Arguments: the ``md``, ``hc`` and ``ws`` tuples of
+:mod:`rft_mujoco.compiled.evaluate`, the implicit solve's own buffers ``iw`` (:data:`IMPLICIT_FIELDS`,
+:func:`build_implicit`), this step's constraint rows ``efc`` (:data:`EFC_FIELDS`), MuJoCo's sparse mass matrix
+``m_val`` (``data.M``), the dofs' implicit damping (:func:`rft_mujoco.coupling.reference.velocity_damping`) and
+the solve's settings ``st`` (:data:`rft_mujoco.compiled.implicit.SETTINGS`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rft_mujoco.compiled.evaluate import BAD_ACCELERATION, NOT_FINITE, _clear, _gravity, _norm6
+from rft_mujoco.compiled.implicit import cholesky, constrained_system, free_motion, implicit_wrenches
+from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, loaded_candidates
+from rft_mujoco.compiled.jit import JIT, njit
+from rft_mujoco.compiled.rest import jacobian
+
+IMPLICIT_FIELDS = (("e_slot", "i1"), ("e_arm", "f2"), ("e_nrm", "f2"), ("e_depth", "f1"), ("e_area", "f1"),
+                   ("jac", "f3"), ("lin", "f2"), ("ang", "f2"), ("on", "b1"), ("jrows", "f2"), ("h", "f2"),
+                   ("f", "f1"), ("y", "f2"), ("end", "f2"), ("probe", "f2"), ("gf", "f2"), ("gdf", "f3"),
+                   ("flowing", "b1"), ("prev_active", "b1"), ("prev_flow", "b1"), ("istate", "f1"), ("scr", "f2"),
+                   ("pk", "i1"))
+"""(name, kind) of the ``iw`` buffers: the evaluation's elements (:func:`rft_mujoco.compiled.implicit_law.
+loaded_candidates`), the law's work space, the free motion's (``jrows`` J, ``h`` H and its factor, ``f``, ``y``),
+the solve's outputs, the groups that touched and flowed at the last evaluation (``prev_*``: the
+numpy reference's ``work.flowing``) and ``istate`` ([whether ``prev_*`` hold an evaluation])."""
+EFC_FIELDS = ("efc_J", "efc_J_rowadr", "efc_J_rownnz", "efc_J_colind", "efc_type", "efc_id", "efc_D", "efc_aref",
+              "efc_frictionloss", "qacc")
+"""MjData's constraint rows of this step (in its arena: read at every call) and its last ``qacc``."""
+
+
+def build_implicit(n_elements: int, n_bodies: int, n_groups: int, nv: int) -> dict:
+    """Zeroed ``iw`` arrays (:data:`IMPLICIT_FIELDS`) for E packed element slots, B bodies, G groups, nv dofs."""
+    e, b, g, n6, nv1 = max(n_elements, 1), n_bodies, n_groups, 6 * n_groups, max(nv, 1)
+    shapes = dict(e_slot=(e,), e_arm=(e, 3), e_nrm=(e, 3), e_depth=(e,), e_area=(e,), jac=(b, 6, 6), lin=(b, 3),
+                  ang=(b, 3), on=(b,), jrows=(n6, nv), h=(nv1, nv1), f=(nv,), y=(nv, n6), end=(g, 6), probe=(g, 6),
+                  gf=(g, 6), gdf=(g, 6, 6), flowing=(g,), prev_active=(g,), prev_flow=(g,), istate=(1,),
+                  scr=(SCRATCH_ROWS, e), pk=(e,))
+    dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
+    return {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in IMPLICIT_FIELDS}
+
+
+def efc_arrays(data) -> tuple:
+    """The ``efc`` tuple (:data:`EFC_FIELDS`) of ``data`` now."""
+    return tuple(getattr(data, name) for name in EFC_FIELDS)
+
+
+@njit(**JIT)
+def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_val, damping, st, linearized):
+    """The implicit solve of the ``state[2]`` touching bodies of the broadphase: the sand wrenches, the
+    diagnostics and the wrenches added to ``sand_out`` (nbody, 6). ``linearized``: this step's constraints
+    (:func:`rft_mujoco.compiled.implicit.constrained_system`), else MuJoCo's previous constraint forces (when
+    they belong to this motion); ``sparse``: MuJoCo's constraint Jacobian is sparse. Returns 1 (a non-zero
+    wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing written)."""
+    xipos, cdof, subtree_com, qvel = md[2], md[7], md[4], md[6]
+    ids, group_of, group_ref = hc[0], hc[2], hc[3]
+    body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid = hc[6], hc[7], hc[8], hc[9], hc[10]
+    rownnz, rowadr, colind = hc[11], hc[12], hc[13]
+    bound_radius, group_radius, params = hc[19], hc[20], hc[35]
+    touch, body_com = ws[0], ws[3]
+    wrench, count, depth_max, occluded = ws[7], ws[8], ws[9], ws[10]
+    active, slot, rest = ws[11], ws[12], ws[14]
+    twist, free, w = ws[25], ws[26], ws[29]
+    arm, applied, size, total, cap = ws[33], ws[34], ws[35], ws[36], ws[30]
+    state = ws[45]
+    e_slot, e_arm, e_nrm, e_depth, e_area = iw[0], iw[1], iw[2], iw[3], iw[4]
+    jac_b, lin, ang, on = iw[5], iw[6], iw[7], iw[8]
+    jrows, h, f, y, end, probe, gf, gdf = iw[9], iw[10], iw[11], iw[12], iw[13], iw[14], iw[15], iw[16]
+    flowing, prev_active, prev_flow, istate, scr, pk = iw[17], iw[18], iw[19], iw[20], iw[21], iw[22]
+    k = int(state[2])
+    state[1] = 0.0
+    nv = qvel.shape[0]
+    g0, g1, g2, g_mag = _gravity(hc[34])
+    g_hat = np.empty(3)
+    g_hat[0] = g0
+    g_hat[1] = g1
+    g_hat[2] = g2
+    xi_n = params[1] * g_mag
+    # 1. the touching groups, in increasing group order, and each touching body's row among them
+    ng_all = group_ref.shape[0]
+    for g in range(ng_all):
+        rest[g] = False
+    for j in range(k):
+        rest[group_of[touch[j]]] = True
+    ng = 0
+    for g in range(ng_all):
+        if rest[g]:
+            active[ng] = g
+            ng += 1
+    for j in range(k):
+        gj = group_of[touch[j]]
+        for r in range(ng):
+            if active[r] == gj:
+                slot[j] = r
+    # 2. the smooth force of this evaluation (+ the user's wrenches; + the last constraint forces when lagged)
+    for i in range(nv):
+        f[i] = md[8][i] - md[9][i] + md[10][i] + md[11][i]
+        if not linearized and state[3] != 0.0:
+            f[i] += md[12][i]
+    for b in range(1, user_xfrc.shape[0]):
+        nonzero = False
+        for c in range(6):
+            if user_xfrc[b, c] != 0.0:
+                nonzero = True
+        if not nonzero:
+            continue
+        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
+                 body_dofadr, body_parentid, dof_parentid, jrows, 0)
+        for i in range(nv):
+            s = 0.0
+            for c in range(6):
+                s += jrows[c, i] * user_xfrc[b, c]
+            f[i] += s
+    # 3. H (this step's constraints linearized), its factor, the free motion and mobility of the groups
+    constrained_system(nv, rowadr, rownnz, colind, m_val, efc[4].shape[0], sparse, efc[0], efc[1], efc[2], efc[3],
+                       efc[4], efc[5], efc[6], efc[7], efc[8], efc[9], linearized, damping, dt, h, f)
+    if not cholesky(nv, h):
+        return BAD_ACCELERATION
+    mob = np.empty((6 * ng, 6 * ng))
+    free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
+                body_parentid, dof_parentid, qvel, h, f, dt, jrows, y, twist, free, mob)
+    for i in range(nv):
+        if not math.isfinite(f[i]):
+            return BAD_ACCELERATION
+    # 4. the touching bodies' COMs from their groups' reference points; the elements that may carry stress
+    for j in range(k):
+        b_ref = ids[group_ref[active[slot[j]]]]
+        for c in range(3):
+            arm[j, c] = body_com[j, c] - xipos[b_ref, c]
+    n_e = loaded_candidates(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com,
+                            g_hat, params[0], int(params[6]), hc[26], hc[27], hc[14], hc[15], hc[16], hc[31], hc[32],
+                            hc[17], hc[33], params[9], md[15], md[16], e_slot, e_arm, e_nrm, e_depth, e_area, occluded)
+    lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28], params[2], params[3] != 0.0,
+          params[4] != 0.0, params[5] != 0.0, hc[29], lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)
+    # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
+    #    this motion: not after a state restore)
+    rad_g = total                                   # (G,) the active groups' radii
+    for r in range(ng):
+        rad_g[r] = group_radius[active[r]]
+    prior = istate[0] != 0.0 and state[3] != 0.0      # the last evaluation was of this motion (time continuous)
+    for g in range(ng_all):
+        prior = prior and prev_active[g] == rest[g]
+    for r in range(ng):
+        flowing[r] = prev_flow[active[r]]
+    resting = ws[15]                                # (G,) the solve's rest flags (the explicit solve's ``flow``)
+    its = implicit_wrenches(free, mob, lw, twist, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
+                            gdf)
+    for g in range(ng_all):
+        prev_active[g] = False
+        prev_flow[g] = False
+    for r in range(ng):
+        prev_active[active[r]] = True
+        prev_flow[active[r]] = not resting[r]
+    istate[0] = 1.0
+    state[9] = its
+    # 6. the bodies' own law wrenches: at the end twists (flow), at the probe (rest: capacities, sharing); the
+    #    groups never in flow still hold the law at the probe from the solve's capacity test
+    again = False
+    for r in range(ng):
+        again = again or flowing[r]
+        for c in range(6):
+            end[r, c] = probe[r, c] if resting[r] else end[r, c]
+    if again:
+        group_law(end, flowing, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28],
+                  params[2], params[3] != 0.0, params[4] != 0.0, params[5] != 0.0, hc[29], st[0], st[4], False, lin,
+                  ang, on, scr, pk, wrench, jac_b, count, depth_max, gf, gdf)
+    # 7. each body's part (reference.share) and the diagnostics (reference.commit)
+    for j in range(k):
+        size[j] = _norm6(wrench[j], rad_g[slot[j]])
+    for r in range(ng):
+        cap[r, 0] = 0.0
+    for j in range(k):
+        cap[slot[j], 0] += size[j]
+    for j in range(k):
+        r = slot[j]
+        for c in range(6):
+            applied[j, c] = 0.0
+        if cap[r, 0] <= 0.0:
+            continue
+        if not resting[r]:
+            gn = _norm6(gf[r], rad_g[r])
+            fac = _norm6(w[r], rad_g[r]) / gn if gn > 0.0 else 0.0
+            for c in range(6):
+                applied[j, c] = wrench[j, c] * fac
+        else:
+            share = size[j] / cap[r, 0]
+            for c in range(3):
+                applied[j, c] = share * w[r, c]
+    for r in range(ng):
+        if not resting[r] or cap[r, 0] <= 0.0:
+            continue
+        mx, my, mz = w[r, 3], w[r, 4], w[r, 5]
+        for j in range(k):
+            if slot[j] == r:
+                ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
+                fx, fy, fz = applied[j, 0], applied[j, 1], applied[j, 2]
+                mx -= ay * fz - az * fy
+                my -= az * fx - ax * fz
+                mz -= ax * fy - ay * fx
+        for j in range(k):
+            if slot[j] == r:
+                share = size[j] / cap[r, 0]
+                applied[j, 3] = share * mx
+                applied[j, 4] = share * my
+                applied[j, 5] = share * mz
+    force, torque, submerged, max_depth = ws[37], ws[38], ws[39], ws[40]
+    scale, rft_force, resting_d, occluded_area = ws[41], ws[42], ws[43], ws[44]
+    _clear(force, torque, submerged, max_depth, scale, rft_force, resting_d, occluded_area)
+    status = 0
+    for j in range(k):
+        i = touch[j]
+        rb = bound_radius[i]
+        rn = _norm6(wrench[j], rb)
+        for c in range(3):
+            force[i, c] = applied[j, c]
+            torque[i, c] = applied[j, 3 + c]
+            rft_force[i, c] = wrench[j, c]
+        submerged[i] = count[j]
+        max_depth[i] = depth_max[j]
+        occluded_area[i] = occluded[j]
+        if rn > 0.0:
+            scale[i] = _norm6(applied[j], rb) / rn
+            resting_d[i] = resting[slot[j]]
+        for c in range(6):
+            x = applied[j, c]
+            if not math.isfinite(x):
+                status = NOT_FINITE
+            elif x != 0.0 and status == 0:
+                status = 1
+    if status == NOT_FINITE:
+        return NOT_FINITE
+    for j in range(k):
+        row = ids[touch[j]]
+        for c in range(6):
+            sand_out[row, c] += applied[j, c]
+    return status

@@ -1,0 +1,59 @@
+"""The implicit solve (``attach(solve="implicit")``) on the compiled backend: the Python side of one
+evaluation, between the broadphase and the kernels of :mod:`rft_mujoco.compiled.implicit_eval`.
+
+The native route is not built for a handle with ``solve="implicit"``: its model's evaluations take the
+dispatcher's Python callback (:meth:`rft_mujoco.coupling.dispatch.Dispatcher._dispatch`), which runs the
+compiled phases: :func:`rft_mujoco.compiled.evaluate.broadphase`, ``mj_fwdActuation``, then
+:func:`evaluate_compiled`. The numpy reference of the same evaluation is
+:func:`rft_mujoco.coupling.reference.evaluate_implicit`.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+_IMPLICIT = (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
+
+
+class ImplicitWork:
+    """Per-(handle, MjData) buffers of the compiled implicit solve: the arrays of
+    :data:`rft_mujoco.compiled.implicit_eval.IMPLICIT_FIELDS` and their tuple, the (nv,) implicit damping, the
+    solve's settings (:func:`rft_mujoco.compiled.implicit.settings`) and views of the model arrays the damping
+    is computed from (read at every evaluation: edits of damping or servo gains are followed)."""
+
+    __slots__ = ("arrays", "tuple", "damping", "settings", "model_arrays")
+
+    def __init__(self, handle, arrays=None) -> None:
+        from rft_mujoco.compiled import implicit, implicit_eval
+        m = handle.model
+        if arrays is None:
+            arrays = implicit_eval.build_implicit(handle._hc[21].shape[1], len(handle.body_ids),
+                                                  handle.groups.ref.size, m.nv)
+        self.arrays = arrays
+        self.tuple = tuple(arrays[name] for name, _ in implicit_eval.IMPLICIT_FIELDS)
+        self.damping = np.zeros(m.nv)
+        self.settings = implicit.settings()
+        self.model_arrays = (m.dof_damping, np.ascontiguousarray(m.jnt_dofadr, dtype=np.int64), m.actuator_trntype,
+                             m.actuator_trnid, m.actuator_biastype, m.actuator_biasprm, m.actuator_gear)
+
+    def copy(self, handle) -> "ImplicitWork":
+        """A copy of the per-MjData state (for :meth:`rft_mujoco.coupling.handle.SandHandle._copy_workspace`)."""
+        return ImplicitWork(handle, {name: a.copy() for name, a in self.arrays.items()})
+
+
+def evaluate_compiled(handle, data, work, user_xfrc: np.ndarray, dt: float, sand_out: np.ndarray) -> int:
+    """The compiled implicit solve of the touching bodies the broadphase found (``work.state[2]``), after
+    ``mj_fwdActuation``: wrenches added into ``sand_out`` (nbody, 6), the diagnostics written. Returns the
+    status of :func:`rft_mujoco.compiled.implicit_eval.evaluate_implicit`."""
+    from rft_mujoco.compiled import implicit, implicit_eval
+    m = handle.model
+    iw = work.implicit
+    if iw is None:
+        iw = work.implicit = ImplicitWork(handle)
+    d_, adr, trn, trnid, bias, biasprm, gear = iw.model_arrays
+    implicit.velocity_damping(int(m.opt.integrator) in _IMPLICIT, d_, adr, trn, trnid, bias, biasprm, gear,
+                              iw.damping)
+    return implicit_eval.evaluate_implicit(work.md, handle._hc, work.tuple, iw.tuple, user_xfrc, dt, sand_out,
+                                           implicit_eval.efc_arrays(data), bool(mujoco.mj_isSparse(m)), data.M,
+                                           iw.damping, iw.settings, handle._constraints == "linearized")
