@@ -14,10 +14,12 @@ and compiles nothing. With ``NUMBA_CACHE_DIR`` set numba's own locations are use
 
 from __future__ import annotations
 
+import copy as _copy
 import glob
 import hashlib
 import os
 import platform
+import threading
 
 try:  # numba is a dependency, but keep the package importable (and on numpy) without it
     import numba
@@ -57,6 +59,58 @@ if AVAILABLE:
             dispatcher.__class__ = _Dispatcher
             return dispatcher
         return plain(made) if isinstance(made, CPUDispatcher) else (lambda f: plain(made(f)))
+
+def _share_inline_copies() -> bool:
+    """Make numba's inliner copy a callee's blocks with one ``deepcopy`` memo instead of one per block.
+
+    For every ``inline="always"`` call site numba copies the callee's IR block by block, each block with its
+    own ``copy.deepcopy``; every variable holds the function's scope, so each block copies the whole scope
+    again (all the callee's variables): quadratic in the callee's size. Profiled on the route's phase 2
+    (docs/performance.md "The very first compile"): 115 of its 249 profiled CPU s were these copies. With one
+    memo per inlined call the blocks share one copy of the scope, as the original blocks share theirs;
+    numba then renames the variables and moves the blocks into the caller's scope, as before. Applied only
+    where numba's inliner has the layout this relies on (its one ``copy`` use is that block copy); returns
+    whether it was applied."""
+    try:
+        from numba.core import inline_closurecall as icc
+    except ImportError:
+        return False
+    worker = getattr(icc, "InlineWorker", None)
+    if (getattr(icc, "copy", None) is not _copy or worker is None or not hasattr(worker, "inline_ir")
+            or getattr(worker.inline_ir, "_rft_shared_memo", False)):
+        return False
+    local = threading.local()
+
+    class _Copy:
+        """The inliner's ``copy`` module: ``deepcopy`` shares the memo of the inlined call being copied."""
+        copy = staticmethod(_copy.copy)
+
+        @staticmethod
+        def deepcopy(x, memo=None, _nil=[]):  # noqa: B006 (copy.deepcopy's own signature)
+            memos = getattr(local, "memos", None)
+            if memo is None and memos:
+                memo = memos[-1]
+            return _copy.deepcopy(x, memo, _nil)
+
+    original = worker.inline_ir
+
+    def inline_ir(self, *args, **kwargs):
+        memos = local.__dict__.setdefault("memos", [])
+        memos.append({})
+        try:
+            return original(self, *args, **kwargs)
+        finally:
+            memos.pop()
+
+    inline_ir._rft_shared_memo = True
+    inline_ir.__doc__ = original.__doc__
+    worker.inline_ir = inline_ir
+    icc.copy = _Copy
+    return True
+
+
+SHARED_INLINE_COPIES = _share_inline_copies() if AVAILABLE else False
+"""Whether :func:`_share_inline_copies` applies (it halves the route's compile)."""
 
 JIT = dict(cache=True, fastmath=False, nogil=True, error_model="numpy")
 """Default: IEEE arithmetic, no exception checks on float division (``error_model="numpy"``: a division by
