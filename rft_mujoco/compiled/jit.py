@@ -125,9 +125,11 @@ JIT_LAW = dict(JIT, fastmath={"contract"})
 """The two element loops: multiply-add fusion (FMA), nothing else; measured 5-7% fewer ns per element,
 results within round-off of the numpy law (tests), deterministic run to run."""
 
-COMPILE_SECONDS = 150
-"""First-use compile time in s on a 2-core machine, for the notice: the demo's first use took 150 s of wall
-and 149 s of CPU (docs/performance.md "First use"; 248 s of wall before, 273 s in issue 29)."""
+COMPILE_SECONDS = 120
+"""First-use compile time in s on a 2-core machine in one process, for the progress line: the demo's first use
+(docs/performance.md "The very first compile")."""
+COMPILE_SECONDS_PARALLEL = 90
+"""The same with phase 2 compiled in a second process (:mod:`rft_mujoco.compiled.warmup`)."""
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",
@@ -261,3 +263,51 @@ def drop_stale_cache() -> None:
             f.write(key + "\n")
     except OSError:                  # a read-only install: numba caches elsewhere, keyed by file stamps
         pass
+
+
+SHIPPED_ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "machine_code")
+"""Machine code shipped with the package (``python -m rft_mujoco compile --ship`` before building a wheel):
+``machine_code/<key>``, laid out as :func:`cache_dir`. Not in the repository; a wheel built after it
+carries it."""
+NO_SHIPPED_ENV = "RFT_MUJOCO_NO_SHIPPED_CODE"
+"""Environment variable: set (to anything but "" or "0") to ignore the shipped machine code (to measure a
+first compile)."""
+
+
+def shipped_dir() -> str:
+    """The shipped machine code of these sources and versions: :data:`SHIPPED_ROOT` / the key of :func:`cache_dir`."""
+    return os.path.join(SHIPPED_ROOT, os.path.basename(cache_dir()))
+
+
+def has_index(folder: str) -> bool:
+    """Whether ``folder`` (a :func:`cache_dir`) holds any numba cache index."""
+    return bool(glob.glob(os.path.join(folder, "*", "*.nbi")))
+
+
+def seed_from_shipped() -> int:
+    """Copy the shipped machine code (:func:`shipped_dir`) into the user's cache when the user's cache of this
+    key holds none yet (a first use of these sources and versions); returns the number of files copied.
+
+    Safe wherever it is copied to: the key names the sources and the numba, mujoco, numpy and Python
+    versions; numba keeps an entry per signature and CPU (its name and features) and checks the source
+    stamps (contents, :func:`_package_cache_locator`), so on another CPU numba compiles as without it."""
+    if not PER_USER_CACHE or os.environ.get(NO_SHIPPED_ENV, "0") not in ("", "0"):
+        return 0
+    source, target = shipped_dir(), cache_dir()
+    if not os.path.isdir(source) or has_index(target):
+        return 0
+    import shutil
+
+    copied = 0
+    for sub in sorted(os.listdir(source)):
+        files = sorted(glob.glob(os.path.join(source, sub, "*.nb[ic]")))
+        try:
+            os.makedirs(os.path.join(target, sub), exist_ok=True)
+            for path in sorted(files, key=lambda p: p.endswith(".nbi")):   # the indexes last
+                tmp = os.path.join(target, sub, f".{os.path.basename(path)}.{os.getpid()}")
+                shutil.copyfile(path, tmp)
+                os.replace(tmp, os.path.join(target, sub, os.path.basename(path)))
+                copied += 1
+        except OSError:              # an unwritable cache: numba compiles (and says so) as without it
+            return copied
+    return copied

@@ -312,16 +312,26 @@ _SIG = types.int64(types.CPointer(types.int64), types.float64, types.float64) if
 
 _CTYPE = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_double, ctypes.c_double)
 _entries: list = []
+_cfuncs: dict = {}
 _entries_lock = threading.Lock()
 
 
+def cfunc_of(which: int):
+    """Phase ``which`` (1 or 2) as a numba ``cfunc``, compiled (or loaded from the cache) on first use rather
+    than at import, so that importing the package compiles nothing. :mod:`~rft_mujoco.compiled.warmup`
+    compiles phase 2 in a second process while this one compiles phase 1 and loads it from the cache."""
+    with _entries_lock:
+        if which not in _cfuncs:
+            _cfuncs[which] = cfunc(_SIG, cache=True)(phase1 if which == 1 else phase2)
+        return _cfuncs[which]
+
+
 def cfuncs() -> tuple:
-    """(phase1, phase2) as numba ``cfunc`` s, compiled (or loaded from the cache) on first use rather than at
-    import, so that importing the package compiles nothing (:func:`rft_mujoco.compiled.ensure_compiled`
+    """(phase1, phase2) as numba ``cfunc`` s (:func:`cfunc_of`; :func:`rft_mujoco.compiled.ensure_compiled`
     calls this while it reports the compile)."""
+    c1, c2 = cfunc_of(1), cfunc_of(2)
     with _entries_lock:
         if not _entries:
-            c1, c2 = (cfunc(_SIG, cache=True)(f) for f in (phase1, phase2))
             _entries.extend([c1, c2, _CTYPE(c1.address), _CTYPE(c2.address)])
         return tuple(_entries[:2])
 
