@@ -132,17 +132,17 @@ def test_shipped_machine_code_is_copied_once_and_loads_without_compiling(monkeyp
     assert other.stats.cache_misses and not other.stats.cache_hits
 
 
-def test_phase2_process_only_when_useful(monkeypatch, tmp_path):
+def test_rest_process_only_when_useful(monkeypatch, tmp_path):
     from rft_mujoco.compiled import warmup
 
     monkeypatch.setenv(jit.CACHE_ENV, str(tmp_path / "cache"))
     monkeypatch.setenv(warmup.PROCESSES_ENV, "1")
-    assert warmup.start_phase2_process() is None
+    assert warmup.start_rest_process() is None
     monkeypatch.delenv(warmup.PROCESSES_ENV)
     folder = tmp_path / "cache" / os.path.basename(jit.cache_dir()) / "compiled"
     folder.mkdir(parents=True)
-    (folder / "route.phase2-300.py311.nbi").write_bytes(b"")
-    assert warmup.phase2_cached() and warmup.start_phase2_process() is None
+    (folder / "route.rest_phase-300.py311.nbi").write_bytes(b"")
+    assert warmup.rest_cached() and warmup.start_rest_process() is None
     monkeypatch.setattr(warmup, "_cores", lambda: 1)
-    (folder / "route.phase2-300.py311.nbi").unlink()
-    assert not warmup.phase2_cached() and warmup.start_phase2_process() is None
+    (folder / "route.rest_phase-300.py311.nbi").unlink()
+    assert not warmup.rest_cached() and warmup.start_rest_process() is None

@@ -64,7 +64,7 @@ class _Progress:
     def plan(self, parallel: bool) -> None:
         """The estimate and the split of the warm-up about to run (phase 2 in a second process or not)."""
         self.estimate = COMPILE_SECONDS_PARALLEL if parallel else COMPILE_SECONDS
-        self.where = "; the evaluation (phase 2) in a second process" if parallel else ""
+        self.where = "; the rest treatment in a second process" if parallel else ""
 
     def now(self, what: str) -> None:
         """Name what is being waited for (shown on the next progress line)."""

@@ -1,11 +1,11 @@
 """Compile (or load from the cache) the coupling's kernels: the native route's two phases, which contain the
 evaluation of every terrain and setting (a route over no handle on a tiny model), and the native callbacks.
 
-On a first use with two or more cores, phase 2 (the evaluation and the rest treatment: two thirds of the
-compile) compiles in a second Python process (``python -m rft_mujoco.compiled.warmup --phase 2``) into
-the same cache while this one compiles phase 1 and the native callbacks; this process then loads phase 2
-from the cache (and compiles it itself if the second process failed). Set ``RFT_MUJOCO_COMPILE_PROCESSES=1``
-to compile in this process only.
+On a first use with two or more cores, the rest treatment (:func:`rft_mujoco.compiled.route.rest_phase`,
+half of the compile) compiles in a second Python process (``python -m rft_mujoco.compiled.warmup --part
+rest``) into the same cache while this one compiles phase 1, the native callbacks and phase 2; this
+process then loads it from the cache (and compiles it itself if the second process failed). Set
+``RFT_MUJOCO_COMPILE_PROCESSES=1`` to compile in this process only.
 
 Compiled at their first use instead: the Python path's phases (:func:`rft_mujoco.compiled.evaluate.broadphase`,
 :func:`~rft_mujoco.compiled.evaluate.evaluate`; the dispatcher runs the native route from a model's first
@@ -47,47 +47,57 @@ def _cores() -> int:
         return os.cpu_count() or 1
 
 
-def phase2_cached() -> bool:
-    """Whether the cache holds an index for phase 2 (for some CPU: numba still compiles on another one)."""
+def rest_cached() -> bool:
+    """Whether the cache holds an index for ``rest_phase`` (for some CPU: numba still compiles on another one)."""
     import glob
 
-    return bool(glob.glob(os.path.join(jit.cache_dir(), "compiled", "route.phase2-*.nbi")))
+    return bool(glob.glob(os.path.join(jit.cache_dir(), "compiled", "route.rest_phase-*.nbi")))
 
 
-def start_phase2_process():
-    """A second process compiling phase 2 into the cache (None: one core, warm cache, or switched off)."""
+def start_rest_process():
+    """A second process compiling ``rest_phase`` into the cache (None: one core, warm cache, or switched off)."""
     if (not jit.PER_USER_CACHE or _cores() < 2 or os.environ.get(PROCESSES_ENV, "") == "1"
-            or phase2_cached()):
+            or rest_cached()):
         return None
     package_parent = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [package_parent, os.environ.get("PYTHONPATH")])),
                **{jit.CACHE_ENV: jit.cache_root(), PROCESSES_ENV: "1"})
     try:
-        return subprocess.Popen([sys.executable, "-m", "rft_mujoco.compiled.warmup", "--phase", "2"], env=env,
+        return subprocess.Popen([sys.executable, "-m", "rft_mujoco.compiled.warmup", "--part", "rest"], env=env,
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     except OSError:
         return None
 
 
 def run(progress=None) -> None:
-    """Compile or load phase 1, the native callbacks and phase 2 (this order), phase 2 in a second process
-    when cold (:func:`start_phase2_process`); then run both phases once on a tiny model. ``progress``: the
-    package's progress reporter (told what compiles where)."""
-    worker = start_phase2_process()
+    """Compile or load phase 1, the native callbacks, phase 2 and the rest treatment (this order), the rest
+    treatment in a second process when cold (:func:`start_rest_process`); then run both phases once on a tiny
+    model. ``progress``: the package's progress reporter (told what compiles where)."""
+    worker = start_rest_process()
     if progress is not None:
         progress.plan(parallel=worker is not None)
+
+    def now(what):
+        if progress is not None:
+            progress.now(what)
+
     try:
-        route.cfunc_of(1)
+        now("route.phase1")
+        route.cfunc_of("phase1")
+        now("the native callbacks")
         from rft_mujoco.compiled import native  # noqa: F401  (compiles the native callbacks)
+        now("route.phase2")
+        route.cfunc_of("phase2")
         if worker is not None:
-            if progress is not None:
-                progress.now("phase 2 in the second process")
+            now("route.rest_phase in the second process")
             _, err = worker.communicate()
             if worker.returncode != 0 and progress is not None:
-                progress.say(f"rft_mujoco: the second compile process failed ({worker.returncode}: "
-                             f"{err.decode(errors='replace').strip().splitlines()[-1:] or ''}); compiling here")
+                last = (err.decode(errors="replace").strip().splitlines() or [""])[-1]
+                progress.say(f"rft_mujoco: the second compile process failed (exit {worker.returncode}: {last}); "
+                             "compiling here")
             worker = None
-        route.cfunc_of(2)
+        now("route.rest_phase")
+        route.cfunc_of("rest_phase")
         model = mujoco.MjModel.from_xml_string(_MODEL)
         data = mujoco.MjData(model)
         mujoco.mj_forward(model, data)
@@ -111,10 +121,10 @@ def main(argv: list[str] | None = None, command: str = "compile") -> int:
                     "CPU match, and compiles otherwise.")
     parser.add_argument("--ship", action="store_true", help="compile into a new empty cache and copy it into "
                         "the package (replacing machine code shipped for other sources or versions)")
-    parser.add_argument("--phase", type=int, choices=(2,), help=argparse.SUPPRESS)   # the second process
+    parser.add_argument("--part", choices=("rest",), help=argparse.SUPPRESS)   # the second process
     args = parser.parse_args(argv)
-    if args.phase == 2:
-        route.cfunc_of(2)
+    if args.part == "rest":
+        route.cfunc_of("rest_phase")
         return 0
     if not jit.AVAILABLE:
         print(f"numba is not available ({jit.IMPORT_ERROR}): nothing to compile", file=sys.stderr)
