@@ -69,8 +69,8 @@ def _fresh_venv(tmp: Path, source: Path = ROOT, name: str = "venv") -> Path:
     purelib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                              check=True, capture_output=True, text=True).stdout.strip()
     Path(purelib, "running_env.pth").write_text("\n".join(site.getsitepackages()) + "\n")
-    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", str(next(wheels.glob("*.whl")))],
-                   check=True)
+    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--ignore-installed",  # the running
+                    str(next(wheels.glob("*.whl")))], check=True)         # environment's (editable) copy is seen
     return python
 
 
@@ -88,18 +88,20 @@ def main(argv: list[str] | None = None, command: str = "first_use") -> int:
         work.mkdir()
         python = _fresh_venv(tmp)
         demo = ["-m", "rft_mujoco", "demo", "--no-video", "--out", str(tmp / "out"), "--overwrite"]
+        clean = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}    # the venv's own rft_mujoco
         if not args.skip_cold:
             for label, processes in (("cold, one process: new venv, empty numba cache, demo --no-video", "1"),
                                      ("cold, two processes: the same, phase 2 compiled beside", "")):
-                env = {**os.environ, "RFT_MUJOCO_CACHE_DIR": str(tmp / f"empty_cache{processes}"),
+                env = {**clean, "RFT_MUJOCO_CACHE_DIR": str(tmp / f"empty_cache{processes}"),
                        "RFT_MUJOCO_NO_SHIPPED_CODE": "1", "RFT_MUJOCO_COMPILE_PROCESSES": processes}
                 rows.append((label, *_timed([str(python), *demo], work, env)))
         if args.ship:
             shipped = _fresh_venv(tmp, _shipping_copy(tmp), "venv_shipped")
-            env = {**os.environ, "RFT_MUJOCO_CACHE_DIR": str(tmp / "empty_cache_shipped")}
+            env = {**clean, "RFT_MUJOCO_CACHE_DIR": str(tmp / "empty_cache_shipped")}
             rows.append(("shipped: wheel built after compile --ship, new venv, empty numba cache",
                          *_timed([str(shipped), *demo], work, env)))
-        rows.append(("new install: new venv, the user's cache, demo --no-video", *_timed([str(python), *demo], work)))
+        rows.append(("new install: new venv, the user's cache, demo --no-video",
+                     *_timed([str(python), *demo], work, clean)))
         warm = [sys.executable, "-m", "rft_mujoco", "demo", "--out", str(tmp / "warm"), "--overwrite"]
         _timed(warm, work)                                 # fills this environment's cache if needed
         rows.append(("warm demo with video (make demo without set-up)", *_timed(warm, work)))
