@@ -321,7 +321,7 @@ def phase2(ptr, time, dt):
 
 
 def rest_phase(ptr, base, dt):
-    """Phase 2 of the handle at ``base`` with the rest treatment (:func:`rft_mujoco.compiled.evaluate.evaluate_rest`)
+    """Phase 2 of the handle at ``base`` with the rest treatment (:func:`~rft_mujoco.compiled.evaluate.evaluate_rest`)
     on the table at ``ptr``; the evaluation's status. A C function of its own that phase 2 calls through its
     address (``t[4]``): half of phase 2's compile, done beside it (:mod:`rft_mujoco.compiled.warmup`)."""
     t = _table(ptr)

@@ -1,4 +1,5 @@
-"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide,compile}`` (``--help`` on each)."""
+"""Command line: ``python -m rft_mujoco <command>`` (``--help`` on each): demo, view, validate, bench, stability,
+swim, quasistatic, anymass, glide, compile."""
 
 from __future__ import annotations
 
