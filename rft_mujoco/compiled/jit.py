@@ -128,7 +128,7 @@ results within round-off of the numpy law (tests), deterministic run to run."""
 COMPILE_SECONDS = 130
 """First-use compile time in s on a quiet 2-core machine in one process, for the progress line: about the CPU
 seconds the demo's first use took (docs/performance.md "The very first compile", second round)."""
-COMPILE_SECONDS_PARALLEL = 85
+COMPILE_SECONDS_PARALLEL = 80
 """The same with the rest treatment compiled in a second process (:mod:`rft_mujoco.compiled.warmup`): the
 second process's CPU seconds (its compile is the critical path) plus the first's wait and the loading."""
 

@@ -3,8 +3,8 @@ evaluation of every terrain and setting (a route over no handle on a tiny model)
 
 On a first use with two or more cores, the rest treatment (:func:`rft_mujoco.compiled.route.rest_phase`,
 half of the compile) compiles in a second Python process (``python -m rft_mujoco.compiled.warmup --part
-rest``) into the same cache while this one compiles phase 1, the native callbacks and phase 2; this
-process then loads it from the cache (and compiles it itself if the second process failed). Set
+rest``) into the same cache while this one compiles phase 2 (first: the element pass both need), phase 1
+and the native callbacks; this process then loads it from the cache (and compiles it itself if the second process failed). Set
 ``RFT_MUJOCO_COMPILE_PROCESSES=1`` to compile in this process only.
 
 Compiled at their first use instead: the Python path's phases (:func:`rft_mujoco.compiled.evaluate.broadphase`,
@@ -70,7 +70,7 @@ def start_rest_process():
 
 
 def run(progress=None) -> None:
-    """Compile or load phase 1, the native callbacks, phase 2 and the rest treatment (this order), the rest
+    """Compile or load phase 2, phase 1, the native callbacks and the rest treatment (this order), the rest
     treatment in a second process when cold (:func:`start_rest_process`); then run both phases once on a tiny
     model. ``progress``: the package's progress reporter (told what compiles where)."""
     worker = start_rest_process()
@@ -82,12 +82,12 @@ def run(progress=None) -> None:
             progress.now(what)
 
     try:
+        now("route.phase2")
+        route.cfunc_of("phase2")     # first: its element pass (``wrenches``) is cached before the rest needs it
         now("route.phase1")
         route.cfunc_of("phase1")
         now("the native callbacks")
         from rft_mujoco.compiled import native  # noqa: F401  (compiles the native callbacks)
-        now("route.phase2")
-        route.cfunc_of("phase2")
         if worker is not None:
             now("route.rest_phase in the second process")
             _, err = worker.communicate()
