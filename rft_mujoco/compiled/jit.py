@@ -125,7 +125,7 @@ JIT_LAW = dict(JIT, fastmath={"contract"})
 """The two element loops: multiply-add fusion (FMA), nothing else; measured 5-7% fewer ns per element,
 results within round-off of the numpy law (tests), deterministic run to run."""
 
-COMPILE_SECONDS = 130
+COMPILE_SECONDS = 120
 """First-use compile time in s on a quiet 2-core machine in one process, for the progress line: about the CPU
 seconds the demo's first use took (docs/performance.md "The very first compile", second round)."""
 COMPILE_SECONDS_PARALLEL = 80
