@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-$(KEY)
 DEMO_STAMP := $(VENV)/.installed-demo-$(KEY)
 export MUJOCO_GL ?= egl
 
-.PHONY: demo test view validate bench stability train first-use clean
+.PHONY: demo test view validate bench stability train first-use wheel clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -45,6 +45,10 @@ train: $(STAMP)         ## PPO on SandQuadruped-v1 for 60 min, the README's trai
 
 first-use: $(STAMP)     ## time first use in a new venv (empty numba cache, then the user's) and the warm demo
 	$(BIN)/python -m rft_mujoco.studies.first_use
+
+wheel: $(DEMO_STAMP)    ## a wheel in dist/ that carries the numba machine code for this CPU (compile --ship)
+	$(BIN)/python -m rft_mujoco compile --ship
+	$(BIN)/python -m pip wheel -q --no-deps -w dist .
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -6,8 +6,10 @@ from __future__ import annotations
 import hashlib
 import io
 import os
+import sys
 import time
 
+import numpy as np
 import pytest
 
 from rft_mujoco import compiled
@@ -40,13 +42,16 @@ def test_progress_lines_while_compiling(monkeypatch):
     progress = compiled._Progress(stream)
     monkeypatch.setattr(progress, "TICK_S", 0.05)
     monkeypatch.setattr(progress, "IDLE_S", 0.3)
-    progress.start()
+    progress.plan(parallel=True)
+    progress.start("route.phase1")
     time.sleep(0.2)
-    progress.end()
+    progress.end("route.phase1")
     progress.thread.join(timeout=5)
     lines = stream.getvalue().splitlines()
+    assert f"about {jit.COMPILE_SECONDS_PARALLEL:.0f} s" in lines[0] and "a second process" in lines[0]
+    assert "; now route.phase1)" in lines[1]
     assert lines[0].startswith("rft_mujoco: compiling the numba kernels, once for this user and version "
-                               f"(about {jit.COMPILE_SECONDS / 60:.1f} min")
+                               f"(about {jit.COMPILE_SECONDS_PARALLEL:.0f} s")
     assert any(line.startswith("rft_mujoco: still compiling (") for line in lines[1:-1])
     assert lines[-1].startswith("rft_mujoco: numba kernels compiled (")
     progress.start()                                         # a later burst continues the count
@@ -93,3 +98,87 @@ def test_calls_between_kernels_compile_one_plain_specialization():
 
     assert caller(np.ones(3, np.bool_)) == 7
     assert [str(t) for t in callee.signatures[0]] == ["int64", "bool"] and len(callee.signatures) == 1
+
+
+def test_shipped_machine_code_is_copied_once_and_loads_without_compiling(monkeypatch, tmp_path):
+    """Machine code compiled under one cache root, shipped, and copied into an empty user cache elsewhere is
+    loaded by numba (content stamps, not paths or mtimes); an existing user cache is left alone."""
+    from rft_mujoco.compiled import route
+
+    def fresh():                              # a new dispatcher of a package kernel: nothing in memory
+        return jit.njit(**jit.JIT)(route.model_changed.py_func)
+
+    args = (np.zeros(7), 0.01, np.zeros(3), np.zeros((1, 3)))
+    monkeypatch.setenv(jit.CACHE_ENV, str(tmp_path / "build"))
+    shipped_key = jit.cache_dir()
+    built = fresh()
+    assert built(*args) is True               # the snapshot's length does not match: changed
+    assert built.stats.cache_misses and jit.has_index(shipped_key)
+    monkeypatch.setattr(jit, "SHIPPED_ROOT", str(tmp_path / "build"))
+    monkeypatch.setenv(jit.CACHE_ENV, str(tmp_path / "user"))
+    for path in (tmp_path / "build").rglob("*.nb*"):
+        os.utime(path, (1, 1))                # a wheel's or a clone's mtimes: irrelevant
+    monkeypatch.setenv(jit.NO_SHIPPED_ENV, "1")
+    assert jit.seed_from_shipped() == 0
+    monkeypatch.delenv(jit.NO_SHIPPED_ENV)
+    copied = jit.seed_from_shipped()
+    assert copied == len(list((tmp_path / "build").rglob("*.nb*"))) > 0
+    assert jit.seed_from_shipped() == 0       # the user's cache has an index now: never overwritten
+    loaded = fresh()
+    assert loaded(*args) is True
+    assert loaded.stats.cache_hits and not loaded.stats.cache_misses
+    monkeypatch.setattr(jit.numba.config, "CPU_NAME", "generic")     # another CPU: numba compiles
+    other = fresh()
+    assert other(*args) is True
+    assert other.stats.cache_misses and not other.stats.cache_hits
+
+
+def test_rest_process_only_when_useful(monkeypatch, tmp_path):
+    from rft_mujoco.compiled import warmup
+
+    monkeypatch.setenv(jit.CACHE_ENV, str(tmp_path / "cache"))
+    monkeypatch.setenv(warmup.PROCESSES_ENV, "1")
+    assert warmup.start_rest_process() is None
+    monkeypatch.delenv(warmup.PROCESSES_ENV)
+    folder = tmp_path / "cache" / os.path.basename(jit.cache_dir()) / "compiled"
+    folder.mkdir(parents=True)
+    (folder / "route.rest_phase-300.py311.nbi").write_bytes(b"")
+    assert warmup.rest_cached() and warmup.start_rest_process() is None
+    monkeypatch.setattr(warmup, "_cores", lambda: 1)
+    (folder / "route.rest_phase-300.py311.nbi").unlink()
+    assert not warmup.rest_cached() and warmup.start_rest_process() is None
+
+
+def test_the_inliner_memo_is_shared_only_for_this_packages_functions(monkeypatch):
+    """numba's inliner copies a callee's IR blocks with one shared deepcopy memo only when the caller is one
+    of rft_mujoco's functions (compiled/jit.py): any other code's inlining is compiled exactly as numba
+    does it, a fresh memo per block."""
+    import copy
+    import types
+
+    from rft_mujoco.compiled import jit
+
+    if not jit.SHARED_INLINE_COPIES:
+        pytest.skip("numba's inliner does not have the layout the shared memo relies on")
+    seen = []
+    deepcopy = copy.deepcopy
+
+    def spy(x, memo=None, _nil=[]):  # noqa: B006
+        if type(x).__name__ == "Block":
+            seen.append(memo is None)
+        return deepcopy(x, memo, _nil)
+
+    monkeypatch.setattr(copy, "deepcopy", spy)
+    src = ("import numba\n@numba.njit(inline='always')\ndef f(x):\n    y = x + 1\n    if y > 2:\n        y = y * 2\n"
+           "    return y\n@numba.njit\ndef g(x):\n    return f(x) + f(x + 1)\n")
+    fresh = {}
+    for name in ("user_module_for_inlining", "rft_mujoco.test_module_for_inlining"):
+        module = types.ModuleType(name)
+        monkeypatch.setitem(sys.modules, name, module)
+        exec(compile(src, f"<{name}>", "exec"), module.__dict__)
+        seen.clear()
+        assert module.g(3.0) == 18.0
+        assert seen, "no block was copied: the inliner was not exercised"
+        fresh[name] = (sum(seen), len(seen))
+    assert fresh["user_module_for_inlining"][0] == fresh["user_module_for_inlining"][1]
+    assert fresh["rft_mujoco.test_module_for_inlining"][0] == 0

@@ -29,7 +29,7 @@ import sys
 import threading
 import time
 
-from rft_mujoco.compiled.jit import AVAILABLE, COMPILE_SECONDS, IMPORT_ERROR
+from rft_mujoco.compiled.jit import AVAILABLE, COMPILE_SECONDS, COMPILE_SECONDS_PARALLEL, IMPORT_ERROR
 
 _log = logging.getLogger("rft_mujoco")
 _compiled = False
@@ -55,14 +55,31 @@ class _Progress:
         self.total = 0.0              # s compiled in earlier bursts
         self.thread = None
         self.cond = threading.Condition()
+        self.estimate = COMPILE_SECONDS   # s, for the first line
+        self.where = ""                   # how the compile is split, for the first line
+        self.current = []                 # the kernels numba compiles now (innermost last), or what is awaited
 
     def _say(self, msg: str) -> None:
         _log.info(msg)
         print(msg, file=self.stream or sys.stderr, flush=True)
 
-    def start(self) -> None:
+    say = _say
+
+    def plan(self, parallel: bool) -> None:
+        """The estimate and the split of the warm-up about to run (phase 2 in a second process or not)."""
+        self.estimate = COMPILE_SECONDS_PARALLEL if parallel else COMPILE_SECONDS
+        self.where = "; the rest treatment in a second process" if parallel else ""
+
+    def now(self, what: str) -> None:
+        """Name what is being waited for (shown on the next progress line)."""
+        with self.cond:
+            self.current = [what]
+
+    def start(self, name: str = "") -> None:
         with self.cond:
             self.depth += 1
+            if name:
+                self.current.append(name)
             self.last = time.perf_counter()
             if self.started is not None:
                 return
@@ -72,15 +89,17 @@ class _Progress:
         where = jit.cache_dir() if jit.PER_USER_CACHE else "numba's cache"
         if self.total == 0.0:
             self._say(f"rft_mujoco: compiling the numba kernels, once for this user and version (about "
-                      f"{COMPILE_SECONDS / 60:.1f} min on a 2-core machine, more on a busy one); cached in {where}")
+                      f"{self.estimate:.0f} s on a 2-core machine, more on a busy one{self.where}); cached in {where}")
         else:
             self._say(f"rft_mujoco: compiling more numba kernels ({self.total:.0f} s so far)")
         self.thread = threading.Thread(target=self._run, name="rft_mujoco-compile-progress", daemon=True)
         self.thread.start()
 
-    def end(self) -> None:
+    def end(self, name: str = "") -> None:
         with self.cond:
             self.depth = max(self.depth - 1, 0)
+            if name in self.current:
+                self.current.remove(name)
             self.last = time.perf_counter()
             self.cond.notify_all()
 
@@ -102,13 +121,18 @@ class _Progress:
                 if self.depth == 0 and self.holding == 0 and now - self.last >= self.IDLE_S:
                     break
                 if now >= next_tick:
-                    self._say(f"rft_mujoco: still compiling ({self.total + now - self.started:.0f} s so far)")
+                    doing = f"; now {self.current[-1]}" if self.current else ""
+                    self._say(f"rft_mujoco: still compiling ({self.total + now - self.started:.0f} s so far{doing})")
                     next_tick += self.TICK_S
                 self.cond.wait(min(next_tick - now, self.IDLE_S, 1.0))
             seconds = self.last - self.started
             self.total += seconds
             self.started, self.thread = None, None
         self._say(f"rft_mujoco: numba kernels compiled ({self.total:.0f} s); later runs load them from the cache")
+
+
+def _name(func) -> str:
+    return f"{func.__module__.rsplit('.', 1)[-1]}.{func.__name__}"
 
 
 def _install_progress() -> _Progress | None:
@@ -122,12 +146,12 @@ def _install_progress() -> _Progress | None:
         def on_start(self, ev):
             func = getattr(ev.data.get("dispatcher"), "py_func", None)
             if getattr(func, "__module__", "").startswith("rft_mujoco.compiled."):
-                progress.start()
+                progress.start(_name(func))
 
         def on_end(self, ev):
             func = getattr(ev.data.get("dispatcher"), "py_func", None)
             if getattr(func, "__module__", "").startswith("rft_mujoco.compiled."):
-                progress.end()
+                progress.end(_name(func))
 
     event.register("numba:compile", _Listener())
     return progress
@@ -167,12 +191,14 @@ def ensure_compiled(verbose: bool = True) -> float:
         t0 = time.perf_counter()
         if not jit.PER_USER_CACHE:
             jit.drop_stale_cache()
+        else:
+            jit.seed_from_shipped()
         if _PROGRESS is not None and not verbose:
             _PROGRESS.stream = open(os.devnull, "w")  # noqa: SIM115 (kept for the process)
         if _PROGRESS is not None:
             _PROGRESS.hold()
         try:
-            warmup.run()
+            warmup.run(_PROGRESS)
         finally:
             if _PROGRESS is not None:
                 _PROGRESS.release()

@@ -4,16 +4,15 @@ What ``SandHandle`` computes in numpy (:mod:`rft_mujoco.coupling.handle`, the re
 with), compiled, in two phases around MuJoCo's actuation (MuJoCo computes actuator forces only after
 ``mjcb_control``, so the caller runs ``mj_fwdActuation`` between them, and only when a body touches):
 
-1. :func:`broadphase`: time continuity (whether MuJoCo's previous constraint solve belongs to this
-   motion), gravity, the bodies that touch the sand and their poses and velocities;
-2. :func:`evaluate`: the rest treatment (:mod:`rft_mujoco.physics.rest`) or the naive published force,
-   the diagnostics, and the wrenches added into the caller's sum.
+1. :func:`broadphase`: time continuity (whether MuJoCo's previous constraint solve belongs to this motion),
+   gravity, the bodies that touch the sand and their poses and velocities;
+2. :func:`evaluate`: the rest treatment (:mod:`rft_mujoco.physics.rest`) or the naive force, the diagnostics,
+   the wrenches added into the caller's sum.
 
 Arguments come as tuples whose order is fixed by the schemas below, so that the Python path (one numba
 call per phase) and the native route (:mod:`rft_mujoco.compiled.route`, one call for every handle of a
-model) run this very code. Both phases are inlined into the route's phases (as plain calls, the tuples of
-arrays they take cost 2 us a call, measured); the Python path's own copy compiles at its first use
-(the native route runs from a model's first evaluation on, so most runs never compile it):
+model) run this very code, inlined into the route's phases (plain calls with the tuples cost 2 us, measured)
+but for :func:`evaluate_rest`, the route's own C function; the Python path's copy compiles at its first use:
 
 * ``md`` (:data:`MJDATA_FIELDS`): MjData arrays (views, never copied);
 * ``hc`` (:data:`HANDLE_FIELDS`): the handle's constants, ``gravity`` a live view of ``model.opt.gravity``
@@ -121,9 +120,7 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
     out["scale"][:] = 1.0
-    out["state"][0] = -math.inf
-    out["state"][1] = 1.0
-    out["state"][KEPT_RANK] = -1.0
+    out["state"][[0, 1, KEPT_RANK]] = (-math.inf, 1.0, -1.0)
     return out
 
 
@@ -156,8 +153,8 @@ def _gravity(gravity):
 
 @njit(**INLINE)
 def broadphase(md, hc, ws, time, dt):
-    """Phase 1: record the time, find the touching bodies (their count in ``state[2]``); without any, clear
-    the diagnostics once. Returns the count, or NOT_FINITE_STATE."""
+    """Phase 1: the time, the touching bodies (their count in ``state[2]``; none: the diagnostics cleared once).
+    Returns the count, or NOT_FINITE_STATE."""
     xpos, xmat, xipos, cvel, subtree_com, qpos, qvel = md[0], md[1], md[2], md[3], md[4], md[5], md[6]
     ids, root, cluster_start, body_clusters = hc[0], hc[1], hc[4], hc[5]
     bound_center, bound_radius, centroids = hc[18], hc[19], hc[21]
@@ -172,10 +169,7 @@ def broadphase(md, hc, ws, time, dt):
     state[3] = 1.0 if 0.0 <= step <= dt * _TIME_SLACK else 0.0         # coupling._Workspace.follow_time
     state[0] = time
     g0, g1, g2, _ = _gravity(gravity)
-    g_hat = np.empty(3)
-    g_hat[0] = g0
-    g_hat[1] = g1
-    g_hat[2] = g2
+    g_hat = np.array((g0, g1, g2))
     k = touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_center, bound_radius,
                  centroids, cluster_start, cluster_center, cluster_radius, body_clusters, g_hat, params[0],
                  int(params[6]), tp, heights, touch, body_pos, body_mat, body_com, v_com, omega)
@@ -190,29 +184,40 @@ def broadphase(md, hc, ws, time, dt):
 
 @njit(**INLINE)
 def evaluate(md, hc, ws, user_xfrc, dt, sand_out, fr):
-    """Phase 2 (after ``mj_fwdActuation``), for the ``state[2] > 0`` touching bodies of :func:`broadphase`:
-    the sand wrenches, the diagnostics, and the wrenches added to ``sand_out`` (nbody, 6) at their bodies'
-    rows. ``user_xfrc`` (nbody, 6): the user's own xfrc_applied (enters the free motion); ``fr``
-    (:data:`FRICTION_FIELDS`): this step's constraint rows and MuJoCo's last ``qacc`` (the dofs held by
-    their dry friction). Returns 1 (a non-zero wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing
-    written)."""
+    """Phase 2 (after ``mj_fwdActuation``), for the ``state[2] > 0`` touching bodies of :func:`broadphase`
+    (:func:`evaluate_rest` with the rest treatment, else :func:`evaluate_naive`): the sand wrenches, the
+    diagnostics, and the wrenches added to ``sand_out`` (nbody, 6) at their bodies' rows. ``user_xfrc``
+    (nbody, 6): the user's own xfrc_applied (enters the free motion); ``fr`` (:data:`FRICTION_FIELDS`): this
+    step's constraint rows and MuJoCo's last ``qacc``. Returns 1 (a non-zero wrench), 0 (none), NOT_FINITE or
+    BAD_ACCELERATION (nothing written)."""
+    if hc[35][7] != 0.0:
+        return evaluate_rest(md, hc, ws, user_xfrc, dt, sand_out, fr)
+    return evaluate_naive(md, hc, ws, sand_out)
+
+
+@njit(**INLINE)
+def evaluate_rest(md, hc, ws, user_xfrc, dt, sand_out, fr):
+    """:func:`evaluate` with the rest treatment (the route's own C function: ``route.rest_phase``)."""
+    state = ws[45]
+    state[1] = 0.0
+    g0, g1, g2, g_mag = _gravity(hc[34])
+    return _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, int(state[2]), np.array((g0, g1, g2)), hc[35][1] * g_mag,
+                 state[3] != 0.0)
+
+
+@njit(**INLINE)
+def evaluate_naive(md, hc, ws, sand_out):
+    """:func:`evaluate` without the rest treatment: the published force at the element velocities."""
     state = ws[45]
     k = int(state[2])
     state[1] = 0.0
     g0, g1, g2, g_mag = _gravity(hc[34])
-    g_hat = np.empty(3)
-    g_hat[0] = g0
-    g_hat[1] = g1
-    g_hat[2] = g2
+    g_hat = np.array((g0, g1, g2))
     params = hc[35]
     xi_n = params[1] * g_mag
-    if params[7] != 0.0:
-        return _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, state[3] != 0.0)
-    # stabilize=False: the published force at the element velocities
-    occ_hs = hc[33]
     wrenches(ws[0], k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], ws[3], ws[4], ws[5],
              g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
-             params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], occ_hs,
+             params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
              params[9], md[15], md[16], ws[6], ws[49], ws[7], ws[8], ws[9], ws[10])
     return finish_naive(ws[7], ws[8], ws[9], ws[4], ws[5], params[8] != 0.0, ws[0], k, hc[0], ws[37], ws[38],
                         ws[39], ws[40], ws[41], ws[42], ws[43], ws[44], ws[10], sand_out)

@@ -14,10 +14,12 @@ and compiles nothing. With ``NUMBA_CACHE_DIR`` set numba's own locations are use
 
 from __future__ import annotations
 
+import copy as _copy
 import glob
 import hashlib
 import os
 import platform
+import threading
 
 try:  # numba is a dependency, but keep the package importable (and on numpy) without it
     import numba
@@ -58,6 +60,60 @@ if AVAILABLE:
             return dispatcher
         return plain(made) if isinstance(made, CPUDispatcher) else (lambda f: plain(made(f)))
 
+def _share_inline_copies() -> bool:
+    """Make numba's inliner copy a callee's blocks with one ``deepcopy`` memo instead of one per block.
+
+    For every ``inline="always"`` call site numba copies the callee's IR block by block, each block with its
+    own ``copy.deepcopy``; every variable holds the function's scope, so each block copies the whole scope
+    again (all the callee's variables): quadratic in the callee's size. Profiled on the route's phase 2
+    (docs/performance.md "The very first compile"): 115 of its 249 profiled CPU s were these copies. With one
+    memo per inlined call the blocks share one copy of the scope, as the original blocks share theirs;
+    numba then renames the variables and moves the blocks into the caller's scope, as before. Only calls
+    inlined into this package's functions share a memo (numba compiles everyone else's code exactly as
+    before); applied only where numba's inliner has the layout this relies on (its one ``copy`` use is that block copy); returns
+    whether it was applied."""
+    try:
+        from numba.core import inline_closurecall as icc
+    except ImportError:
+        return False
+    worker = getattr(icc, "InlineWorker", None)
+    if (getattr(icc, "copy", None) is not _copy or worker is None or not hasattr(worker, "inline_ir")
+            or getattr(worker.inline_ir, "_rft_shared_memo", False)):
+        return False
+    local = threading.local()
+
+    class _Copy:
+        """The inliner's ``copy`` module: ``deepcopy`` shares the memo of the inlined call being copied."""
+        copy = staticmethod(_copy.copy)
+
+        @staticmethod
+        def deepcopy(x, memo=None, _nil=[]):  # noqa: B006 (copy.deepcopy's own signature)
+            memos = getattr(local, "memos", None)
+            if memo is None and memos and memos[-1] is not None:
+                memo = memos[-1]
+            return _copy.deepcopy(x, memo, _nil)
+
+    original = worker.inline_ir
+
+    def inline_ir(self, caller_ir, *args, **kwargs):
+        memos = local.__dict__.setdefault("memos", [])
+        ours = str(getattr(getattr(caller_ir, "func_id", None), "modname", "")).startswith("rft_mujoco.")
+        memos.append({} if ours else None)          # other code's inlining is left exactly as numba does it
+        try:
+            return original(self, caller_ir, *args, **kwargs)
+        finally:
+            memos.pop()
+
+    inline_ir._rft_shared_memo = True
+    inline_ir.__doc__ = original.__doc__
+    worker.inline_ir = inline_ir
+    icc.copy = _Copy
+    return True
+
+
+SHARED_INLINE_COPIES = _share_inline_copies() if AVAILABLE else False
+"""Whether :func:`_share_inline_copies` applies (it halves the route's compile)."""
+
 JIT = dict(cache=True, fastmath=False, nogil=True, error_model="numpy")
 """Default: IEEE arithmetic, no exception checks on float division (``error_model="numpy"``: a division by
 zero gives inf/NaN, masked out afterwards, instead of a Python check that would stop vectorization)."""
@@ -71,9 +127,12 @@ JIT_LAW = dict(JIT, fastmath={"contract"})
 """The two element loops: multiply-add fusion (FMA), nothing else; measured 5-7% fewer ns per element,
 results within round-off of the numpy law (tests), deterministic run to run."""
 
-COMPILE_SECONDS = 150
-"""First-use compile time in s on a 2-core machine, for the notice: the demo's first use took 150 s of wall
-and 149 s of CPU (docs/performance.md "First use"; 248 s of wall before, 273 s in issue 29)."""
+COMPILE_SECONDS = 120
+"""First-use compile time in s on a quiet 2-core machine in one process, for the progress line: about the CPU
+seconds the demo's first use took (docs/performance.md "The very first compile", second round)."""
+COMPILE_SECONDS_PARALLEL = 80
+"""The same with the rest treatment compiled in a second process (:mod:`rft_mujoco.compiled.warmup`): the
+second process's CPU seconds (its compile is the critical path) plus the first's wait and the loading."""
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",
@@ -208,3 +267,51 @@ def drop_stale_cache() -> None:
             f.write(key + "\n")
     except OSError:                  # a read-only install: numba caches elsewhere, keyed by file stamps
         pass
+
+
+SHIPPED_ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "machine_code")
+"""Machine code shipped with the package (``python -m rft_mujoco compile --ship`` before building a wheel):
+``machine_code/<key>``, laid out as :func:`cache_dir`. Not in the repository; a wheel built after it
+carries it."""
+NO_SHIPPED_ENV = "RFT_MUJOCO_NO_SHIPPED_CODE"
+"""Environment variable: set (to anything but "" or "0") to ignore the shipped machine code (to measure a
+first compile)."""
+
+
+def shipped_dir() -> str:
+    """The shipped machine code of these sources and versions: :data:`SHIPPED_ROOT` / the key of :func:`cache_dir`."""
+    return os.path.join(SHIPPED_ROOT, os.path.basename(cache_dir()))
+
+
+def has_index(folder: str) -> bool:
+    """Whether ``folder`` (a :func:`cache_dir`) holds any numba cache index."""
+    return bool(glob.glob(os.path.join(folder, "*", "*.nbi")))
+
+
+def seed_from_shipped() -> int:
+    """Copy the shipped machine code (:func:`shipped_dir`) into the user's cache when the user's cache of this
+    key holds none yet (a first use of these sources and versions); returns the number of files copied.
+
+    Safe wherever it is copied to: the key names the sources and the numba, mujoco, numpy and Python
+    versions; numba keeps an entry per signature and CPU (its name and features) and checks the source
+    stamps (contents, :func:`_package_cache_locator`), so on another CPU numba compiles as without it."""
+    if not PER_USER_CACHE or os.environ.get(NO_SHIPPED_ENV, "0") not in ("", "0"):
+        return 0
+    source, target = shipped_dir(), cache_dir()
+    if not os.path.isdir(source) or has_index(target):
+        return 0
+    import shutil
+
+    copied = 0
+    for sub in sorted(os.listdir(source)):
+        files = sorted(glob.glob(os.path.join(source, sub, "*.nb[ic]")))
+        try:
+            os.makedirs(os.path.join(target, sub), exist_ok=True)
+            for path in sorted(files, key=lambda p: p.endswith(".nbi")):   # the indexes last
+                tmp = os.path.join(target, sub, f".{os.path.basename(path)}.{os.getpid()}")
+                shutil.copyfile(path, tmp)
+                os.replace(tmp, os.path.join(target, sub, os.path.basename(path)))
+                copied += 1
+        except OSError:              # an unwritable cache: numba compiles (and says so) as without it
+            return copied
+    return copied

@@ -42,9 +42,9 @@ BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"
 (nonzero, sand_dirty, rk4 stage (1-4; 0: another integrator), rk4 stage time, TIME_RTOL, what the native
 callback left to Python); ``snapshot``: the model's timestep, gravity and ``geom_size`` the dispatcher last
 checked (:func:`model_changed`), ``gravity`` and ``geom_size`` live views of the model's."""
-_HEADER = 4
-"""Table header: number of handles, base of the book, base of md, base of the constraint rows; then one
-base per handle."""
+_HEADER = 5
+"""Table header: number of handles, base of the book, base of md, base of the constraint rows, the address of
+:func:`rest_phase`'s C function; then one base per handle."""
 EFC_POINTERS = ("efc_type", "efc_id", "efc_D", "efc_aref", "efc_frictionloss", "qacc")
 """The ``mjData`` pointers of the ``fr`` tuple (:data:`rft_mujoco.compiled.evaluate.FRICTION_FIELDS`)."""
 _EFC = 2 + len(EFC_POINTERS)
@@ -97,6 +97,7 @@ def commit(xfrc, user, sand, rows, added, written):
 
 
 if AVAILABLE:
+    from llvmlite import ir
     from numba.extending import intrinsic
 
     def _cast(target):
@@ -107,12 +108,22 @@ if AVAILABLE:
             return target(types.int64), codegen
         return cast
 
+    @intrinsic
+    def _call_rest(typingctx, fn, table, base, dt):
+        """Call :func:`rest_phase`'s C function at address ``fn``: through the address, so that phase 2's
+        machine code does not contain (and compile) it: it compiles beside, in a second process when cold."""
+        def codegen(context, builder, signature, args):
+            i64, f64 = ir.IntType(64), ir.DoubleType()
+            fnty = ir.FunctionType(i64, [i64.as_pointer(), i64, f64])
+            return builder.call(builder.inttoptr(args[0], fnty.as_pointer()), [args[1], args[2], args[3]])
+        return types.int64(types.int64, types.CPointer(types.int64), types.int64, types.float64), codegen
+
     _as_f8 = _cast(types.CPointer(types.float64))
     _as_i8 = _cast(types.CPointer(types.int64))
     _as_i4 = _cast(types.CPointer(types.int32))
     _as_b1 = _cast(types.CPointer(types.boolean))
 else:  # pragma: no cover - without numba the route is never built
-    _as_f8 = _as_i8 = _as_i4 = _as_b1 = None
+    _as_f8 = _as_i8 = _as_i4 = _as_b1 = _call_rest = None
 
 
 @njit(**INLINE)
@@ -218,6 +229,7 @@ _HC_SLOTS = len(ev.HANDLE_FIELDS) * SLOT
 _PARAMS = [name for name, _ in ev.HANDLE_FIELDS].index("params") * SLOT
 _RK4_FIRST = ev.PARAMS.index("rk4_first")
 _MONITOR_EVERY = ev.PARAMS.index("monitor_every")
+_STABILIZE = ev.PARAMS.index("stabilize")
 _STATE = _HC_SLOTS + [name for name, _ in ev.WORK_FIELDS].index("state") * SLOT
 
 
@@ -282,7 +294,6 @@ def phase2(ptr, time, dt):
     n = t[0]
     xfrc, written, added, rows, user, sand, state, _, _, _ = _book(t, t[1])
     md = _md(t, t[2])
-    fr = _fr(t, t[3], md[6].shape[0])
     sand[:] = 0.0
     state[1] = 1.0                                   # sand_dirty: the Python path zeroes ``sand`` before use
     nonzero = False
@@ -291,7 +302,10 @@ def phase2(ptr, time, dt):
         ws = _ws(t, base + _HC_SLOTS)
         if ws[45][2] <= 0.0:
             continue
-        status = ev.evaluate(md, _hc(t, base), ws, user, dt, sand, fr)
+        if _f1(t, base + _PARAMS)[_STABILIZE] != 0.0:
+            status = _call_rest(t[4], ptr, base, dt)
+        else:
+            status = ev.evaluate_naive(md, _hc(t, base), ws, sand)
         if status < 0:
             return PYTHON
         nonzero = nonzero or status == 1
@@ -306,30 +320,53 @@ def phase2(ptr, time, dt):
     return DONE
 
 
+def rest_phase(ptr, base, dt):
+    """Phase 2 of the handle at ``base`` with the rest treatment (:func:`~rft_mujoco.compiled.evaluate.evaluate_rest`)
+    on the table at ``ptr``; the evaluation's status. A C function of its own that phase 2 calls through its
+    address (``t[4]``): half of phase 2's compile, done beside it (:mod:`rft_mujoco.compiled.warmup`)."""
+    t = _table(ptr)
+    _, _, _, _, user, sand, _, _, _, _ = _book(t, t[1])
+    md = _md(t, t[2])
+    fr = _fr(t, t[3], md[6].shape[0])
+    return ev.evaluate_rest(md, _hc(t, base), _ws(t, base + _HC_SLOTS), user, dt, sand, fr)
+
+
 _SIG = types.int64(types.CPointer(types.int64), types.float64, types.float64) if AVAILABLE else None
 """The C signature of both phases: (table address, time s, dt s) -> phase result."""
+_REST_SIG = types.int64(types.CPointer(types.int64), types.int64, types.float64) if AVAILABLE else None
+"""The C signature of :func:`rest_phase`: (table address, handle base, dt s) -> status."""
 
 
 _CTYPE = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_double, ctypes.c_double)
 _entries: list = []
+_cfuncs: dict = {}
 _entries_lock = threading.Lock()
 
 
+def cfunc_of(which: str):
+    """``"phase1"``, ``"phase2"`` or ``"rest_phase"`` as a numba ``cfunc``, compiled (or loaded from the cache) on
+    first use rather than at import, so that importing the package compiles nothing.
+    :mod:`~rft_mujoco.compiled.warmup` compiles ``rest_phase`` in a second process when cold."""
+    with _entries_lock:
+        if which not in _cfuncs:
+            _cfuncs[which] = cfunc(_REST_SIG if which == "rest_phase" else _SIG, cache=True)(globals()[which])
+        return _cfuncs[which]
+
+
 def cfuncs() -> tuple:
-    """(phase1, phase2) as numba ``cfunc`` s, compiled (or loaded from the cache) on first use rather than at
-    import, so that importing the package compiles nothing (:func:`rft_mujoco.compiled.ensure_compiled`
-    calls this while it reports the compile)."""
+    """(phase1, phase2, rest_phase) as numba ``cfunc`` s (:func:`cfunc_of`;
+    :func:`rft_mujoco.compiled.ensure_compiled` calls this while it reports the compile)."""
+    c1, c2, c3 = cfunc_of("phase1"), cfunc_of("phase2"), cfunc_of("rest_phase")
     with _entries_lock:
         if not _entries:
-            c1, c2 = (cfunc(_SIG, cache=True)(f) for f in (phase1, phase2))
-            _entries.extend([c1, c2, _CTYPE(c1.address), _CTYPE(c2.address)])
-        return tuple(_entries[:2])
+            _entries.extend([c1, c2, c3, _CTYPE(c1.address), _CTYPE(c2.address)])
+        return tuple(_entries[:3])
 
 
 def entries():
     """(phase1, phase2) as ctypes functions (address, time s, dt s) -> int."""
     cfuncs()
-    return tuple(_entries[2:])
+    return tuple(_entries[3:])
 
 
 _DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_}
@@ -451,7 +488,8 @@ class Route:
                 add(a, name, kind)
             for (name, kind), a in zip(ev.WORK_FIELDS, ws):
                 add(a, name, kind)
-        self.table = np.array([n, book_base, md_base, efc_base, *bases, *entries_], dtype=np.int64)
+        rest = cfuncs()[2].address
+        self.table = np.array([n, book_base, md_base, efc_base, rest, *bases, *entries_], dtype=np.int64)
         self.address = self.table.ctypes.data
         self.phase1, self.phase2 = entries()
 

@@ -1,5 +1,5 @@
-"""Command line: ``python -m rft_mujoco {demo,view,validate,bench,stability,swim,quasistatic,anymass,glide,
-footprint,ruts,prints}`` (``--help`` on each)."""
+"""Command line: ``python -m rft_mujoco <command>`` (``--help`` on each): demo, view, validate, bench, stability,
+swim, quasistatic, anymass, glide, footprint, ruts, prints, compile."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ COMMANDS = {
                     "rest depths of the load-path scenes"),
     "anymass": ("rft_mujoco.studies.anymass", "the swimmer at the animal's density and at 100x: each sand solve "
                 "against the quasi-static limit"),
+    "compile": ("rft_mujoco.compiled.warmup", "compile the numba kernels now (into the user's cache; --ship: into "
+                "the package, for a wheel)"),
     "glide": ("rft_mujoco.studies.glide", "a quadruped on slanted mesh lower legs set down on sand: does it "
               "stand still?"),
     "footprint": ("rft_mujoco.studies.footprint", "a box's footprint in a deformable surface, set back into it and "
