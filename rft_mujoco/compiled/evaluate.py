@@ -480,6 +480,17 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
         rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v,
                       cap, w, rest, flow, idx, block, rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state,
                       frozen)
+    # 7. each body's part (coupling._share); 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
+    return _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap, applied, ws, touch,
+                             bound_radius, count, depth_max, occluded, ids, sand_out)
+
+
+@njit(**INLINE)
+def _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap, applied, ws, touch, bound_radius,
+                      count, depth_max, occluded, ids, sand_out):
+    """Each touching body's part of its group's sand wrench (``applied``: a flowing group's law wrench scaled
+    per body, a resting group's wrench shared by size), the diagnostics into ``ws`` and the wrenches added to
+    ``sand_out``; returns the evaluation's status. Shared by the explicit and the implicit evaluations."""
     # 7. each body's part (coupling._share)
     for j in range(k):
         size[j] = _norm6(wrench[j], rad_g[slot[j]])

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from rft_mujoco.compiled.evaluate import BAD_ACCELERATION, NOT_FINITE, _clear, _gravity, _norm6
+from rft_mujoco.compiled.evaluate import BAD_ACCELERATION, NOT_FINITE, _gravity, _share_and_commit
 from rft_mujoco.compiled.implicit import cholesky, constrained_system, free_motion, implicit_wrenches
 from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
@@ -173,72 +173,5 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
                   params[2], params[3] != 0.0, params[4] != 0.0, params[5] != 0.0, hc[29], st[0], st[4], False, lin,
                   ang, on, scr, pk, wrench, jac_b, count, depth_max, gf, gdf)
     # 7. each body's part (reference.share) and the diagnostics (reference.commit)
-    for j in range(k):
-        size[j] = _norm6(wrench[j], rad_g[slot[j]])
-    for r in range(ng):
-        cap[r, 0] = 0.0
-    for j in range(k):
-        cap[slot[j], 0] += size[j]
-    for j in range(k):
-        r = slot[j]
-        for c in range(6):
-            applied[j, c] = 0.0
-        if cap[r, 0] <= 0.0:
-            continue
-        if not resting[r]:
-            gn = _norm6(gf[r], rad_g[r])
-            fac = _norm6(w[r], rad_g[r]) / gn if gn > 0.0 else 0.0
-            for c in range(6):
-                applied[j, c] = wrench[j, c] * fac
-        else:
-            share = size[j] / cap[r, 0]
-            for c in range(3):
-                applied[j, c] = share * w[r, c]
-    for r in range(ng):
-        if not resting[r] or cap[r, 0] <= 0.0:
-            continue
-        mx, my, mz = w[r, 3], w[r, 4], w[r, 5]
-        for j in range(k):
-            if slot[j] == r:
-                ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-                fx, fy, fz = applied[j, 0], applied[j, 1], applied[j, 2]
-                mx -= ay * fz - az * fy
-                my -= az * fx - ax * fz
-                mz -= ax * fy - ay * fx
-        for j in range(k):
-            if slot[j] == r:
-                share = size[j] / cap[r, 0]
-                applied[j, 3] = share * mx
-                applied[j, 4] = share * my
-                applied[j, 5] = share * mz
-    force, torque, submerged, max_depth = ws[37], ws[38], ws[39], ws[40]
-    scale, rft_force, resting_d, occluded_area = ws[41], ws[42], ws[43], ws[44]
-    _clear(force, torque, submerged, max_depth, scale, rft_force, resting_d, occluded_area)
-    status = 0
-    for j in range(k):
-        i = touch[j]
-        rb = bound_radius[i]
-        rn = _norm6(wrench[j], rb)
-        for c in range(3):
-            force[i, c] = applied[j, c]
-            torque[i, c] = applied[j, 3 + c]
-            rft_force[i, c] = wrench[j, c]
-        submerged[i] = count[j]
-        max_depth[i] = depth_max[j]
-        occluded_area[i] = occluded[j]
-        if rn > 0.0:
-            scale[i] = _norm6(applied[j], rb) / rn
-            resting_d[i] = resting[slot[j]]
-        for c in range(6):
-            x = applied[j, c]
-            if not math.isfinite(x):
-                status = NOT_FINITE
-            elif x != 0.0 and status == 0:
-                status = 1
-    if status == NOT_FINITE:
-        return NOT_FINITE
-    for j in range(k):
-        row = ids[touch[j]]
-        for c in range(6):
-            sand_out[row, c] += applied[j, c]
-    return status
+    return _share_and_commit(k, ng, slot, wrench, rad_g, gf, w, resting, arm, size, cap, applied, ws, touch,
+                             bound_radius, count, depth_max, occluded, ids, sand_out)
