@@ -165,9 +165,9 @@ def test_linearized_constraints_predict_mujocos_next_acceleration(name):
     assert checked == 5
 
 
-def test_implicit_solve_runs_on_both_backends_without_the_native_route():
-    """solve="implicit" on the compiled backend (the default's) takes the Python callback path (the native route
-    is built for the explicit solve only); a solve that does not exist is refused."""
+def test_implicit_solve_runs_on_the_compiled_backend_and_the_native_route():
+    """solve="implicit" on the compiled backend (the default's) runs on the native route (tests/test_native.py
+    compares it with the Python path bit for bit); a solve that does not exist is refused."""
     from rft_mujoco.coupling.dispatch import DISPATCHER
     m = mujoco.MjModel.from_xml_string(SCENES["joint_limit"])
     d = mujoco.MjData(m)
@@ -179,7 +179,8 @@ def test_implicit_solve_runs_on_both_backends_without_the_native_route():
         for _ in range(20):
             mujoco.mj_step(m, d)
         assert h.evaluations == 20 and h.diagnostics(d).submerged[0] > 0
-        assert DISPATCHER._registry is None or not DISPATCHER._registry.routed(m, d)
+        assert DISPATCHER._books[d].native is not None                       # the route was built for it
+        assert DISPATCHER._registry is None or DISPATCHER._registry.routed(m, d)
     finally:
         h.detach()
     with pytest.raises(ValueError, match="solve must be one of"):

@@ -1,7 +1,8 @@
 """The native callbacks (rft_mujoco.compiled.native) against the dispatcher's Python callback.
 
 Rollouts through the native callbacks equal the Python path bit for bit (every integrator, RK4 stages
-"all" and "first", the validity monitor, mjDSBL_ACTUATION, several models and datas); errors still raise
+"all" and "first", the validity monitor, mjDSBL_ACTUATION, several models and datas, the explicit and the
+implicit solves); errors still raise
 from mj_step naming the bodies; what the native code must not do (call a user's actuator callback, touch a
 model being compiled) goes to Python; a MuJoCo it does not know falls back with one message; detach
 restores the user's callbacks.
@@ -49,6 +50,8 @@ FRICTION_SCENE = SCENE.replace('axis="0 1 0"/>', 'axis="0 1 0" frictionloss="0.0
     'axis="1 0 0"/>', 'axis="1 0 0" frictionloss="0.01"/>')
 """Dry friction on both hinges: the route reads MuJoCo's constraint rows through mjData's pointers."""
 SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+ROUTED = []
+"""Whether each data of the last :func:`rollout` ended on the native route."""
 
 
 @pytest.fixture(autouse=True)
@@ -65,14 +68,18 @@ def state(model, data):
 
 
 def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=True, disable_at=None, datas=1,
-            models=1, friction=False):
+            models=1, friction=False, solve="explicit", python_path=False, jacobian_at=None):
     """Final states, xfrc_applied, evaluations and evaluations with dofs locked by their dry friction of
-    ``models`` models x ``datas`` datas stepped interleaved."""
+    ``models`` models x ``datas`` datas stepped interleaved. ``python_path``: no route (a no-op observer
+    keeps every evaluation on the dispatcher's Python path); ``jacobian_at``: (step, mjtJacobian) an edit of
+    ``opt.jacobian`` during the run."""
     DISPATCHER.native = native
     runs = []
     for k in range(models):
         model = mujoco.MjModel.from_xml_string((FRICTION_SCENE if friction else SCENE).format(integrator=integrator))
-        handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=monitor, rk4_stages=rk4_stages)
+        handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, monitor=monitor, rk4_stages=rk4_stages, solve=solve)
+        if python_path:
+            handle.observe(lambda data, wrenches, stage: None)
         ds = []
         for j in range(datas):
             data = mujoco.MjData(model)
@@ -84,13 +91,17 @@ def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=Tru
         for model, handle, ds in runs:
             if i == disable_at:
                 model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+            if jacobian_at is not None and i == jacobian_at[0]:
+                model.opt.jacobian = jacobian_at[1]
             for data in ds:
                 data.ctrl[:] = np.sin(0.05 * i)
                 mujoco.mj_step(model, data)
     out = [(state(m, d), d.xfrc_applied.copy(), h.evaluations, h._work[d].state[10]) for m, h, ds in runs
            for d in ds]
     assert any(np.abs(x).max() > 0.1 for _, x, _, _ in out)               # the sand acted
-    assert all((locked > 0) == friction for *_, locked in out)
+    assert solve == "implicit" or all((locked > 0) == friction for *_, locked in out)
+    ROUTED[:] = [DISPATCHER._books[d].native is not None for _, _, ds in runs for d in ds]
+    assert not (python_path and any(ROUTED))
     for _, h, _ in runs:
         h.detach()
     return out
@@ -100,12 +111,59 @@ def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=Tru
 @pytest.mark.parametrize("kwargs", [
     dict(), dict(integrator="RK4"), dict(integrator="RK4", rk4_stages="first"), dict(integrator="implicitfast"),
     dict(monitor=False, disable_at=60), dict(datas=2, models=2), dict(friction=True),
-    dict(friction=True, integrator="RK4")])
+    dict(friction=True, integrator="RK4"), dict(solve="implicit", friction=True),
+    dict(solve="implicit", integrator="implicitfast")])
 def test_native_equals_python_bit_for_bit(kwargs):
     python = rollout(False, **kwargs)
     native_ = rollout(True, **kwargs)
     for (s0, x0, e0, l0), (s1, x1, e1, l1) in zip(python, native_):
         assert np.array_equal(s0, s1) and np.array_equal(x0, x1) and e0 == e1 and l0 == l1
+
+
+IMPLICIT_CASES = [dict(), dict(integrator="implicitfast"), dict(integrator="RK4"), dict(friction=True),
+                  dict(datas=2, models=2), dict(monitor=False, disable_at=60),
+                  dict(friction=True, jacobian_at=(70, mujoco.mjtJacobian.mjJAC_SPARSE))]
+
+
+@needs_native
+@pytest.mark.parametrize("kwargs", IMPLICIT_CASES)
+def test_the_implicit_solve_on_the_native_route_equals_its_python_path_bit_for_bit(kwargs):
+    """``solve="implicit"`` on the native route (compiled.implicit_route) against the dispatcher's Python path
+    (coupling.implicit.evaluate_compiled): the same motion, the damping of an implicit integrator, the
+    constraint rows read through mjData's pointers, dense and (after an edit of ``opt.jacobian``) sparse."""
+    python = rollout(True, solve="implicit", python_path=True, **kwargs)
+    native_ = rollout(True, solve="implicit", **kwargs)
+    assert ROUTED and all(ROUTED)
+    for (s0, x0, e0, _), (s1, x1, e1, _) in zip(python, native_):
+        assert np.array_equal(s0, s1) and np.array_equal(x0, x1) and e0 == e1
+
+
+@needs_native
+@pytest.mark.filterwarnings("ignore::rft_mujoco.SandSetupWarning")
+def test_the_native_route_reads_a_sparse_jacobian_where_mujoco_chooses_one():
+    """``mjJAC_AUTO`` is sparse from 60 dofs on: a 64-link chain dragged through the sand with a joint
+    limit hit, on the route and on the Python path (which asks ``mj_isSparse``)."""
+    links = "".join(f"<body pos='0.02 0 0'><joint type='hinge' axis='0 0 1' range='-0.2 0.2' limited='true'/>"
+                    "<geom type='capsule' fromto='0 0 0 0.02 0 0' size='0.006' mass='0.01'/>" for _ in range(64))
+    xml = (f"<mujoco><option timestep='0.002'/><worldbody><body pos='0 0 0.003'><freejoint/>"
+           f"<geom type='sphere' size='0.02' mass='0.5'/>{links}{'</body>' * 64}</body></worldbody></mujoco>")
+    finals = []
+    for python_path in (True, False):
+        model = mujoco.MjModel.from_xml_string(xml)
+        assert model.nv >= 60 and mujoco.mj_isSparse(model)
+        handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01, solve="implicit", monitor=False)
+        if python_path:
+            handle.observe(lambda data, wrenches, stage: None)
+        data = mujoco.MjData(model)
+        data.qvel[0] = 0.3
+        data.qvel[6:] = np.random.default_rng(3).normal(size=model.nv - 6)
+        for _ in range(60):
+            mujoco.mj_step(model, data)
+        assert data.nefc > 0 and handle.diagnostics(data).submerged.sum() > 0
+        assert (DISPATCHER._books[data].native is not None) != python_path
+        finals.append(state(model, data))
+        handle.detach()
+    assert np.array_equal(*finals)
 
 
 @needs_native

@@ -78,7 +78,7 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
              body_pos, body_mat, body_com, lin, ang, g_hat, max_height, kind, tp, heights, xi_n, coef, mu_surf,
              no_tension, no_forward, no_power, tol, occ_start, occ_geom, occ_kind, occ_size, occ_rbound,
              occ_hs_start, occ_hs, margin, geom_xpos, geom_xmat, scratch, index, wrench, count, max_depth,
-             occluded):
+             occluded, speed_scale):
     """The RFT wrench about each COM of the bodies ``bodies[:n_on]`` moving with twists (``lin``, ``ang``).
 
     Row j < n_on of ``body_pos`` (3), ``body_mat`` (9), ``body_com`` (3), ``lin`` (3, m/s, linear velocity of
@@ -87,7 +87,9 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
     ``geom_xmat``) carry nothing. Outputs, rows 0..n_on-1: ``wrench`` (6: force N, torque N m about the COM,
     world frame), ``count`` (loaded elements), ``max_depth`` (m, deepest loaded element), ``occluded`` (m^2,
     submerged area inside occluders). ``scratch``: (SCRATCH_ROWS, >= cluster size) float, ``index``: (2, >= cluster
-    size) int.
+    size) int. ``speed_scale`` (m/s): 0 for the published law; c > 0 for the implicit solve's regularized law,
+    each element's stress times ``|v| / sqrt(|v|^2 + c^2)``
+    (:func:`rft_mujoco.compiled.implicit_law.body_law`).
     """
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
@@ -222,6 +224,9 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
                                      vy * inv, vz * inv, gb0, gb1, gb2, c, mu_surf, no_tension, no_forward,
                                      no_power, lead_tol, vert_tol)
                 sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i])
+                if speed_scale > 0.0:                        # (loop-invariant: unswitched)
+                    sp = math.sqrt(vx * vx + vy * vy + vz * vz)
+                    sa *= sp / math.sqrt(sp * sp + speed_scale * speed_scale)
                 fx, fy, fz = rx * sa, ry * sa, rz * sa
                 scratch[_P_F, i] = fx
                 scratch[_P_F + 1, i] = fy

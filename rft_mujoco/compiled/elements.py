@@ -438,7 +438,7 @@ class ElementPass:
         f = np.ascontiguousarray
         wrenches(*self._before, f(body_pos, float), f(np.reshape(body_mat, (b, 9)), float), f(body_com, float),
                  f(v_com, float), f(omega, float), *self._after, self.wrench, self.count, self.max_depth,
-                 self._occluded)
+                 self._occluded, 0.0)
         return self.wrench, self.count, self.max_depth
 
 

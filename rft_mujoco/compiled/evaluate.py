@@ -33,6 +33,8 @@ from rft_mujoco.compiled.elements import finish_naive, touching
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled.locks import lock_matrices, locked_rest, stuck_dofs
 from rft_mujoco.compiled.rest import KEPT_GROUPS, KEPT_RANK, _chain_dof, jacobian, rest_wrenches, solve_m
+from rft_mujoco.compiled.share import (BAD_ACCELERATION, NOT_FINITE, NOT_FINITE_STATE,  # noqa: F401
+                                       _clear, _share_and_commit)
 
 _TIME_SLACK = 1.0 + tol.TIME_RTOL
 """A step of dt (1 + TIME_RTOL) still follows the previous evaluation (frozen into the compiled code)."""
@@ -93,13 +95,6 @@ held by their dry friction in this evaluation's rest solve (:func:`rft_mujoco.ph
 and the evaluations that held any."""
 assert STATE.index("kept_groups") == KEPT_GROUPS and STATE.index("kept_rank") == KEPT_RANK
 
-# Status codes (besides 0: no wrench, 1: a non-zero wrench).
-NOT_FINITE = -1
-"""A wrench came out non-finite; nothing was written."""
-BAD_ACCELERATION = -2
-"""The acceleration without sand is not finite (NaN/inf inputs); nothing was written."""
-NOT_FINITE_STATE = -3
-"""qpos/qvel are not finite while a body is a candidate (the simulation diverged)."""
 
 
 def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
@@ -122,26 +117,6 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
     out["scale"][:] = 1.0
     out["state"][[0, 1, KEPT_RANK]] = (-math.inf, 1.0, -1.0)
     return out
-
-
-@njit(**JIT)
-def _norm6(x, r):
-    """|(x[:3], x[3:] / r)|."""
-    return math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
-                     + (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]) / (r * r))
-
-
-@njit(**JIT)
-def _clear(force, torque, submerged, max_depth, scale, rft_force, resting, occluded_area):
-    """Diagnostics of an evaluation without sand: zero wrenches, counts and depths, scale 1, none resting."""
-    force[:] = 0.0
-    torque[:] = 0.0
-    submerged[:] = 0
-    max_depth[:] = 0.0
-    scale[:] = 1.0
-    rft_force[:] = 0.0
-    resting[:] = False
-    occluded_area[:] = 0.0
 
 
 @njit(**JIT)
@@ -218,7 +193,7 @@ def evaluate_naive(md, hc, ws, sand_out):
     wrenches(ws[0], k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], ws[3], ws[4], ws[5],
              g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
              params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
-             params[9], md[15], md[16], ws[6], ws[49], ws[7], ws[8], ws[9], ws[10])
+             params[9], md[15], md[16], ws[6], ws[49], ws[7], ws[8], ws[9], ws[10], 0.0)
     return finish_naive(ws[7], ws[8], ws[9], ws[4], ws[5], params[8] != 0.0, ws[0], k, hc[0], ws[37], ws[38],
                         ws[39], ws[40], ws[41], ws[42], ws[43], ws[44], ws[10], sand_out)
 
@@ -442,7 +417,7 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     wrenches(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com, u_lin, u_ang,
              g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
              params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
-             params[9], md[15], md[16], ws[6], ws[49], wrench, count, depth_max, occluded)
+             params[9], md[15], md[16], ws[6], ws[49], wrench, count, depth_max, occluded, 0.0)
     for r in range(ng):
         for c in range(6):
             rft_g[r, c] = 0.0
@@ -483,85 +458,6 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     # 7. each body's part (coupling._share); 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
     return _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap, applied, ws, touch,
                              bound_radius, count, depth_max, occluded, ids, sand_out)
-
-
-@njit(**INLINE)
-def _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap, applied, ws, touch, bound_radius,
-                      count, depth_max, occluded, ids, sand_out):
-    """Each touching body's part of its group's sand wrench (``applied``: a flowing group's law wrench scaled
-    per body, a resting group's wrench shared by size), the diagnostics into ``ws`` and the wrenches added to
-    ``sand_out``; returns the evaluation's status. Shared by the explicit and the implicit evaluations."""
-    # 7. each body's part (coupling._share)
-    for j in range(k):
-        size[j] = _norm6(wrench[j], rad_g[slot[j]])
-    for r in range(ng):
-        cap[r, 0] = 0.0                             # reuses ``cap`` column 0 as the groups' total size
-    for j in range(k):
-        cap[slot[j], 0] += size[j]
-    for j in range(k):
-        r = slot[j]
-        for c in range(6):
-            applied[j, c] = 0.0
-        if cap[r, 0] <= 0.0:
-            continue
-        if not rest[r]:
-            gn = _norm6(rft_g[r], rad_g[r])
-            f = _norm6(w[r], rad_g[r]) / gn if gn > 0.0 else 0.0
-            for c in range(6):
-                applied[j, c] = wrench[j, c] * f
-        else:
-            share = size[j] / cap[r, 0]
-            for c in range(3):
-                applied[j, c] = share * w[r, c]
-    for r in range(ng):
-        if not rest[r] or cap[r, 0] <= 0.0:
-            continue
-        mx, my, mz = w[r, 3], w[r, 4], w[r, 5]
-        for j in range(k):
-            if slot[j] == r:
-                ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-                fx, fy, fz = applied[j, 0], applied[j, 1], applied[j, 2]
-                mx -= ay * fz - az * fy
-                my -= az * fx - ax * fz
-                mz -= ax * fy - ay * fx
-        for j in range(k):
-            if slot[j] == r:
-                share = size[j] / cap[r, 0]
-                applied[j, 3] = share * mx
-                applied[j, 4] = share * my
-                applied[j, 5] = share * mz
-    # 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
-    force, torque, submerged, max_depth = ws[37], ws[38], ws[39], ws[40]
-    scale, rft_force, resting, occluded_area = ws[41], ws[42], ws[43], ws[44]
-    _clear(force, torque, submerged, max_depth, scale, rft_force, resting, occluded_area)
-    status = 0
-    for j in range(k):
-        i = touch[j]
-        rb = bound_radius[i]
-        rn = _norm6(wrench[j], rb)
-        for c in range(3):
-            force[i, c] = applied[j, c]
-            torque[i, c] = applied[j, 3 + c]
-            rft_force[i, c] = wrench[j, c]
-        submerged[i] = count[j]
-        max_depth[i] = depth_max[j]
-        occluded_area[i] = occluded[j]
-        if rn > 0.0:
-            scale[i] = _norm6(applied[j], rb) / rn
-            resting[i] = rest[slot[j]]
-        for c in range(6):
-            x = applied[j, c]
-            if not math.isfinite(x):
-                status = NOT_FINITE
-            elif x != 0.0 and status == 0:
-                status = 1
-    if status == NOT_FINITE:
-        return NOT_FINITE
-    for j in range(k):
-        row = ids[touch[j]]
-        for c in range(6):
-            sand_out[row, c] += applied[j, c]
-    return status
 
 
 def params_array(max_height: float, xi_per_g: float, mu_surf: float, guards, kind: int, stabilize: bool,

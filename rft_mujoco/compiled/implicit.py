@@ -354,6 +354,25 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
     (ng, 6) the blended twists of the capacity test, ``flowing`` (overwritten): the groups solved in flow at
     some point. ``f``, ``df``: the law's outputs; the rows of the groups never in flow (and their bodies' rows
     in ``lw``) hold the law at the probe. Returns the Newton iterations."""
+    _blend(twist, free, radius, ng, probe)
+    on = np.ones(ng, np.bool_)
+    _law(lw, probe, on, ng, st, False, f, df)
+    return solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w_out, rest, end, probe, f, df,
+                            True)
+
+
+NEED_ELEMENTS = -1
+""":func:`solve_from_probe`: a group is to be solved in flow and ``lw`` does not hold the elements yet."""
+
+
+@njit(**JIT)
+def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w_out, rest, end, probe, f, df,
+                     ready):
+    """:func:`implicit_wrenches` from its capacity test on: ``probe`` (ng, 6) holds the blended twists
+    (:func:`_blend`) and ``f`` (ng, 6) the groups' law at them. Without ``ready`` (``lw`` does not hold the
+    evaluation's elements: the probe's law came from the element pass), returns :data:`NEED_ELEMENTS` before
+    the first Newton solve, having written nothing but ``flowing`` (the caller restores it, fills ``lw`` and
+    calls again with ``ready``); a solve that keeps every group at rest never needs them."""
     n6 = 6 * ng
     sv = np.empty(n6)
     sw = np.empty(n6)
@@ -367,9 +386,6 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
         v[p] = free[p // 6, p % 6] * sv[p]
         for q in range(n6):
             a[p, q] = dt * (sv[p] * mob[p, q] * sv[q])
-    _blend(twist, free, radius, ng, probe)
-    on = np.ones(ng, np.bool_)
-    _law(lw, probe, on, ng, st, False, f, df)
     capacity = np.empty(ng)
     weight_all = np.empty(ng)
     u_probe = np.empty(n6)
@@ -420,7 +436,7 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
         mr, mf = 6 * nr, 6 * nf
         block = np.empty((mr, mr))
         weight = np.empty(mr)
-        order, gfac, wfac = pivoted_factor(block, weight, st[5], st[8])     # (typed; replaced below when mr)
+        order, gfac, wfac = pivoted_factor(np.empty((0, 0)), np.empty(0), st[5], st[8])   # (no rest: nothing kept)
         if mr:
             top = 0.0
             for i in range(mr):
@@ -434,6 +450,8 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
             order, gfac, wfac = pivoted_factor(block, weight, st[5], st[8])
         for i in range(n6):
             w[i] = 0.0
+        if mf and not ready:
+            return NEED_ELEMENTS
         if mf:
             # the resting groups' wrenches follow the flowing ones: -P (v_r + a_rf w_f), P the rest operator
             # (physics.implicit.rest_operator) applied to the vectors it meets rather than formed

@@ -1,10 +1,10 @@
 """The implicit solve's evaluation of one handle on one MjData, compiled: what
 :func:`rft_mujoco.coupling.reference.evaluate_implicit` computes (tests/test_fastimplicit.py compares them).
 
-Called from Python after :func:`rft_mujoco.compiled.evaluate.broadphase` and ``mj_fwdActuation``, as the
-explicit treatment's :func:`~rft_mujoco.compiled.evaluate.evaluate`; the native route
-(:mod:`rft_mujoco.compiled.route`) is not built for a handle with ``solve="implicit"`` (its evaluations take
-the dispatcher's Python path). Arguments: the ``md``, ``hc`` and ``ws`` tuples of
+Run after :func:`rft_mujoco.compiled.evaluate.broadphase` and ``mj_fwdActuation``, as the explicit
+treatment's :func:`~rft_mujoco.compiled.evaluate.evaluate`: from Python
+(:func:`rft_mujoco.coupling.implicit.evaluate_compiled`) or from the native route's C function
+(:func:`rft_mujoco.compiled.implicit_route.implicit_phase`). Arguments: the ``md``, ``hc`` and ``ws`` tuples of
 :mod:`rft_mujoco.compiled.evaluate`, the implicit solve's own buffers ``iw`` (:data:`IMPLICIT_FIELDS`,
 :func:`build_implicit`), this step's constraint rows ``efc`` (:data:`EFC_FIELDS`), MuJoCo's sparse mass matrix
 ``m_val`` (``data.M``), the dofs' implicit damping (:func:`rft_mujoco.coupling.reference.velocity_damping`) and
@@ -17,9 +17,11 @@ import math
 
 import numpy as np
 
-from rft_mujoco.compiled.evaluate import BAD_ACCELERATION, NOT_FINITE, _gravity, _share_and_commit
-from rft_mujoco.compiled.implicit import cholesky, constrained_system, free_motion, implicit_wrenches
-from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, loaded_candidates
+from rft_mujoco.compiled.evaluate import _gravity
+from rft_mujoco.compiled.share import BAD_ACCELERATION, NOT_FINITE, _share_and_commit
+from rft_mujoco.compiled.element_pass import wrenches
+from rft_mujoco.compiled.implicit import NEED_ELEMENTS, _blend, cholesky, constrained_system, free_motion, solve_from_probe
+from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled.rest import jacobian
 
@@ -130,29 +132,47 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     for i in range(nv):
         if not math.isfinite(f[i]):
             return BAD_ACCELERATION
-    # 4. the touching bodies' COMs from their groups' reference points; the elements that may carry stress
+    # 4. the touching bodies' COMs from their groups' reference points; the capacity test's twists (the
+    #    blend of the twists now and the free ones) and the law at them, by the element pass
     for j in range(k):
         b_ref = ids[group_ref[active[slot[j]]]]
         for c in range(3):
             arm[j, c] = body_com[j, c] - xipos[b_ref, c]
-    n_e = loaded_candidates(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com,
-                            g_hat, params[0], int(params[6]), hc[26], hc[27], hc[14], hc[15], hc[16], hc[31], hc[32],
-                            hc[17], hc[33], params[9], md[15], md[16], e_slot, e_arm, e_nrm, e_depth, e_area, occluded)
-    lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28], params[2], params[3] != 0.0,
-          params[4] != 0.0, params[5] != 0.0, hc[29], lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)
-    # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
-    #    this motion: not after a state restore)
     rad_g = total                                   # (G,) the active groups' radii
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
+    _blend(twist, free, rad_g, ng, probe)
+    all_on = np.ones(ng, np.bool_)
+    group_twists(probe, all_on, k, slot, arm, lin, ang, on)
+    wrenches(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com, lin, ang,
+             g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
+             params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
+             params[9], md[15], md[16], ws[6], ws[49], wrench, count, depth_max, occluded, st[0])
+    group_sums(ng, all_on, k, slot, arm, on, wrench, gf)
+    # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
+    #    this motion: not after a state restore); the elements that may carry stress are found (in the world
+    #    frame, for the Newton solve) only when a group is to flow
     prior = istate[0] != 0.0 and state[3] != 0.0      # the last evaluation was of this motion (time continuous)
     for g in range(ng_all):
         prior = prior and prev_active[g] == rest[g]
-    for r in range(ng):
-        flowing[r] = prev_flow[active[r]]
     resting = ws[15]                                # (G,) the solve's rest flags (the explicit solve's ``flow``)
-    its = implicit_wrenches(free, mob, lw, twist, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
-                            gdf)
+    its = NEED_ELEMENTS
+    n_e = 0
+    for ready in (False, True):
+        if ready:
+            n_e = loaded_candidates(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2],
+                                    body_com, g_hat, params[0], int(params[6]), hc[26], hc[27], hc[14], hc[15],
+                                    hc[16], hc[31], hc[32], hc[17], hc[33], params[9], md[15], md[16], e_slot, e_arm,
+                                    e_nrm, e_depth, e_area, occluded)
+        lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28], params[2],
+              params[3] != 0.0, params[4] != 0.0, params[5] != 0.0, hc[29], lin, ang, on, scr, pk, wrench, jac_b,
+              count, depth_max)
+        for r in range(ng):
+            flowing[r] = prev_flow[active[r]]
+        its = solve_from_probe(free, mob, lw, twist, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
+                               gdf, ready)
+        if its != NEED_ELEMENTS:
+            break
     for g in range(ng_all):
         prev_active[g] = False
         prev_flow[g] = False

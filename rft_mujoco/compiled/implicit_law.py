@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from rft_mujoco.compiled.elements import _inside, _outside_ball
-from rft_mujoco.compiled.jit import JIT, JIT_LAW, njit
+from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
 from rft_mujoco.compiled.law import _coef, _stress
 from rft_mujoco.compiled.terrain import _depth
 
@@ -239,27 +239,18 @@ def group_law(u, groups_on, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth
     derivative in ``u``; the bodies' own (``wrench``, ``jac``, ``count``, ``max_depth``) of :func:`body_law`.
     Rows of groups without ``groups_on`` are left as they were (``f``, ``df`` and the bodies' rows).
     ``lin``, ``ang`` (k, 3) float, ``on`` (k,) bool, ``scr``, ``pk``: work space (:func:`body_law`)."""
-    for j in range(k):
-        g = slot[j]
-        on[j] = groups_on[g]
-        wx, wy, wz = u[g, 3], u[g, 4], u[g, 5]
-        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-        lin[j, 0] = u[g, 0] + (wy * az - wz * ay)
-        lin[j, 1] = u[g, 1] + (wz * ax - wx * az)
-        lin[j, 2] = u[g, 2] + (wx * ay - wy * ax)
-        ang[j, 0] = wx
-        ang[j, 1] = wy
-        ang[j, 2] = wz
+    group_twists(u, groups_on, k, slot, arm, lin, ang, on)
     body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat, xi_n, coef, mu_surf, no_tension,
              no_forward, no_power, tol, speed_scale, fd_step, derivative, scr, pk, wrench, jac, count, max_depth)
+    group_sums(ng, groups_on, k, slot, arm, on, wrench, f)
+    if not derivative:
+        return
     for g in range(ng):
         if not groups_on[g]:
             continue
         for a in range(6):
-            f[g, a] = 0.0
-            if derivative:
-                for b in range(6):
-                    df[g, a, b] = 0.0
+            for b in range(6):
+                df[g, a, b] = 0.0
     s = np.zeros((6, 6))                          # S: (v_com, w) = S (v_ref, w)
     t = np.empty((6, 6))
     for j in range(k):
@@ -267,15 +258,6 @@ def group_law(u, groups_on, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth
             continue
         g = slot[j]
         ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-        fx, fy, fz = wrench[j, 0], wrench[j, 1], wrench[j, 2]
-        f[g, 0] += fx                             # S^T w = (f, tau + arm x f)
-        f[g, 1] += fy
-        f[g, 2] += fz
-        f[g, 3] += wrench[j, 3] + (ay * fz - az * fy)
-        f[g, 4] += wrench[j, 4] + (az * fx - ax * fz)
-        f[g, 5] += wrench[j, 5] + (ax * fy - ay * fx)
-        if not derivative:
-            continue
         for a in range(6):
             s[a, a] = 1.0
         s[0, 4], s[0, 5], s[1, 5] = az, -ay, ax
@@ -292,3 +274,43 @@ def group_law(u, groups_on, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth
                 for m in range(6):
                     x += s[m, a] * t[m, b]
                 df[g, a, b] += x
+
+
+@njit(**INLINE)
+def group_twists(u, groups_on, k, slot, arm, lin, ang, on):
+    """Each body's twist at its COM from its group's ``u`` (ng, 6) at the reference point: ``lin``, ``ang``
+    (k, 3) m/s, rad/s; ``on`` (k,): whether its group is on (:func:`group_law`)."""
+    for j in range(k):
+        g = slot[j]
+        on[j] = groups_on[g]
+        wx, wy, wz = u[g, 3], u[g, 4], u[g, 5]
+        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
+        lin[j, 0] = u[g, 0] + (wy * az - wz * ay)
+        lin[j, 1] = u[g, 1] + (wz * ax - wx * az)
+        lin[j, 2] = u[g, 2] + (wx * ay - wy * ax)
+        ang[j, 0] = wx
+        ang[j, 1] = wy
+        ang[j, 2] = wz
+
+
+@njit(**INLINE)
+def group_sums(ng, groups_on, k, slot, arm, on, wrench, f):
+    """``f`` (ng, 6): the groups' wrenches about their reference points (N, N m) from their bodies' rows of
+    ``wrench`` (about each COM, at ``arm`` from the reference point), for the groups with ``groups_on``."""
+    for g in range(ng):
+        if not groups_on[g]:
+            continue
+        for a in range(6):
+            f[g, a] = 0.0
+    for j in range(k):
+        if not on[j]:
+            continue
+        g = slot[j]
+        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
+        fx, fy, fz = wrench[j, 0], wrench[j, 1], wrench[j, 2]
+        f[g, 0] += fx                             # S^T w = (f, tau + arm x f)
+        f[g, 1] += fy
+        f[g, 2] += fz
+        f[g, 3] += wrench[j, 3] + (ay * fz - az * fy)
+        f[g, 4] += wrench[j, 4] + (az * fx - ax * fz)
+        f[g, 5] += wrench[j, 5] + (ax * fy - ay * fx)

@@ -42,13 +42,15 @@ BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"
 (nonzero, sand_dirty, rk4 stage (1-4; 0: another integrator), rk4 stage time, TIME_RTOL, what the native
 callback left to Python); ``snapshot``: the model's timestep, gravity and ``geom_size`` the dispatcher last
 checked (:func:`model_changed`), ``gravity`` and ``geom_size`` live views of the model's."""
-_HEADER = 5
+_HEADER = 7
 """Table header: number of handles, base of the book, base of md, base of the constraint rows, the address of
-:func:`rest_phase`'s C function; then one base per handle."""
+:func:`rest_phase`'s C function, that of the implicit solve's (:func:`rft_mujoco.compiled.implicit_route.
+implicit_phase`; 0 when no handle has ``solve="implicit"``), the table's length; then one base per handle,
+then one base per handle of its implicit part (0: an explicit handle)."""
 EFC_POINTERS = ("efc_type", "efc_id", "efc_D", "efc_aref", "efc_frictionloss", "qacc")
 """The ``mjData`` pointers of the ``fr`` tuple (:data:`rft_mujoco.compiled.evaluate.FRICTION_FIELDS`)."""
-_EFC = 2 + len(EFC_POINTERS)
-"""Table entries of the constraint rows: the ``mjData*``, the offset of ``nefc``, those of the pointers."""
+JAC_POINTERS = ("efc_J", "efc_J_rowadr", "efc_J_rownnz", "efc_J_colind")
+"""The ``mjData`` pointers of the constraint Jacobian (the implicit solve's, after those of ``fr``)."""
 
 
 @njit(**JIT)
@@ -110,8 +112,9 @@ if AVAILABLE:
 
     @intrinsic
     def _call_rest(typingctx, fn, table, base, dt):
-        """Call :func:`rest_phase`'s C function at address ``fn``: through the address, so that phase 2's
-        machine code does not contain (and compile) it: it compiles beside, in a second process when cold."""
+        """Call :func:`rest_phase`'s C function (or the implicit solve's, of the same signature) at address
+        ``fn``: through the address, so that phase 2's machine code does not contain (and compile) it: it
+        compiles beside, in a second process when cold."""
         def codegen(context, builder, signature, args):
             i64, f64 = ir.IntType(64), ir.DoubleType()
             fnty = ir.FunctionType(i64, [i64.as_pointer(), i64, f64])
@@ -246,9 +249,7 @@ def all_first(t):
 @njit(**INLINE)
 def _table(ptr):
     """The table at ``ptr`` (its length from its header)."""
-    n = carray(ptr, (_HEADER,))[0]
-    return carray(ptr, (_HEADER + n + (len(BOOK_FIELDS) + len(ev.MJDATA_FIELDS)) * SLOT + _EFC
-                        + n * (len(ev.HANDLE_FIELDS) + len(ev.WORK_FIELDS)) * SLOT,))
+    return carray(ptr, (carray(ptr, (_HEADER,))[6],))
 
 
 def phase1(ptr, time, dt):
@@ -302,7 +303,9 @@ def phase2(ptr, time, dt):
         ws = _ws(t, base + _HC_SLOTS)
         if ws[45][2] <= 0.0:
             continue
-        if _f1(t, base + _PARAMS)[_STABILIZE] != 0.0:
+        if t[_HEADER + n + h] != 0:
+            status = _call_rest(t[5], ptr, h, dt)             # implicit_route.implicit_phase
+        elif _f1(t, base + _PARAMS)[_STABILIZE] != 0.0:
             status = _call_rest(t[4], ptr, base, dt)
         else:
             status = ev.evaluate_naive(md, _hc(t, base), ws, sand)
@@ -369,14 +372,15 @@ def entries():
     return tuple(_entries[3:])
 
 
-_DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_}
+_DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_, "j": np.int32}
 
 
 _layout = None
+_POINTERS = EFC_POINTERS + JAC_POINTERS
 
 
 def efc_layout() -> dict:
-    """Offsets in ``mjData`` of ``nefc`` and of the pointers :data:`EFC_POINTERS`, found on private models
+    """Offsets in ``mjData`` of ``nefc`` and of the pointers :data:`EFC_POINTERS` and :data:`JAC_POINTERS`, found on private models
     and verified by reading their rows back (mujoco 4.0's layout: ``nefc`` among the sizes just before
     ``time``, the pointers after ``qpos``'s). Raises RuntimeError where they cannot be located: the route
     is then not built, and the Python path computes the same forces."""
@@ -419,8 +423,8 @@ def _find_layout():
             o += 8
             if o > 1 << 22:
                 return "cannot locate mjData.qpos"
-        want = {getattr(d, name).ctypes.data: name for name in EFC_POINTERS}
-        if len(want) != len(EFC_POINTERS):
+        want = {getattr(d, name).ctypes.data: name for name in _POINTERS}
+        if len(want) != len(_POINTERS):
             return "the layout model's constraint arrays share addresses"
         ptrs = {}
         while len(ptrs) < len(want) and o < (1 << 22):
@@ -432,13 +436,13 @@ def _find_layout():
         found = mine if found is None else (found[0] & mine[0], found[1] if found[1] == mine[1] else None)
         if found[1] is None:
             return "mjData's constraint pointers are not where this module looks for them"
-    if len(found[0]) != 1 or len(found[1]) != len(EFC_POINTERS):
+    if len(found[0]) != 1 or len(found[1]) != len(_POINTERS):
         return "cannot locate mjData.nefc"
     layout = dict(found[1], nefc=next(iter(found[0])))
     model, data = _layout_data(3)                      # read back through the offsets
     base = data._address
     ok = i32(base + layout["nefc"]) == data.nefc
-    for name in EFC_POINTERS:
+    for name in _POINTERS:
         ok = ok and i64(base + layout[name]) == getattr(data, name).ctypes.data
     return layout if ok else "mjData's constraint offsets do not read back"
 
@@ -448,14 +452,16 @@ class Route:
 
     Args:
         book: (name -> array) of :data:`BOOK_FIELDS`.
-        md: the ``md`` tuple; handles: [(hc tuple, ws tuple)] in the dispatcher's order.
+        md: the ``md`` tuple; handles: [(hc tuple, ws tuple, implicit part)] in the dispatcher's order, the
+            implicit part None or [(name, kind, array)] (:func:`rft_mujoco.compiled.implicit_route.table_part`).
         data: the MjData (its constraint rows are read through its pointers, :func:`efc_layout`).
+        implicit_address: the implicit solve's C function (needed when a handle has an implicit part).
     Raises:
         TypeError: an array is not C-contiguous or not of its schema's dtype and rank (say which).
         RuntimeError: the constraint rows cannot be located in this MuJoCo build (:func:`efc_layout`).
     """
 
-    def __init__(self, book: dict, md: tuple, handles: list, data) -> None:
+    def __init__(self, book: dict, md: tuple, handles: list, data, implicit_address: int = 0) -> None:
         layout = efc_layout()
         entries_ = []
         self._keep = []
@@ -473,23 +479,29 @@ class Route:
             entries_.extend([a.ctypes.data, *shape])
 
         n = len(handles)
-        book_base = _HEADER + n
+        book_base = _HEADER + 2 * n
         for name, kind in BOOK_FIELDS:
             add(book[name], name, kind)
         md_base = book_base + len(BOOK_FIELDS) * SLOT
         for (name, kind), a in zip(ev.MJDATA_FIELDS, md):
             add(a, name, kind)
         efc_base = book_base + len(entries_)
-        entries_.extend([data._address, layout["nefc"], *(layout[name] for name in EFC_POINTERS)])
-        bases = []
-        for hc, ws in handles:
+        entries_.extend([data._address, layout["nefc"], *(layout[name] for name in _POINTERS)])
+        bases, implicit_bases = [], []
+        for hc, ws, implicit in handles:
             bases.append(book_base + len(entries_))
             for (name, kind), a in zip(ev.HANDLE_FIELDS, hc):
                 add(a, name, kind)
             for (name, kind), a in zip(ev.WORK_FIELDS, ws):
                 add(a, name, kind)
+            implicit_bases.append(0 if implicit is None else book_base + len(entries_))
+            for name, kind, a in implicit or ():
+                add(a, name, kind)
+        if any(implicit_bases) and not implicit_address:
+            raise ValueError("a handle with an implicit part needs the implicit solve's C function")
         rest = cfuncs()[2].address
-        self.table = np.array([n, book_base, md_base, efc_base, rest, *bases, *entries_], dtype=np.int64)
+        head = [n, book_base, md_base, efc_base, rest, implicit_address, book_base + len(entries_)]
+        self.table = np.array([*head, *bases, *implicit_bases, *entries_], dtype=np.int64)
         self.address = self.table.ctypes.data
         self.phase1, self.phase2 = entries()
 

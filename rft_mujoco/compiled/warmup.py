@@ -12,6 +12,9 @@ Compiled at their first use instead: the Python path's phases (:func:`rft_mujoco
 evaluation on, and the Python path only with observers, after an error or where the route cannot be
 built) and :func:`rft_mujoco.compiled.law.element_forces`. The progress line reports those compiles too.
 
+The implicit solve's native evaluation (:mod:`rft_mujoco.compiled.implicit_route`) compiles at the first route with
+a ``solve="implicit"`` handle (``compile --implicit`` ahead of time).
+
 ``python -m rft_mujoco compile`` runs this ahead of time: into the user's cache, or with ``--ship`` into
 the package's :data:`~rft_mujoco.compiled.jit.SHIPPED_ROOT` so that a wheel built afterwards carries the
 machine code (:func:`rft_mujoco.compiled.jit.seed_from_shipped`).
@@ -121,6 +124,8 @@ def main(argv: list[str] | None = None, command: str = "compile") -> int:
                     "CPU match, and compiles otherwise.")
     parser.add_argument("--ship", action="store_true", help="compile into a new empty cache and copy it into "
                         "the package (replacing machine code shipped for other sources or versions)")
+    parser.add_argument("--implicit", action="store_true", help="also the implicit solve's native evaluation "
+                        "(attach(..., solve='implicit'); otherwise compiled at its first use; always with --ship)")
     parser.add_argument("--part", choices=("rest",), help=argparse.SUPPRESS)   # the second process
     args = parser.parse_args(argv)
     if args.part == "rest":
@@ -133,8 +138,12 @@ def main(argv: list[str] | None = None, command: str = "compile") -> int:
         return _ship()
     from rft_mujoco import compiled
 
-    seconds = compiled.ensure_compiled()
-    print(f"rft_mujoco: kernels ready in {jit.cache_dir()} ({seconds:.0f} s)")
+    start = time.perf_counter()
+    compiled.ensure_compiled()
+    if args.implicit:
+        from rft_mujoco.compiled import implicit_route
+        implicit_route.cfunc_address()
+    print(f"rft_mujoco: kernels ready in {jit.cache_dir()} ({time.perf_counter() - start:.0f} s)")
     return 0
 
 
@@ -146,7 +155,7 @@ def _ship() -> int:
     with tempfile.TemporaryDirectory(prefix="rft_mujoco_ship_") as tmp:
         env = dict(os.environ, **{jit.CACHE_ENV: tmp, jit.NO_SHIPPED_ENV: "1"})
         start = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "rft_mujoco.compiled.warmup"], env=env, check=True)
+        subprocess.run([sys.executable, "-m", "rft_mujoco.compiled.warmup", "--implicit"], env=env, check=True)
         built = os.path.join(tmp, key)
         if not jit.has_index(built):
             print(f"no machine code was written into {built}", file=sys.stderr)

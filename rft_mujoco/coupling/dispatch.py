@@ -12,13 +12,11 @@ one dispatcher installed with ``mujoco.set_mjcb_control``. It
   Python callback is installed): the compile entry points are wrapped to suspend the callback, until the
   last handle detaches;
 * keeps the sand's state with the simulation it belongs to while installed (docs/architecture.md, "State
-  and copies"): copies of an MjData for the same model (``copy.copy``, ``mj_copyData``) get its book and
-  the handles' workspaces; deep copies and pickles of an MjData, and copies, pickles and ``mj_saveModel``
-  of an MjModel, are made of the plain state (no sand in ``xfrc_applied``, the floors ``replace_rigid``
-  switched off colliding again); ``mj_resetData*`` makes a data new for the sand;
-  ``set_mjcb_control`` / ``set_mjcb_passive`` set the user callback it chains; ``model.opt.disableflags``
-  that would leave no callback for the sand are refused; and every evaluation compares the model's
-  timestep, gravity and geom sizes with what the handles last checked (:meth:`SandHandle._check_model`);
+  and copies"): copies of an MjData for the same model get its book and the handles' workspaces; deep
+  copies and pickles of an MjData, copies, pickles and ``mj_saveModel`` of an MjModel are of the plain state;
+  ``mj_resetData*`` makes a data new; ``set_mjcb_control`` / ``set_mjcb_passive`` set the callback it chains;
+  disableflags that would leave no callback are refused; the model's timestep, gravity and geom sizes are
+  compared at every evaluation with what the handles last checked (:meth:`SandHandle._check_model`);
 * never keeps a model alive: a model's finalizer unregisters its handles (docs/architecture.md, "Lifetime").
 
 Where it can (:func:`rft_mujoco.compiled.native.support`), the dispatcher installs native callbacks
@@ -43,6 +41,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco import compiled
+from rft_mujoco.compiled import implicit_route as _IMPLICIT
 from rft_mujoco.compiled import route as _ROUTE
 from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_components  # noqa: F401  (their home before)
 
@@ -439,8 +438,8 @@ class Dispatcher:
                 return                       # xfrc_applied still holds the first stage's user + sand wrench
         if book.native is not None and book.native[0] != self._generation:
             book.native = None
-        routable = book.native is None and all(h._fast is not None and not h._observers and h.solve == "explicit"
-                                               for h in handles) and compiled.ready() and _route_layout()
+        routable = book.native is None and all(h._fast is not None and not h._observers for h in handles) \
+            and compiled.ready() and _route_layout()
         if routable and (book.rows is rows or book.rows.size == 0):
             # no rows of detached handles to clear: the native route from this evaluation on, the first of a
             # model included (the Python path's kernels then compile only where it runs)
@@ -503,15 +502,19 @@ class Dispatcher:
                 h._check_validity(data, work, work.arrays["touch"][:k], int(work.state[4]))
 
     def _build_route(self, data, book, handles, rows):
-        """The native route of (model, data) (:class:`rft_mujoco.compiled.route.Route`)."""
+        """The native route of (model, data) (:class:`rft_mujoco.compiled.route.Route`; a handle with
+        ``solve="implicit"`` adds its part: :func:`rft_mujoco.compiled.implicit_route.table_part`)."""
+        parts = []
         for h in handles:
             h._refresh()
+            work = h._workspace(data)
+            implicit = _IMPLICIT.table_part(h, work, data) if h.stabilize and h.solve == "implicit" else None
+            parts.append((h._hc, work.tuple, implicit))
+        m = handles[0].model
         route = _ROUTE.Route(dict(xfrc=data.xfrc_applied, written=book.written, added=book.added, rows=rows,
                                   user=book.user, sand=book.sand, state=book.state, snapshot=book.snapshot,
-                                  gravity=handles[0].model.opt.gravity,
-                                  geom_size=handles[0].model.geom_size),
-                             handles[0]._workspace(data).md,
-                             [(h._hc, h._workspace(data).tuple) for h in handles], data)
+                                  gravity=m.opt.gravity, geom_size=m.geom_size), work.md, parts, data,
+                             _IMPLICIT.cfunc_address() if any(p[2] is not None for p in parts) else 0)
         route.handles = handles
         return route
 
@@ -560,8 +563,7 @@ class Dispatcher:
         book = self._books.get(data)
         if book is None:
             return
-        user = self.user_xfrc(model, data)
-        data.xfrc_applied[rows] = user[rows]
+        data.xfrc_applied[rows] = self.user_xfrc(model, data)[rows]
         book.added[rows] = 0.0
         book.rows = np.setdiff1d(book.rows, rows)
 
@@ -570,13 +572,11 @@ class Dispatcher:
         return [d for d, b in list(self._books.items()) if b.model() is model]
 
 
-_log = logging.getLogger("rft_mujoco")
-_noticed = []
+_log, _noticed = logging.getLogger("rft_mujoco"), []
 
 
 def _route_layout() -> bool:
-    """Whether the native route can read MuJoCo's constraint rows here (else the Python path runs, saying
-    why once)."""
+    """Whether the native route can read MuJoCo's constraint rows here (else the Python path runs; said once)."""
     try:
         _ROUTE.efc_layout()
     except RuntimeError as exc:

@@ -1,11 +1,11 @@
 """The implicit solve (``attach(solve="implicit")``) on the compiled backend: the Python side of one
 evaluation, between the broadphase and the kernels of :mod:`rft_mujoco.compiled.implicit_eval`.
 
-The native route is not built for a handle with ``solve="implicit"``: its model's evaluations take the
-dispatcher's Python callback (:meth:`rft_mujoco.coupling.dispatch.Dispatcher._dispatch`), which runs the
-compiled phases: :func:`rft_mujoco.compiled.evaluate.broadphase`, ``mj_fwdActuation``, then
-:func:`evaluate_compiled`. The numpy reference of the same evaluation is
-:func:`rft_mujoco.coupling.reference.evaluate_implicit`.
+The dispatcher's Python path (:meth:`rft_mujoco.coupling.dispatch.Dispatcher._evaluate`: a handle with an
+observer, or where the native route cannot be built) runs the compiled phases:
+:func:`rft_mujoco.compiled.evaluate.broadphase`, ``mj_fwdActuation``, then :func:`evaluate_compiled`; the
+native route runs the same kernels from C (:mod:`rft_mujoco.compiled.implicit_route`, bit for bit the same).
+The numpy reference of the same evaluation is :func:`rft_mujoco.coupling.reference.evaluate_implicit`.
 """
 
 from __future__ import annotations

@@ -271,13 +271,14 @@ def above_sand(counts=(1, 1000)) -> dict:
 
 
 IMPLICIT_SETTINGS = {"explicit": {}, "explicit, Python path": {"observe": True}, "implicit": {"solve": "implicit"},
+                     "implicit, Python path": {"solve": "implicit", "observe": True},
                      "implicit, numpy": {"solve": "implicit", "backend": "numpy"}}
-"""Named settings of :func:`implicit_cost`: the default explicit solve (native route), the same forced onto the
-dispatcher's Python callback path (a no-op observer), the implicit solve compiled (Python callback path: the
-native route is built for the explicit solve only) and on the numpy reference."""
+"""Named settings of :func:`implicit_cost`: the default explicit solve and the implicit solve on the native
+route, each also forced onto the dispatcher's Python callback path (a no-op observer), and the implicit solve
+on the numpy reference."""
 
 
-def implicit_cost(names=("explicit", "explicit, Python path", "implicit"), reps: int = 7,
+def implicit_cost(names=("explicit", "explicit, Python path", "implicit", "implicit, Python path"), reps: int = 7,
                   swimmer: tuple = ("implicit",), swimmer_cycles: int = 2) -> dict:
     """The implicit solve's cost, side by side in one process (docs/rest.md, "The implicit solve").
 

@@ -1,0 +1,173 @@
+"""The implicit solve on the native route: one C function per evaluation of a ``solve="implicit"`` handle.
+
+The route (:mod:`rft_mujoco.compiled.route`) runs every handle of a (model, MjData) in two native phases;
+phase 2 calls :func:`implicit_phase` through its address (the table's header, ``t[5]``) for each touching
+handle with ``solve="implicit"``, as it calls ``route.rest_phase`` for the explicit solve. It runs what the
+dispatcher's Python path runs (:func:`rft_mujoco.coupling.implicit.evaluate_compiled`): the dofs' implicit
+damping from the model now (:func:`rft_mujoco.compiled.implicit.velocity_damping`), then
+:func:`rft_mujoco.compiled.implicit_eval.evaluate_implicit` on the same arrays, so both give the same
+numbers bit for bit (tests/test_native.py).
+
+The handle's part of the table (:func:`table_part`, at ``t[_HEADER + n + h]``; 0 for an explicit handle):
+the ``iw`` buffers (:data:`rft_mujoco.compiled.implicit_eval.IMPLICIT_FIELDS`), then :data:`EXTRA_FIELDS`:
+the damping's buffer, the solve's settings, ``data.M`` (MuJoCo's sparse mass matrix: in MjData's buffer, it
+never moves), ``flags`` ([linearized]), the model arrays the damping is computed from (live views, so that
+edits are followed) and int32 views of ``model.opt.integrator`` and ``model.opt.jacobian`` (read at every
+evaluation: an edit of either after attach is followed, as on the Python path, which calls
+``mj_isSparse``). The constraint Jacobian's rows are read through the ``mjData`` pointers located by
+:func:`rft_mujoco.compiled.route.efc_layout`, as the friction rows of the explicit solve are.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import threading
+
+import mujoco
+import numpy as np
+
+from rft_mujoco.compiled import implicit_eval as ie
+from rft_mujoco.compiled import route as rt
+from rft_mujoco.compiled.implicit import velocity_damping
+from rft_mujoco.compiled.jit import INLINE, carray, cfunc, njit
+
+EXTRA_FIELDS = (("damping", "f1"), ("settings", "f1"), ("m_val", "f1"), ("flags", "f1"), ("dof_damping", "f1"),
+                ("jnt_dofadr", "i1"), ("trntype", "j1"), ("trnid", "j2"), ("biastype", "j1"), ("biasprm", "f2"),
+                ("gear", "f2"), ("integrator", "j1"), ("jacobian", "j1"))
+"""(name, kind) of the table entries after the ``iw`` buffers (kind ``j``: int32)."""
+FIELDS = ie.IMPLICIT_FIELDS + EXTRA_FIELDS
+"""The handle's implicit part of the table, in order."""
+_IMPLICIT = (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
+_JAC_SPARSE, _JAC_AUTO = int(mujoco.mjtJacobian.mjJAC_SPARSE), int(mujoco.mjtJacobian.mjJAC_AUTO)
+_SPARSE_NV = 60
+"""``mj_isSparse``: ``mjJAC_AUTO`` means sparse from this many dofs on (MuJoCo 4.0; tests/test_native.py
+checks the native choice against ``mj_isSparse``)."""
+
+
+@njit(**INLINE)
+def _j1(t, s):
+    return carray(rt._as_i4(t[s]), (t[s + 1],))
+
+
+@njit(**INLINE)
+def _j2(t, s):
+    return carray(rt._as_i4(t[s]), (t[s + 1], t[s + 2]))
+
+
+@njit(**INLINE)
+def _iw(t, base):
+    """The ``iw`` tuple from the table entries at ``base`` (:data:`rft_mujoco.compiled.implicit_eval.IMPLICIT_FIELDS`)."""
+    f1, f2, f3, i1, b1 = rt._f1, rt._f2, _f3, rt._i1, rt._b1
+    return (
+        i1(t, base + 0), f2(t, base + 4), f2(t, base + 8), f1(t, base + 12), f1(t, base + 16), f3(t, base + 20),
+        f2(t, base + 24), f2(t, base + 28), b1(t, base + 32), f2(t, base + 36), f2(t, base + 40), f1(t, base + 44),
+        f2(t, base + 48), f2(t, base + 52), f2(t, base + 56), f2(t, base + 60), f3(t, base + 64), b1(t, base + 68),
+        b1(t, base + 72), b1(t, base + 76), f1(t, base + 80), f2(t, base + 84), i1(t, base + 88),
+    )
+
+
+@njit(**INLINE)
+def _f3(t, s):
+    return carray(rt._as_f8(t[s]), (t[s + 1], t[s + 2], t[s + 3]))
+
+
+@njit(**INLINE)
+def _jac_rows(t, base, nv):
+    """MjData's constraint Jacobian now: (efc_J, efc_J_rowadr, efc_J_rownnz, efc_J_colind), from the pointers
+    at ``t[base + 2 + len(EFC_POINTERS):]`` (:func:`rft_mujoco.compiled.route.efc_layout`). ``efc_J`` spans
+    nefc x nv numbers: all of a dense Jacobian, at least what the rows of a sparse one address."""
+    d = t[base]
+    nefc = carray(rt._as_i4(d + t[base + 1]), (1,))[0]
+    o = base + 2 + len(rt.EFC_POINTERS)
+    p = carray(rt._as_i8(d + t[o]), (1,))[0]
+    jac = carray(rt._as_f8(p), (nefc * nv,))
+    p = carray(rt._as_i8(d + t[o + 1]), (1,))[0]
+    rowadr = carray(rt._as_i4(p), (nefc,))
+    p = carray(rt._as_i8(d + t[o + 2]), (1,))[0]
+    rownnz = carray(rt._as_i4(p), (nefc,))
+    p = carray(rt._as_i8(d + t[o + 3]), (1,))[0]
+    colind = carray(rt._as_i4(p), (nefc * nv,))
+    return jac, rowadr, rownnz, colind
+
+
+def implicit_phase(ptr, h, dt):
+    """The evaluation of handle ``h`` of the table at ``ptr`` with the implicit solve, after the
+    broadphase and ``mj_fwdActuation``: its wrenches added into the book's ``sand``; the evaluation's status.
+    A C function (:func:`cfunc_address`), called by ``route.phase2`` through the table's ``t[5]``."""
+    t = rt._table(ptr)
+    n = t[0]
+    base = t[rt._HEADER + h]
+    ib = t[rt._HEADER + n + h]
+    _, _, _, _, user, sand, _, _, _, _ = rt._book(t, t[1])
+    md = rt._md(t, t[2])
+    nv = md[6].shape[0]
+    fr = rt._fr(t, t[3], nv)
+    jac, rowadr, rownnz, colind = _jac_rows(t, t[3], nv)
+    efc = (jac, rowadr, rownnz, colind, fr[0], fr[1], fr[2], fr[3], fr[4], fr[5])
+    s = ib + len(ie.IMPLICIT_FIELDS) * rt.SLOT
+    damping, st, m_val, flags = rt._f1(t, s), rt._f1(t, s + 4), rt._f1(t, s + 8), rt._f1(t, s + 12)
+    integrator, jacobian = _j1(t, s + 44)[0], _j1(t, s + 48)[0]
+    velocity_damping(integrator == _IMPLICIT[0] or integrator == _IMPLICIT[1], rt._f1(t, s + 16), rt._i1(t, s + 20),
+                     _j1(t, s + 24), _j2(t, s + 28), _j1(t, s + 32), rt._f2(t, s + 36), rt._f2(t, s + 40), damping)
+    sparse = jacobian == _JAC_SPARSE or (jacobian == _JAC_AUTO and nv >= _SPARSE_NV)
+    return ie.evaluate_implicit(md, rt._hc(t, base), rt._ws(t, base + rt._HC_SLOTS), _iw(t, ib), user, dt, sand,
+                                efc, sparse, m_val, damping, st, flags[0] != 0.0)
+
+
+_cfunc = []
+_lock = threading.Lock()
+
+
+def cfunc_address() -> int:
+    """The address of :func:`implicit_phase` as a C function (route's rest signature), compiled or loaded from
+    the cache at the first route with an implicit handle (so that models without one never compile it)."""
+    with _lock:
+        if not _cfunc:
+            _cfunc.append(cfunc(rt._REST_SIG, cache=True)(implicit_phase))
+        return _cfunc[0].address
+
+
+def _int_view(model, value_of, name: str) -> np.ndarray:
+    """An int32 (1,) view of the ``model.opt`` field ``name`` (located by writing marker values on it)."""
+    offset = option_offset(name)
+    view = np.ctypeslib.as_array((ctypes.c_int32 * 1).from_address(model._address + offset))
+    if int(view[0]) != int(value_of(model.opt)):
+        raise RuntimeError(f"model.opt.{name} does not read back at its offset")
+    return view
+
+
+_offsets: dict = {}
+
+
+def option_offset(name: str) -> int:
+    """Offset in ``mjModel`` of the int ``opt.integrator`` or ``opt.jacobian`` (mujoco 4.0: among the ints
+    after ``opt.o_friction``), found on a private model by writing marker values and verified."""
+    if name not in _offsets:
+        model = mujoco.MjModel.from_xml_string("<mujoco/>")
+        base = model._address
+        start = model.opt.o_friction.ctypes.data - base + 8 * model.opt.o_friction.size
+        markers = {"integrator": (3, 1, 2, 0), "jacobian": (2, 1, 0, 2)}[name]
+        hits = None
+        for value in markers:
+            setattr(model.opt, name, value)
+            found = {o for o in range(start, start + 256, 4) if ctypes.c_int32.from_address(base + o).value == value}
+            hits = found if hits is None else hits & found
+        if not hits or len(hits) != 1:
+            raise RuntimeError(f"cannot locate mjModel.opt.{name}")
+        _offsets[name] = hits.pop()
+    return _offsets[name]
+
+
+def table_part(handle, work, data) -> list:
+    """[(name, kind, array)] of :data:`FIELDS` for ``handle`` on ``data`` (its :class:`~rft_mujoco.coupling.
+    implicit.ImplicitWork` created if the Python path has not yet)."""
+    from rft_mujoco.coupling.implicit import ImplicitWork
+    if work.implicit is None:
+        work.implicit = ImplicitWork(handle)
+    iw = work.implicit
+    m = handle.model
+    flags = np.array([1.0 if handle._constraints == "linearized" else 0.0])
+    extra = (iw.damping, iw.settings, data.M, flags, *iw.model_arrays,
+             _int_view(m, lambda o: o.integrator, "integrator"), _int_view(m, lambda o: o.jacobian, "jacobian"))
+    return [(name, kind, a) for (name, kind), a in zip(FIELDS, (*iw.tuple, *extra))]
+

@@ -1,0 +1,118 @@
+"""The last step of an evaluation, shared by the explicit (:mod:`rft_mujoco.compiled.evaluate`) and the
+implicit (:mod:`rft_mujoco.compiled.implicit_eval`) solves: each touching body's part of its group's sand
+wrench, the diagnostics and the wrenches added into the caller's sum; and the evaluations' status codes.
+Nothing here calls MuJoCo.
+"""
+
+from __future__ import annotations
+
+import math
+
+from rft_mujoco.compiled.jit import INLINE, JIT, njit
+
+# Status codes (besides 0: no wrench, 1: a non-zero wrench).
+NOT_FINITE = -1
+"""A wrench came out non-finite; nothing was written."""
+BAD_ACCELERATION = -2
+"""The acceleration without sand is not finite (NaN/inf inputs); nothing was written."""
+NOT_FINITE_STATE = -3
+"""qpos/qvel are not finite while a body is a candidate (the simulation diverged)."""
+
+
+@njit(**JIT)
+def _norm6(x, r):
+    """|(x[:3], x[3:] / r)|."""
+    return math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
+                     + (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]) / (r * r))
+
+
+@njit(**JIT)
+def _clear(force, torque, submerged, max_depth, scale, rft_force, resting, occluded_area):
+    """Diagnostics of an evaluation without sand: zero wrenches, counts and depths, scale 1, none resting."""
+    force[:] = 0.0
+    torque[:] = 0.0
+    submerged[:] = 0
+    max_depth[:] = 0.0
+    scale[:] = 1.0
+    rft_force[:] = 0.0
+    resting[:] = False
+    occluded_area[:] = 0.0
+
+
+@njit(**INLINE)
+def _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap, applied, ws, touch, bound_radius,
+                      count, depth_max, occluded, ids, sand_out):
+    """Each touching body's part of its group's sand wrench (``applied``: a flowing group's law wrench scaled
+    per body, a resting group's wrench shared by size), the diagnostics into ``ws`` and the wrenches added to
+    ``sand_out``; returns the evaluation's status. Shared by the explicit and the implicit evaluations."""
+    # 7. each body's part (coupling._share)
+    for j in range(k):
+        size[j] = _norm6(wrench[j], rad_g[slot[j]])
+    for r in range(ng):
+        cap[r, 0] = 0.0                             # reuses ``cap`` column 0 as the groups' total size
+    for j in range(k):
+        cap[slot[j], 0] += size[j]
+    for j in range(k):
+        r = slot[j]
+        for c in range(6):
+            applied[j, c] = 0.0
+        if cap[r, 0] <= 0.0:
+            continue
+        if not rest[r]:
+            gn = _norm6(rft_g[r], rad_g[r])
+            f = _norm6(w[r], rad_g[r]) / gn if gn > 0.0 else 0.0
+            for c in range(6):
+                applied[j, c] = wrench[j, c] * f
+        else:
+            share = size[j] / cap[r, 0]
+            for c in range(3):
+                applied[j, c] = share * w[r, c]
+    for r in range(ng):
+        if not rest[r] or cap[r, 0] <= 0.0:
+            continue
+        mx, my, mz = w[r, 3], w[r, 4], w[r, 5]
+        for j in range(k):
+            if slot[j] == r:
+                ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
+                fx, fy, fz = applied[j, 0], applied[j, 1], applied[j, 2]
+                mx -= ay * fz - az * fy
+                my -= az * fx - ax * fz
+                mz -= ax * fy - ay * fx
+        for j in range(k):
+            if slot[j] == r:
+                share = size[j] / cap[r, 0]
+                applied[j, 3] = share * mx
+                applied[j, 4] = share * my
+                applied[j, 5] = share * mz
+    # 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
+    force, torque, submerged, max_depth = ws[37], ws[38], ws[39], ws[40]
+    scale, rft_force, resting, occluded_area = ws[41], ws[42], ws[43], ws[44]
+    _clear(force, torque, submerged, max_depth, scale, rft_force, resting, occluded_area)
+    status = 0
+    for j in range(k):
+        i = touch[j]
+        rb = bound_radius[i]
+        rn = _norm6(wrench[j], rb)
+        for c in range(3):
+            force[i, c] = applied[j, c]
+            torque[i, c] = applied[j, 3 + c]
+            rft_force[i, c] = wrench[j, c]
+        submerged[i] = count[j]
+        max_depth[i] = depth_max[j]
+        occluded_area[i] = occluded[j]
+        if rn > 0.0:
+            scale[i] = _norm6(applied[j], rb) / rn
+            resting[i] = rest[slot[j]]
+        for c in range(6):
+            x = applied[j, c]
+            if not math.isfinite(x):
+                status = NOT_FINITE
+            elif x != 0.0 and status == 0:
+                status = 1
+    if status == NOT_FINITE:
+        return NOT_FINITE
+    for j in range(k):
+        row = ids[touch[j]]
+        for c in range(6):
+            sand_out[row, c] += applied[j, c]
+    return status
