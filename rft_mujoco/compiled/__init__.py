@@ -8,10 +8,11 @@ Modules, each importing only those before it (no cycles):
 * :mod:`~rft_mujoco.compiled.elements`: packed elements, the broadphase, the element pass, run-time culling;
 * :mod:`~rft_mujoco.compiled.rest`: MuJoCo's mass-matrix factor, body Jacobians, the rest solve;
 * :mod:`~rft_mujoco.compiled.evaluate`: one handle's evaluation on one MjData (two phases);
+* :mod:`~rft_mujoco.compiled.share`: the last step of an evaluation (each body's part, the diagnostics);
 * :mod:`~rft_mujoco.compiled.implicit_law`, :mod:`~rft_mujoco.compiled.implicit`,
-  :mod:`~rft_mujoco.compiled.implicit_eval`: the implicit solve (``attach(solve="implicit")``): the
-  regularized law and its derivative, the Newton / rest solve with this step's constraints linearized, and
-  its evaluation (called from Python: the native route is built for the explicit solve only);
+  :mod:`~rft_mujoco.compiled.implicit_eval`, :mod:`~rft_mujoco.compiled.implicit_route`: the implicit solve
+  (``attach(solve="implicit")``): the regularized law and its derivative, the Newton / rest solve with this
+  step's constraints linearized, its evaluation, and its C function on the native route;
 * :mod:`~rft_mujoco.compiled.route`: every handle of a model as one native call per evaluation.
 
 The rest of the package uses :data:`AVAILABLE`, :func:`ensure_compiled`, :func:`require` and the modules above.
