@@ -182,3 +182,16 @@ def test_the_inliner_memo_is_shared_only_for_this_packages_functions(monkeypatch
         fresh[name] = (sum(seen), len(seen))
     assert fresh["user_module_for_inlining"][0] == fresh["user_module_for_inlining"][1]
     assert fresh["rft_mujoco.test_module_for_inlining"][0] == 0
+
+
+def test_compile_implicit_also_compiles_the_implicit_solves_native_evaluation(capsys):
+    """``python -m rft_mujoco compile --implicit`` leaves the implicit solve's C function loaded (its cache
+    index written), as ``--ship`` does for a wheel; without the flag it compiles at the first implicit route."""
+    import glob
+
+    from rft_mujoco.compiled import implicit_route, warmup
+
+    assert warmup.main(["--implicit"]) == 0
+    assert implicit_route._cfunc and implicit_route.cfunc_address() == implicit_route._cfunc[0].address > 0
+    assert glob.glob(os.path.join(jit.cache_dir(), "compiled", "implicit_route.implicit_phase-*.nbi"))
+    assert "kernels ready in" in capsys.readouterr().out

@@ -442,7 +442,7 @@ def summary(results: list[Result]) -> list[str]:
 
 def run_load_paths(*, quick: bool = False, out: Path, stream=None, solve: str = "explicit") -> list:
     """The load-path subset (:mod:`rft_mujoco.studies.loadpaths`): progress, a table per scene, ``loadpaths.csv``.
-    ``solve="implicit"`` runs it with ``attach(solve="implicit", backend="numpy")``; ``stream``: where to print
+    ``solve="implicit"`` runs it with ``attach(solve="implicit")`` (compiled, on the native route); ``stream``: where to print
     (default: ``sys.stdout`` at the call)."""
     from rft_mujoco.studies import loadpaths
 
@@ -451,7 +451,7 @@ def run_load_paths(*, quick: bool = False, out: Path, stream=None, solve: str = 
     results = []
     t0 = time.perf_counter()
     todo = loadpaths.cases(quick)
-    kw = dict(solve="implicit", backend="numpy") if solve == "implicit" else {}
+    kw = dict(solve="implicit") if solve == "implicit" else {}
     for k, (name, dt, integ) in enumerate(todo, 1):
         r = loadpaths.run_case(name, dt, integ, **kw)
         results.append(r)
@@ -553,7 +553,7 @@ def main(argv: list[str] | None = None, command: str = "stability") -> int:
     parser.add_argument("--load-paths-only", action="store_true",
                         help="only the loads through MuJoCo's constraints (rft_mujoco.studies.loadpaths)")
     parser.add_argument("--solve", choices=("explicit", "implicit"), default="explicit",
-                        help="the sand solve of the load paths (implicit: numpy backend; needs --load-paths-only)")
+                        help="the sand solve of the load paths (needs --load-paths-only)")
     args = parser.parse_args(argv)
     if args.solve != "explicit" and not args.load_paths_only:
         parser.error("--solve implicit runs the load paths only: add --load-paths-only")
