@@ -32,8 +32,9 @@ module adds that memory, in the terms of terramechanics, on a grid of nodes laid
 
   so sand reloads ``reload_ratio`` times stiffer than virgin sand up to the stress it has carried and
   follows the virgin behaviour beyond it. A node pressed past its elastic depth ``q / reload_ratio`` by
-  ``delta`` yields plastically: ``q += delta`` and the node is lowered so that the pressing point's
-  effective depth is unchanged (:func:`press`). On virgin sand (q = 0 everywhere) ``d_eff = d``: the
+  ``delta`` (past the reload of the next bullet from the second loading cycle on) yields plastically:
+  ``q += delta`` and the node is lowered so that the pressing point's effective depth is unchanged
+  (:func:`press`). On virgin sand (q = 0 everywhere) ``d_eff = d``: the
   published law, depth from the undeformed surface, whatever the grid update's frequency.
 * **Repeated loading.** Reloading to the stress already carried is not purely elastic: each node counts its
   loading cycles N (``cycles``; a cycle begins when a body presses a node that no body pressed at the
