@@ -285,3 +285,186 @@ def test_stacked_bodies_keep_the_sand_between_them():
     deform.press(s, pts, nrm, np.concatenate([al, al, af, af]))
     assert s.heights.min() == pytest.approx(-0.02 + 0.02 / grid.reload_ratio)
     np.testing.assert_allclose(s.depth(foot, G), 0.05, rtol=1e-12)
+
+
+def _press_loop(grid, h, q, cycles, reach, nodes, low):
+    """The plain loop of the repeated-loading rule (module docstring of deform) on the pressed ``nodes`` (flat
+    indices, unique) with the body surface ``low`` over each: one node at a time, in order: a new cycle when its
+    reach is 0; reload up to the preload with plastic sinkage a_N q per unit of reach; the virgin line beyond."""
+    h, q, cycles, reach = h.copy(), q.copy(), cycles.copy(), reach.copy()
+    old = reach.copy()
+    reach[:] = 0.0
+    e = grid.reload_ratio
+    for k, z in zip(nodes, low):
+        w = old[k]
+        if w == 0.0:
+            cycles[k] += 1
+        a = grid.reload_sinkage * grid.reload_decay ** (cycles[k] - 2) if cycles[k] >= 2 else 0.0
+        d = h[k] - z
+        if q[k] == 0.0:                                   # virgin: yields, all of it
+            q[k] = d
+            h[k] = z + q[k] / e
+            reach[k] = 1.0
+            continue
+        per = q[k] / e + a * q[k]                         # m of penetration per unit of reach
+        push = d - w * q[k] / e
+        if push <= 0.0:
+            reach[k] = w
+        elif push <= (1.0 - w) * per:
+            reach[k] = w + push / per
+            h[k] -= a * q[k] * (reach[k] - w)
+        else:
+            q[k] += push - (1.0 - w) * per
+            h[k] = z + q[k] / e
+            reach[k] = 1.0
+    return h, q, cycles, reach
+
+
+def test_repeated_loading_matches_a_plain_loop():
+    """One element over each node of a block, each at its own depth (above the reach already taken, within the
+    reload, beyond the preload), on nodes in every state (virgin, first cycle, later cycles, part-reloaded,
+    unloaded): heights, preload, cycles and reach as the loop; the volume goes to the berm."""
+    grid = DeformableSurface(size=(0.1, 0.1), cell=0.005, repose_angle=None, berm_width=0.0)
+    rng = np.random.default_rng(3)
+    s = grid.initial()
+    shape = grid.shape
+    s.heights[:] = rng.uniform(-0.02, 0.0, shape)
+    s.preload[:] = np.where(rng.random(shape) < 0.2, 0.0, rng.uniform(0.005, 0.03, shape))
+    s.cycles[:] = np.where(s.preload > 0, rng.integers(1, 5, shape), 0)
+    s.reach[:] = np.where(rng.random(shape) < 0.5, 0.0, rng.uniform(0.0, 1.0, shape))
+    ii, jj = np.meshgrid(np.arange(5, 16), np.arange(4, 17), indexing="ij")
+    block = (ii * shape[1] + jj).ravel()
+    depth = rng.uniform(-0.001, 0.004, block.size)       # some above the surface: those nodes are not pressed
+    bottom = np.column_stack([grid.x[jj.ravel()], grid.y[ii.ravel()], s.heights.reshape(-1)[block] - depth])
+    pts = np.vstack([bottom, bottom + [0.0, 0.0, 0.1]])  # and its top out of the sand: it pierces
+    nrm = np.vstack([np.tile([0, 0, -1.0], (block.size, 1)), np.tile([0, 0, 1.0], (block.size, 1))])
+    areas = np.full(2 * block.size, 0.005 ** 2)
+    flat = [a.reshape(-1) for a in (s.heights, s.preload, s.cycles, s.reach)]
+    nodes, low = deform.covering(grid, pts, nrm, areas, below=flat[0])
+    np.testing.assert_array_equal(nodes, np.sort(block[depth > 0]))      # one node per element
+    ref = _press_loop(grid, *flat, nodes, low)
+    before_h, before_v = flat[0].copy(), deform.volume_change(s)
+    res = deform.press(s, pts, nrm, areas)
+    pressed = np.zeros(flat[0].size, bool)
+    pressed[nodes] = True
+    for got, want in zip(flat, ref):
+        np.testing.assert_allclose(got[pressed], want[pressed], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(flat[3][~pressed], 0.0)                  # the rest is unloaded
+    assert res.yielded > 0 and res.settled > 0 and res.covered == nodes.size
+    assert res.displaced == pytest.approx(float(np.sum(before_h[pressed] - flat[0][pressed])) * 0.005 ** 2,
+                                          rel=1e-12)
+    assert deform.volume_change(s) == pytest.approx(before_v, abs=1e-15)   # all of it in the berm
+    assert np.all(flat[0][~pressed] >= before_h[~pressed])
+
+
+def test_reloads_settle_by_diminishing_increments():
+    """A plate pressed to q, lifted and set back to the same stress each cycle sinks a_N q more each time:
+    reload_sinkage q, then reload_decay times less; it carries the same stress (effective depth q) each time."""
+    grid = DeformableSurface(size=(0.2, 0.2), cell=0.005, reload_sinkage=0.1, reload_decay=0.5, repose_angle=None)
+    s = grid.initial()
+    q, e = 0.012, grid.reload_ratio
+    p, n, a = plate(0.03, -q)
+    deform.press(s, p, n, a)
+    under = s.preload > 0
+    bottoms = [float(s.heights[under].mean())]
+    for cycle in range(2, 6):
+        deform.unload(s)
+        a_n = 0.1 * 0.5 ** (cycle - 2)
+        pz = p.copy()
+        pz[:, 2] = bottoms[-1] - q / e - a_n * q          # down to the preload through the settlement
+        res = deform.press(s, pz, n, a)
+        assert res.settled + res.yielded == under.sum()   # yielded: by round-off past the preload
+        np.testing.assert_allclose(s.cycles[under], cycle)
+        np.testing.assert_allclose(s.reach[under], 1.0, rtol=1e-12)
+        np.testing.assert_allclose(s.preload[under], q, rtol=1e-12)         # settled at constant preload
+        np.testing.assert_allclose(s.depth(pz, G), q, rtol=1e-9)             # the same stress as the first time
+        bottoms.append(float(s.heights[under].mean()))
+    steps = -np.diff(bottoms)
+    np.testing.assert_allclose(steps, q * 0.1 * 0.5 ** np.arange(4), rtol=1e-9)
+    assert abs(deform.volume_change(s)) < 1e-15
+
+
+def test_a_reload_in_small_presses_settles_as_one():
+    """Within one cycle the reload is linear in the reach: ten small presses give the surface of one; a press
+    that does not go past the reach already taken changes nothing; no unload between presses: one cycle."""
+    grid = DeformableSurface(size=(0.2, 0.2), cell=0.005, repose_angle=None)
+    p, n, a = plate(0.03, -0.01)
+    states = []
+    for steps in (1, 10):
+        s = grid.initial()
+        deform.press(s, p, n, a)
+        deform.unload(s)
+        under = s.preload > 0
+        top = float(s.heights[under].mean())
+        for z in np.linspace(top - 0.0012 / steps, top - 0.0012, steps):
+            pz = p.copy()
+            pz[:, 2] = z
+            deform.press(s, pz, n, a)
+        before = s.heights.copy()
+        pz[:, 2] = top - 0.0011                           # backed off a little: nothing more
+        assert deform.press(s, pz, n, a).settled == 0
+        np.testing.assert_array_equal(s.heights, before)
+        np.testing.assert_allclose(s.cycles[under], 2.0)
+        states.append(s)
+    one, many = states
+    np.testing.assert_allclose(many.heights, one.heights, atol=1e-15)
+    np.testing.assert_allclose(many.reach, one.reach, atol=1e-12)
+    assert 0.0 < one.reach.max() < 1.0                   # part of the way to the preload
+
+
+def _two_layer_depth(d, q, loose, e):
+    """Effective depth (a plain loop) under ``loose`` m of memoryless sand on a column that remembers q: virgin in
+    the loose layer; below it the column reloads stiffly from the loose layer's own load to q, virgin beyond."""
+    out = []
+    for di in d:
+        if di <= loose:
+            out.append(di)
+            continue
+        x, start = di - loose, loose
+        if start >= q:
+            out.append(di)
+        elif x <= (q - start) / e:
+            out.append(start + e * x)
+        else:
+            out.append(q + x - (q - start) / e)
+    return np.array(out)
+
+
+def test_buried_preload_is_the_two_layer_column_from_the_remembered_stress_on():
+    """bury: preload less the loose thickness, not below 0; with it the one-layer effective depth equals a loose
+    layer on the remembered column wherever the stress reaches the remembered one, and beyond."""
+    e = 20.0
+    q = np.array([0.03, 0.03, 0.01, 0.0])
+    loose = np.array([0.01, 0.0, 0.02, 0.005])
+    buried = q.copy()
+    deform.bury(buried, loose)
+    np.testing.assert_allclose(buried, [0.02, 0.03, 0.0, 0.0])
+    for qi, li, bi in zip(q, loose, buried):
+        d = np.linspace(0.0, 0.06, 601)
+        two = _two_layer_depth(d, qi, li, e)
+        one = effective_depth(d, np.full(d.size, bi), e)
+        reached = two >= qi
+        np.testing.assert_allclose(one[reached], two[reached], atol=1e-15)
+        assert np.all(one >= two - 1e-15)                 # stiffer in the loose layer (one number per node)
+
+
+def test_flowed_sand_buries_the_preload_it_lands_on():
+    """The slope flow into a pressed trench: each node that gained sand lost as much preload; the others kept it."""
+    grid = DeformableSurface(size=(0.2, 0.2), cell=0.005, repose_angle=30.0)
+    s = grid.initial()
+    s.heights[18:23, 5:35] = -0.02                       # a trench, pressed to 25 mm
+    s.preload[18:23, 5:35] = 0.025
+    s.heights[15:18, 5:35] = 0.01                        # a berm beside it
+    h0, q0 = s.heights.copy(), s.preload.copy()
+    deform.relax(s, np.array([30 * 41 + 20]))            # a body far off the trench: it all may flow
+    gain = np.maximum(s.heights - h0, 0.0)
+    assert gain[18:23, 5:35].max() > 0.001
+    np.testing.assert_allclose(s.preload, np.maximum(q0 - gain, 0.0), atol=1e-15)
+
+
+@pytest.mark.parametrize("kwargs, match", [(dict(reload_sinkage=-0.1), "reload_sinkage"),
+                                           (dict(reload_sinkage=np.nan), "reload_sinkage"),
+                                           (dict(reload_decay=1.0), "reload_decay")])
+def test_bad_repeated_loading_settings(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        DeformableSurface(**kwargs)

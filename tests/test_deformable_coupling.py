@@ -71,6 +71,9 @@ def test_two_datas_deform_independently_and_reset_restores():
     mujoco.mj_resetData(model, a)
     np.testing.assert_array_equal(handle.surface(a).heights, np.zeros((61, 61)))
     np.testing.assert_array_equal(handle.surface(a).preload, np.zeros((61, 61)))
+    assert handle.surface(b).cycles.max() >= 1.0                           # loading cycles counted, ...
+    np.testing.assert_array_equal(handle.surface(a).cycles, np.zeros((61, 61)))      # ... and reset with the rest
+    np.testing.assert_array_equal(handle.surface(a).reach, np.zeros((61, 61)))
     np.testing.assert_array_equal(handle.surface(b).heights, sb.heights)   # b untouched by a's reset
     run(model, a)                                                          # the episode repeats exactly
     np.testing.assert_array_equal(handle.surface(a).heights, sa.heights)
@@ -90,7 +93,8 @@ def test_copies_for_the_same_model_keep_the_surface(how):
     np.testing.assert_array_equal(handle.surface(twin).heights, handle.surface(data).heights)
     run(model, data, 60)
     run(model, twin, 60)
-    np.testing.assert_array_equal(handle.surface(twin).heights, handle.surface(data).heights)
+    for name in ("heights", "preload", "cycles", "reach"):
+        np.testing.assert_array_equal(getattr(handle.surface(twin), name), getattr(handle.surface(data), name))
     np.testing.assert_array_equal(twin.qpos, data.qpos)
     assert handle.surface(data).heights.min() < -0.01
     handle.detach()

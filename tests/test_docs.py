@@ -50,7 +50,8 @@ RUN = {
 
 NOT_RUN = {
     "deformable.md:0": "the box study, about a minute of CPU (tests/test_footprint.py runs it and asserts each criterion)",
-    "deformable.md:1": "three wheel passes twice, a few minutes (tests/test_ruts.py runs the default three passes)",
+    "deformable.md:1": "three wheel passes three times, then five, a few minutes (tests/test_ruts.py runs the "
+                       "default three)",
     "deformable.md:2": "the quadruped on the numpy backend three times, a few minutes (tests/test_deformable_coupling.py "
                        "covers the surface in a task; the plot and frame are in docs/)",
     "performance.md:0": "the whole benchmark, ~5 min (tests/test_bench.py runs it with --quick)",

@@ -63,7 +63,8 @@ class _Workspace:
     :data:`rft_mujoco.compiled.evaluate.WORK_FIELDS` (the diagnostics are views of them), their tuple for the
     compiled calls, and the tuple of the MjData's arrays. With a
     :class:`~rft_mujoco.physics.deform.DeformableSurface` terrain, ``surface`` is this MjData's deformed surface
-    (its arrays are ``arrays["surface_heights"]`` and ``arrays["surface_preload"]``, so that copies of the
+    (its arrays are ``arrays["surface_heights"]``, ``["surface_preload"]``, ``["surface_cycles"]`` and
+    ``["surface_reach"]``, with ``["surface_clock"]`` (1,) the time of its last update, s, so that copies of the
     workspace copy it) and ``terrain`` is that surface; otherwise ``surface`` is None and ``terrain`` the
     handle's."""
 
@@ -85,6 +86,8 @@ class _Workspace:
         if isinstance(self.terrain, DeformableSurface):
             fresh = self.terrain.initial()
             a["surface_heights"], a["surface_preload"] = fresh.heights, fresh.preload
+            a["surface_cycles"], a["surface_reach"] = fresh.cycles, fresh.reach
+            a["surface_clock"] = np.full(1, -np.inf)
             self.surface = self.terrain = fresh
         self.implicit = None                # the compiled implicit solve's buffers (coupling.implicit.ImplicitWork)
 

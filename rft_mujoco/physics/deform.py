@@ -19,7 +19,8 @@ module adds that memory, in the terms of terramechanics, on a grid of nodes laid
   wheel's rut is not refilled behind it). Volume leaves the grid only when that ring is empty (the body
   covers the whole grid); :func:`press` reports it. Then, around the body, slopes steeper than the angle
   of repose (``repose_angle``) flow downhill (:func:`relax`): the ring becomes a pile, trench walls slump;
-  the nodes under the body take no part.
+  the nodes under the body take no part. Sand that a node receives (flowed or deposited) is loose: its
+  thickness is taken off the node's preload (:func:`bury`), so a rut's slumped walls are pressed out again.
 * **Loading memory.** Each node keeps ``preload`` q (m): the depth at which virgin sand carries the
   largest stress that node has carried (3D-RFT stress is proportional to depth for a given element
   orientation and motion, so a depth stands for a pressure: ``p = xi_n |alpha_gen| q``). An element at
@@ -31,9 +32,22 @@ module adds that memory, in the terms of terramechanics, on a grid of nodes laid
 
   so sand reloads ``reload_ratio`` times stiffer than virgin sand up to the stress it has carried and
   follows the virgin behaviour beyond it. A node pressed past its elastic depth ``q / reload_ratio`` by
-  ``delta`` yields plastically: ``q += delta`` and the node is lowered so that the pressing point's
-  effective depth is unchanged (:func:`press`). On virgin sand (q = 0 everywhere) ``d_eff = d``: the
+  ``delta`` (past the reload of the next bullet from the second loading cycle on) yields plastically:
+  ``q += delta`` and the node is lowered so that the pressing point's effective depth is unchanged
+  (:func:`press`). On virgin sand (q = 0 everywhere) ``d_eff = d``: the
   published law, depth from the undeformed surface, whatever the grid update's frequency.
+* **Repeated loading.** Reloading to the stress already carried is not purely elastic: each node counts its
+  loading cycles N (``cycles``; a cycle begins when a body presses a node that no body pressed at the
+  previous update) and the fraction of its preload reached in the current cycle (``reach`` w, 0 to 1). In
+  cycle N >= 2 the node settles plastically, at constant preload, by
+
+      a_N q per unit of reach,   a_N = reload_sinkage * reload_decay ** (N - 2)
+
+  so a full reload to the preload adds ``a_N q`` of sinkage at the same load: ``reload_sinkage * q`` in the
+  second cycle, ``reload_decay`` times less in each later one (the sinkage grows with the number of cycles
+  by diminishing increments and tends to ``reload_sinkage / (1 - reload_decay) * q`` more than the first
+  cycle's). Reaching w takes ``w (q / reload_ratio + a_N q)`` of penetration into the rebounded surface;
+  beyond w = 1 the virgin line resumes as above. The settled volume goes to the berm like any other.
 
 What this is and is not. The loading/unloading/reloading behaviour is the repetitive-loading model of
 terramechanics: Wong, *Theory of Ground Vehicles* (Wiley), and Bekker's pressure-sinkage work describe
@@ -44,9 +58,12 @@ and elastic parts and a yield pressure, an elastic stiffness ``elastic_K`` (Pa/m
 than the Bekker ``Kphi``), and optional bulldozing of displaced soil into berms. Here the virgin curve is
 3D-RFT's (linear in depth, any element orientation) instead of Bekker's ``(k_c/b + k_phi) z^n``, and the
 reload stiffness is a ratio to the virgin stiffness (``reload_ratio``, a modelling parameter, not measured
-here: neither 3D-RFT nor this project has data for it). 3D-RFT claims the virgin, quasi-static stress on
-fresh, level-surfaced media; the footprint, berm and memory rules are this module's additions, not
-predictions of the paper.
+here: neither 3D-RFT nor this project has data for it). The plastic sinkage added by each reload, shrinking
+with the number of cycles, is the trend that repeated plate loading and multi-pass wheel tests on sand report
+(docs/deformable.md, "Repeated loading", with sources); its two numbers (``reload_sinkage`` 0.1,
+``reload_decay`` 0.5) are this project's choice, not measured. 3D-RFT claims the virgin, quasi-static stress
+on fresh, level-surfaced media; the footprint, berm, memory and repeated-loading rules are this module's
+additions, not predictions of the paper.
 """
 
 from __future__ import annotations
@@ -78,6 +95,10 @@ class DeformableSurface:
         center: (x, y) in m, the centre of the grid.
         reload_ratio: stiffness of reloading over the virgin stiffness (dimensionless, > 1; default 20):
             a node that carried the stress of depth q reloads to it within ``q / reload_ratio`` of sinkage.
+        reload_sinkage: plastic sinkage added by the first reload (second loading cycle) to the stress a node
+            carried, as a fraction of its preload (dimensionless, >= 0; default 0.1; 0: reloading is elastic).
+        reload_decay: each further loading cycle adds this fraction of the previous cycle's plastic sinkage
+            (dimensionless, in [0, 1); default 0.5). Both are this project's choice, not measured.
         compaction: fraction of the displaced volume that compacts instead of going to the berm (0 to 1,
             default 0: volume conserved).
         berm_width: m, the displaced volume is spread evenly over the never-pressed nodes within this
@@ -92,6 +113,8 @@ class DeformableSurface:
     cell: float = 0.005
     center: tuple[float, float] = (0.0, 0.0)
     reload_ratio: float = 20.0
+    reload_sinkage: float = 0.1
+    reload_decay: float = 0.5
     compaction: float = 0.0
     berm_width: float = 0.05
     repose_angle: float | None = 30.0
@@ -118,6 +141,12 @@ class DeformableSurface:
         if not (math.isfinite(self.reload_ratio) and self.reload_ratio > 1.0):
             raise ValueError(f"reload_ratio must be > 1 (reload stiffness over virgin stiffness), got "
                              f"{self.reload_ratio!r}")
+        if not (math.isfinite(self.reload_sinkage) and self.reload_sinkage >= 0.0):
+            raise ValueError(f"reload_sinkage must be a fraction of the preload >= 0 (0: elastic reloading), e.g. "
+                             f"0.1, got {self.reload_sinkage!r}")
+        if not (0.0 <= self.reload_decay < 1.0):
+            raise ValueError(f"reload_decay must be in [0, 1) (each loading cycle's plastic sinkage over the "
+                             f"previous one's), e.g. 0.5, got {self.reload_decay!r}")
         if not (0.0 <= self.compaction <= 1.0):
             raise ValueError(f"compaction must be a fraction in [0, 1], got {self.compaction!r}")
         if not (math.isfinite(self.berm_width) and self.berm_width >= 0.0):
@@ -152,7 +181,8 @@ class DeformableSurface:
 
     def initial(self) -> "DeformedSurface":
         """A fresh, undeformed surface state of this grid."""
-        return DeformedSurface(self, np.full(self.shape, float(self.height)), np.zeros(self.shape))
+        return DeformedSurface(self, np.full(self.shape, float(self.height)), np.zeros(self.shape),
+                               np.zeros(self.shape), np.zeros(self.shape))
 
 
 def _check_gravity(g_hat: np.ndarray) -> None:
@@ -167,6 +197,14 @@ def effective_depth(d: np.ndarray, q: np.ndarray, reload_ratio: float) -> np.nda
     ``d <= 0`` (above the surface) is returned unchanged."""
     e = q / reload_ratio
     return np.where(d <= 0.0, d, np.where(d <= e, reload_ratio * d, q + d - e))
+
+
+def cycle_sinkage(grid: DeformableSurface, cycles: np.ndarray) -> np.ndarray:
+    """(n,) dimensionless, ``a_N``: the plastic sinkage per unit of reach, over the preload, of nodes in their
+    ``cycles`` (n,)-th loading cycle (module docstring): 0 in the first, ``reload_sinkage *
+    reload_decay ** (N - 2)`` from the second on."""
+    n = np.asarray(cycles, float)
+    return np.where(n >= 2.0, grid.reload_sinkage * grid.reload_decay ** np.maximum(n - 2.0, 0.0), 0.0)
 
 
 def bilinear(grid: DeformableSurface, values: np.ndarray, x: np.ndarray, y: np.ndarray):
@@ -195,16 +233,21 @@ class DeformedSurface:
         heights: (ny, nx) m, surface height at the nodes (row i at ``y[i]``, column j at ``x[j]``).
         preload: (ny, nx) m, the depth-equivalent of the largest stress each node has carried (module
             docstring); 0 on virgin sand.
+        cycles: (ny, nx), the loading cycles each node has begun (0 on virgin sand; module docstring).
+        reach: (ny, nx), the fraction of its preload each node has been reloaded to in its current cycle (0 to 1;
+            0 when no body presses it).
     The arrays may be views of a caller's memory (the coupling keeps them in a handle's workspace).
     """
 
-    __slots__ = ("grid", "heights", "preload")
+    __slots__ = ("grid", "heights", "preload", "cycles", "reach")
 
-    def __init__(self, grid: DeformableSurface, heights: np.ndarray, preload: np.ndarray) -> None:
-        if heights.shape != grid.shape or preload.shape != grid.shape:
-            raise ValueError(f"heights and preload must have the grid's shape {grid.shape}, got {heights.shape} "
-                             f"and {preload.shape}")
-        self.grid, self.heights, self.preload = grid, heights, preload
+    def __init__(self, grid: DeformableSurface, heights: np.ndarray, preload: np.ndarray, cycles: np.ndarray,
+                 reach: np.ndarray) -> None:
+        shapes = [a.shape for a in (heights, preload, cycles, reach)]
+        if any(sh != grid.shape for sh in shapes):
+            raise ValueError(f"heights, preload, cycles and reach must have the grid's shape {grid.shape}, got "
+                             f"{shapes}")
+        self.grid, self.heights, self.preload, self.cycles, self.reach = grid, heights, preload, cycles, reach
 
     @property
     def x(self) -> np.ndarray:
@@ -236,7 +279,8 @@ class DeformedSurface:
         return effective_depth(h - points[:, 2], q, self.grid.reload_ratio)
 
     def copy(self) -> "DeformedSurface":
-        return DeformedSurface(self.grid, self.heights.copy(), self.preload.copy())
+        return DeformedSurface(self.grid, self.heights.copy(), self.preload.copy(), self.cycles.copy(),
+                               self.reach.copy())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -245,7 +289,8 @@ class PressResult:
 
     Attributes:
         covered: nodes under a downward-facing element.
-        yielded: nodes lowered (pressed past their elastic depth).
+        yielded: nodes pressed past their preload (the virgin line: preload grown, node lowered).
+        settled: nodes lowered by the plastic sinkage of a reload (loading cycle 2 or later, below the preload).
         displaced: volume pushed out of the yielded nodes.
         deposited: volume added to the berm (``(1 - compaction) * displaced`` unless ``lost``).
         lost: volume that found no berm node (the footprint covers the whole grid).
@@ -256,6 +301,7 @@ class PressResult:
     displaced: float
     deposited: float
     lost: float
+    settled: int = 0
 
 
 _NOTHING = PressResult(0, 0, 0.0, 0.0, 0.0)
@@ -348,43 +394,65 @@ def press(surface: DeformedSurface, points: np.ndarray, normals: np.ndarray, are
                          f"{points.shape}, {normals.shape}, {areas.shape}")
     h = surface.heights.reshape(-1)
     q = surface.preload.reshape(-1)
+    reach = surface.reach.reshape(-1)
     nodes, low = covering(grid, points, normals, areas, below=h)
+    if nodes.size:
+        # only where the body pierces the surface (no upward-facing surface of it below the sand there): a buried
+        # body leaves the sand above it in place
+        up, high = covering(grid, points, normals, areas, facing=+1)
+        top = np.full(nodes.size, np.inf)
+        at = np.searchsorted(up, nodes)
+        found = at < up.size
+        found[found] = up[at[found]] == nodes[found]
+        top[found] = high[at[found]]
+        keep = top >= h[nodes]
+        nodes, low = nodes[keep], low[keep]
+    w0 = reach[nodes]                                # (m,) reach so far in this cycle (0: a new cycle)
+    reach.fill(0.0)                                  # the nodes no body presses now are unloaded
     if nodes.size == 0:
         return _NOTHING
-    # only where the body pierces the surface (no upward-facing surface of it below the sand there): a buried
-    # body leaves the sand above it in place
-    up, high = covering(grid, points, normals, areas, facing=+1)
-    top = np.full(nodes.size, np.inf)
-    at = np.searchsorted(up, nodes)
-    found = at < up.size
-    found[found] = up[at[found]] == nodes[found]
-    top[found] = high[at[found]]
-    keep = top >= h[nodes]
-    nodes, low = nodes[keep], low[keep]
-    if nodes.size == 0:
-        return _NOTHING
+    cycles = surface.cycles.reshape(-1)
+    cycles[nodes[w0 == 0.0]] += 1.0
     ratio = grid.reload_ratio
-    d = h[nodes] - low
-    plastic = d - q[nodes] / ratio
-    y = np.flatnonzero(plastic > 0.0)
-    if y.size == 0:
+    qn = q[nodes]
+    elastic = qn / ratio                             # m of penetration per unit of reach: elastic ...
+    settle_rate = cycle_sinkage(grid, cycles[nodes]) * qn     # ... and plastic at constant preload
+    rate = elastic + settle_rate
+    push = h[nodes] - low - w0 * elastic             # m beyond the reach already taken (> 0 presses further)
+    along = np.clip(np.minimum(push, (1.0 - w0) * rate), 0.0, None)       # reloading, up to the preload
+    w1 = np.where(rate > 0.0, w0 + along / np.where(rate > 0.0, rate, 1.0), 1.0)   # virgin node: reach 1
+    beyond = push - along                            # > 0 past the preload: the virgin line
+    yielded = beyond > 0.0
+    settle = settle_rate * (w1 - w0)
+    reach[nodes] = np.where(yielded, 1.0, w1)
+    q_new = qn + np.maximum(beyond, 0.0)
+    new_h = np.where(yielded, low + q_new / ratio, h[nodes] - settle)
+    lowered = yielded | (settle > 0.0)
+    n_yield, n_settle = int(np.count_nonzero(yielded)), int(np.count_nonzero(lowered & ~yielded))
+    if not lowered.any():
         return PressResult(int(nodes.size), 0, 0.0, 0.0, 0.0)
-    yn = nodes[y]
-    q[yn] += plastic[y]
-    new_h = low[y] + q[yn] / ratio
+    q[nodes] = q_new
+    ln = nodes[lowered]
     cell_area = grid.spacing[0] * grid.spacing[1]
-    displaced = float(np.sum(h[yn] - new_h)) * cell_area
-    h[yn] = new_h
+    displaced = float(np.sum(h[ln] - new_h[lowered])) * cell_area
+    h[ln] = new_h[lowered]
     volume = (1.0 - grid.compaction) * displaced
     rim = berm_nodes(grid, nodes)
     virgin = rim[q[rim] == 0.0]
     rim = virgin if virgin.size else rim
     if rim.size == 0:
-        return PressResult(int(nodes.size), int(y.size), displaced, 0.0, volume)
+        return PressResult(int(nodes.size), n_yield, displaced, 0.0, volume, n_settle)
     h[rim] += volume / (rim.size * cell_area)
+    q[rim] = np.maximum(q[rim] - volume / (rim.size * cell_area), 0.0)     # :func:`bury` (rim nodes are unique)
     if grid.repose_angle is not None:
         relax(surface, nodes)
-    return PressResult(int(nodes.size), int(y.size), displaced, volume, 0.0)
+    return PressResult(int(nodes.size), n_yield, displaced, volume, 0.0, n_settle)
+
+
+def unload(surface: DeformedSurface) -> None:
+    """Every node of ``surface`` unloaded (in place): no body pressed it since the last :func:`press`, so the next
+    press of a node begins a new loading cycle (the coupling calls this when a step went by without a press)."""
+    surface.reach.fill(0.0)
 
 
 RELAX_ITERATIONS = 10
@@ -398,7 +466,9 @@ def relax(surface: DeformedSurface, covered: np.ndarray) -> None:
     """Let slopes steeper than the angle of repose flow (in place, volume conserved): around the ``covered``
     nodes (flat indices; they exchange nothing: the body holds them), within the berm width and two cells
     more, :data:`RELAX_ITERATIONS` sweeps move :data:`RELAX_SHARE` of each neighbouring pair's height difference
-    beyond ``tan(repose_angle) * spacing`` from the higher node to the lower one (along x and along y)."""
+    beyond ``tan(repose_angle) * spacing`` from the higher node to the lower one (along x and along y). The
+    nodes that gained sand are buried under it (:func:`bury`: the sand that flowed is loose); those that lost
+    some keep their preload."""
     grid = surface.grid
     ny, nx = grid.shape
     sx, sy = grid.spacing
@@ -412,6 +482,7 @@ def relax(surface: DeformedSurface, covered: np.ndarray) -> None:
     slope = math.tan(math.radians(grid.repose_angle))
     pair_x = free[:, 1:] & free[:, :-1]
     pair_y = free[1:, :] & free[:-1, :]
+    before = h.copy()
     for _ in range(RELAX_ITERATIONS):
         d = h[:, 1:] - h[:, :-1]
         f = np.where(pair_x, RELAX_SHARE * np.sign(d) * np.maximum(np.abs(d) - slope * sx, 0.0), 0.0)
@@ -421,6 +492,16 @@ def relax(surface: DeformedSurface, covered: np.ndarray) -> None:
         f = np.where(pair_y, RELAX_SHARE * np.sign(d) * np.maximum(np.abs(d) - slope * sy, 0.0), 0.0)
         h[1:, :] -= f
         h[:-1, :] += f
+    bury(surface.preload[i0:i1, j0:j1], h - before)
+
+
+def bury(preload: np.ndarray, added: np.ndarray) -> None:
+    """Loose sand of thickness ``added`` (m; where > 0) laid on nodes of preload ``preload`` (m, in place; the
+    arrays of the same shape): ``preload = max(preload - added, 0)``. The loose layer carries no memory and loads
+    the column under it by its own depth, so a body reaching the node's remembered stress again does so at the
+    same place as over a virgin layer on the remembered column, and follows the same virgin line beyond it
+    (docs/deformable.md, "Loose sand on a pressed node")."""
+    np.maximum(preload - np.maximum(added, 0.0), 0.0, out=preload)
 
 
 def berm_nodes(grid: DeformableSurface, covered: np.ndarray) -> np.ndarray:
