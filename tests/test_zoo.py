@@ -112,7 +112,9 @@ def test_shipped_run_exported_as_copies(tmp_path):
 def test_rl_zoo3_enjoys_our_front_runs(tmp_path):
     """A run of ``python -m rft_mujoco.train train`` (tiny budget, evaluations and a checkpoint), written
     in the zoo's layout by ``python -m rft_mujoco.train zoo``, replays in ``python -m rl_zoo3.enjoy`` (final,
-    best and checkpointed models), and so does the shipped run."""
+    best and checkpointed models). The shipped run's round trip (``zoo --run SandQuadruped-v1`` and one episode in
+    ``rl_zoo3.enjoy``, with its running averages) is docs/training.md's block, run as written by
+    tests/test_docs.py::test_bash_block_runs_as_written[training.md:5]: not repeated here."""
     pytest.importorskip("rl_zoo3")
     _run(["rft_mujoco.train", "train", "--algo", "ppo", "--env", ENV, "--timesteps", "128", "--n-envs", "1",
           "--hyperparams", "n_steps=64", "batch_size=64", "n_epochs=1", "--env-kwargs", "max_episode_steps=20",
@@ -128,6 +130,3 @@ def test_rl_zoo3_enjoys_our_front_runs(tmp_path):
     for extra in ([], ["--load-best"], ["--load-checkpoint", "64"]):
         out = _run([*common, "--exp-id", "1", *extra], tmp_path)
         assert "Loading running average" in out and "Episode Length 20" in out, out   # its stats, our env_kwargs
-    _run(["rft_mujoco.train", "zoo", "--run", "SandQuadruped-v1", "-f", "logs"], tmp_path)
-    out = _run([*common, "--exp-id", "2"], tmp_path)
-    assert "rft_mujoco-SandQuadruped-v1_2" in out and "Loading running average" in out, out
