@@ -125,8 +125,20 @@ def test_rl_zoo3_enjoys_our_front_runs(tmp_path):
     exp = tmp_path / "logs" / "ppo" / f"{zoo.zoo_env_name(ENV)}_1"
     assert (exp / f"{zoo.zoo_env_name(ENV)}.zip").samefile(tmp_path / "runs" / "ours" / cfg.MODEL_FILENAME)
     assert (exp / "rl_model_64_steps.zip").is_file() and (exp / "best_model.zip").is_file()
-    common = ["rl_zoo3.enjoy", "--algo", "ppo", "--env", ENV, "--gym-packages", "rft_mujoco.envs", "-f", "logs",
-              "--no-render", "-n", "30", "--device", "cpu"]
-    for extra in ([], ["--load-best"], ["--load-checkpoint", "64"]):
-        out = _run([*common, "--exp-id", "1", *extra], tmp_path)
+    common = ["--algo", "ppo", "--env", ENV, "--gym-packages", "rft_mujoco.envs", "-f", "logs", "--no-render",
+              "-n", "30", "--device", "cpu", "--exp-id", "1"]
+    models = {"final": [], "best": ["--load-best"], "checkpoint": ["--load-checkpoint", "64"]}
+    # the three replays in one interpreter, each exactly as ``python -m rl_zoo3.enjoy ARGS`` runs (the module as
+    # __main__ with its sys.argv): one start-up of torch, SB3 and the zoo instead of three (about 6 s of CPU each)
+    driver = ("import runpy, sys\n"
+              f"for name, argv in {[(name, [*common, *extra]) for name, extra in models.items()]!r}:\n"
+              "    print(f'=== enjoy {name}', flush=True)\n"
+              "    sys.argv = ['rl_zoo3.enjoy', *argv]\n"
+              "    runpy.run_module('rl_zoo3.enjoy', run_name='__main__', alter_sys=True)\n")
+    result = subprocess.run([sys.executable, "-c", driver], cwd=tmp_path, capture_output=True, text=True,
+                            timeout=900, env=SUBPROCESS_ENV)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    outs = result.stdout.split("=== enjoy ")[1:]
+    assert [o.split("\n", 1)[0] for o in outs] == list(models), result.stdout[-3000:]
+    for out in outs:
         assert "Loading running average" in out and "Episode Length 20" in out, out   # its stats, our env_kwargs
