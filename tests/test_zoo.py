@@ -47,11 +47,27 @@ def test_policy_kwargs_string_is_parsed_without_eval():
     assert cfg.parse_overrides(["n_steps:64", "gamma=0.9"]) == {"n_steps": 64, "gamma": 0.9}
 
 
-def _run(args, cwd):
-    result = subprocess.run([sys.executable, "-m", *args], cwd=cwd, capture_output=True, text=True, timeout=900,
+def _run(*commands, cwd):
+    """Each command ``[module, *args]`` run as ``python -m module args`` would run it (the module as __main__
+    with its sys.argv, its SystemExit code checked), one after the other in one Python subprocess in ``cwd``:
+    one start-up of torch, SB3, the zoo and rft_mujoco (about 6 s of CPU on this VM) instead of one each.
+    Returns each command's stdout."""
+    driver = ("import runpy, sys\n"
+              f"for i, argv in enumerate({[list(c) for c in commands]!r}):\n"
+              "    print(f'=== command {i}', flush=True)\n"
+              "    sys.argv = list(argv)\n"
+              "    try:\n"
+              "        runpy.run_module(argv[0], run_name='__main__', alter_sys=True)\n"
+              "    except SystemExit as exit:\n"
+              "        if exit.code not in (0, None):\n"
+              "            raise\n"
+              "    sys.stdout.flush()\n")
+    result = subprocess.run([sys.executable, "-c", driver], cwd=cwd, capture_output=True, text=True, timeout=900,
                             env=SUBPROCESS_ENV)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    return result.stdout
+    outs = result.stdout.split("=== command ")[1:]
+    assert [int(o.split("\n", 1)[0]) for o in outs] == list(range(len(commands))), result.stdout[-3000:]
+    return [o.split("\n", 1)[1] if "\n" in o else "" for o in outs]
 
 
 def test_rl_zoo3_trains_evaluates_and_enjoys_with_our_yaml(tmp_path):
@@ -60,7 +76,8 @@ def test_rl_zoo3_trains_evaluates_and_enjoys_with_our_yaml(tmp_path):
               "--env-kwargs", "max_episode_steps:20"]
     _run(["rl_zoo3.train", *common, "-conf", str(cfg.hyperparams_path("ppo")), "-n", "128", "--seed", "0",
           "--hyperparams", "n_envs:1", "n_steps:64", "batch_size:64", "n_epochs:1",
-          "--eval-freq", "64", "--eval-episodes", "1", "-tb", "tb", "--device", "cpu"], tmp_path)
+          "--eval-freq", "64", "--eval-episodes", "1", "-tb", "tb", "--device", "cpu"],
+         ["rl_zoo3.enjoy", *common, "-n", "30", "--no-render", "--exp-id", "1", "--device", "cpu"], cwd=tmp_path)
     runs = list((tmp_path / "logs" / "ppo").iterdir())
     assert len(runs) == 1
     run = runs[0]
@@ -71,7 +88,6 @@ def test_rl_zoo3_trains_evaluates_and_enjoys_with_our_yaml(tmp_path):
     assert saved["callback"] == "rft_mujoco.train.callbacks.RewardTermsCallback"
     events = [p.read_bytes() for p in (tmp_path / "tb").rglob("events.out.tfevents.*")]
     assert any(b"reward_terms/tracking_lin_vel" in e for e in events), "no per-term reward scalars in TensorBoard"
-    _run(["rl_zoo3.enjoy", *common, "-n", "30", "--no-render", "--exp-id", "1", "--device", "cpu"], tmp_path)
 
 
 @pytest.mark.parametrize("env_id", [ENV, "Pendulum-v1", "gymnasium.envs.classic_control:Pendulum-v1"])
@@ -116,29 +132,21 @@ def test_rl_zoo3_enjoys_our_front_runs(tmp_path):
     ``rl_zoo3.enjoy``, with its running averages) is docs/training.md's block, run as written by
     tests/test_docs.py::test_bash_block_runs_as_written[training.md:5]: not repeated here."""
     pytest.importorskip("rl_zoo3")
-    _run(["rft_mujoco.train", "train", "--algo", "ppo", "--env", ENV, "--timesteps", "128", "--n-envs", "1",
-          "--hyperparams", "n_steps=64", "batch_size=64", "n_epochs=1", "--env-kwargs", "max_episode_steps=20",
-          "--eval-freq", "64", "--eval-episodes", "1", "--save-freq", "64", "--runs-dir", "runs", "--run-name",
-          "ours", "--no-progress-bar", "--device", "cpu"], tmp_path)
-    out = _run(["rft_mujoco.train", "zoo", "--run", "runs/ours", "-f", "logs"], tmp_path)
+    exp_name = f"{zoo.zoo_env_name(ENV)}_1"
+    enjoy = ["rl_zoo3.enjoy", "--algo", "ppo", "--env", ENV, "--gym-packages", "rft_mujoco.envs", "-f", "logs",
+             "--no-render", "-n", "30", "--device", "cpu", "--exp-id", "1"]
+    models = {"final": [], "best": ["--load-best"], "checkpoint": ["--load-checkpoint", "64"]}
+    _, out, *replays = _run(
+        ["rft_mujoco.train", "train", "--algo", "ppo", "--env", ENV, "--timesteps", "128", "--n-envs", "1",
+         "--hyperparams", "n_steps=64", "batch_size=64", "n_epochs=1", "--env-kwargs", "max_episode_steps=20",
+         "--eval-freq", "64", "--eval-episodes", "1", "--save-freq", "64", "--runs-dir", "runs", "--run-name",
+         "ours", "--no-progress-bar", "--device", "cpu"],
+        ["rft_mujoco.train", "zoo", "--run", "runs/ours", "-f", "logs"],
+        *([*enjoy, *extra] for extra in models.values()), cwd=tmp_path)
     assert "--exp-id 1" in out and "0 copied" in out, out    # a run of the user's: hard links
-    exp = tmp_path / "logs" / "ppo" / f"{zoo.zoo_env_name(ENV)}_1"
+    exp = tmp_path / "logs" / "ppo" / exp_name
     assert (exp / f"{zoo.zoo_env_name(ENV)}.zip").samefile(tmp_path / "runs" / "ours" / cfg.MODEL_FILENAME)
     assert (exp / "rl_model_64_steps.zip").is_file() and (exp / "best_model.zip").is_file()
-    common = ["--algo", "ppo", "--env", ENV, "--gym-packages", "rft_mujoco.envs", "-f", "logs", "--no-render",
-              "-n", "30", "--device", "cpu", "--exp-id", "1"]
-    models = {"final": [], "best": ["--load-best"], "checkpoint": ["--load-checkpoint", "64"]}
-    # the three replays in one interpreter, each exactly as ``python -m rl_zoo3.enjoy ARGS`` runs (the module as
-    # __main__ with its sys.argv): one start-up of torch, SB3 and the zoo instead of three (about 6 s of CPU each)
-    driver = ("import runpy, sys\n"
-              f"for name, argv in {[(name, [*common, *extra]) for name, extra in models.items()]!r}:\n"
-              "    print(f'=== enjoy {name}', flush=True)\n"
-              "    sys.argv = ['rl_zoo3.enjoy', *argv]\n"
-              "    runpy.run_module('rl_zoo3.enjoy', run_name='__main__', alter_sys=True)\n")
-    result = subprocess.run([sys.executable, "-c", driver], cwd=tmp_path, capture_output=True, text=True,
-                            timeout=900, env=SUBPROCESS_ENV)
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    outs = result.stdout.split("=== enjoy ")[1:]
-    assert [o.split("\n", 1)[0] for o in outs] == list(models), result.stdout[-3000:]
-    for out in outs:
-        assert "Loading running average" in out and "Episode Length 20" in out, out   # its stats, our env_kwargs
+    assert len(replays) == len(models)
+    for out in replays:                         # final, best and checkpointed models
+        assert exp_name in out and "Loading running average" in out and "Episode Length 20" in out, out
