@@ -208,8 +208,8 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = Tru
                      for r in stages]))
 
     print("\n3. Bodies above the sand (free spheres r 5 cm, 1 m up; Euler: 1 evaluation per step)", flush=True)
-    # --quick: 250 bodies, not 1000: attaching 1000 spheres is most of the section's cost (about 28 of its 34 s
-    # of CPU on this VM, 2026-12-03: the attach-time occlusion and grouping grow faster than the body count)
+    # --quick: 250 bodies, not 1000: the section took 17.7 s of CPU with 1000 and 2.1 s with 250 (side by side,
+    # this VM, 2026-12-03), most of it attaching the spheres (occlusion and grouping grow faster than the count)
     above = above_sand((1, 250) if quick else (1, 1000))
     n0, n1 = above["counts"]
     print(table(["bodies", "elements", "callback us (1 evaluation)", "bare mj_step us", "mj_step with sand us"],
