@@ -397,10 +397,10 @@ def test_models_collected_in_another_thread_leave_a_running_simulation_alone():
     def trajectory(churn):
         model, data, handle = scene()
         data.qvel[:] = 0.3
-        stop, made = threading.Event(), []
+        go, made = threading.Semaphore(0), []
 
         def attach_and_drop():                              # sand on fresh models, dropped and collected here
-            while not stop.is_set():
+            while go.acquire() and len(made) < 8:
                 other = mujoco.MjModel.from_xml_string(BALL)
                 d = mujoco.MjData(other)
                 rft_mujoco.attach(other, MEDIA, ["ball"], 0.0, 0.02, monitor=False)
@@ -408,17 +408,22 @@ def test_models_collected_in_another_thread_leave_a_running_simulation_alone():
                 made.append(weakref.ref(other))
                 del other, d
                 gc.collect()
+        # one model per round, made and collected while that round's 100 steps run (the thread used to spin
+        # through models for the whole run: its full collections, each over the whole test process, cost
+        # about 30 s of CPU; one per round is what the assertion below reads)
         thread = threading.Thread(target=attach_and_drop)
         if churn:
             thread.start()
         for i in range(8):
             while churn and len(made) < i:
                 time.sleep(0.005)
+            if churn:
+                go.release()
             run(model, data, 100, 100 * i)
-        stop.set()
         if churn:
+            go.release()                                    # (made is full: the thread returns)
             thread.join()
-        assert not churn or (len(made) >= 7 and all(m() is None for m in made[:-1]))
+        assert not churn or (len(made) == 8 and all(m() is None for m in made[:-1]))
         return data.qpos.copy(), data.qvel.copy()
 
     q0, v0 = trajectory(False)
