@@ -34,7 +34,7 @@ from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled.locks import lock_matrices, locked_rest, stuck_dofs
 from rft_mujoco.compiled.rest import KEPT_GROUPS, KEPT_RANK, _chain_dof, jacobian, rest_wrenches, solve_m
 from rft_mujoco.compiled.share import (BAD_ACCELERATION, NOT_FINITE, NOT_FINITE_STATE,  # noqa: F401
-                                       _clear, _share_and_commit)
+                                       _clear, _share_and_commit, touching_groups)
 
 _TIME_SLACK = 1.0 + tol.TIME_RTOL
 """A step of dt (1 + TIME_RTOL) still follows the previous evaluation (frozen into the compiled code)."""
@@ -319,20 +319,7 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     nv = qvel.shape[0]
     # 1. the touching groups, in increasing group order, and each touching body's row among them
     ng_all = group_ref.shape[0]
-    for g in range(ng_all):
-        rest[g] = False
-    for j in range(k):
-        rest[group_of[touch[j]]] = True
-    ng = 0
-    for g in range(ng_all):
-        if rest[g]:
-            active[ng] = g
-            ng += 1
-    for j in range(k):
-        gj = group_of[touch[j]]
-        for r in range(ng):
-            if active[r] == gj:
-                slot[j] = r
+    ng = touching_groups(k, touch, group_of, ng_all, rest, active, slot)
     # 2. free acceleration: smooth forces (+ the previous constraint forces) + the user's wrenches, M^-1
     for i in range(nv):
         f = qfrc_passive[i] - qfrc_bias[i] + qfrc_actuator[i] + qfrc_applied[i]

@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from rft_mujoco.compiled.evaluate import _gravity
-from rft_mujoco.compiled.share import BAD_ACCELERATION, NOT_FINITE, _share_and_commit
+from rft_mujoco.compiled.share import BAD_ACCELERATION, NOT_FINITE, _share_and_commit, touching_groups
 from rft_mujoco.compiled.element_pass import wrenches
 from rft_mujoco.compiled.implicit import NEED_ELEMENTS, _blend, cholesky, constrained_system, free_motion, solve_from_probe
 from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
@@ -88,20 +88,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     xi_n = params[1] * g_mag
     # 1. the touching groups, in increasing group order, and each touching body's row among them
     ng_all = group_ref.shape[0]
-    for g in range(ng_all):
-        rest[g] = False
-    for j in range(k):
-        rest[group_of[touch[j]]] = True
-    ng = 0
-    for g in range(ng_all):
-        if rest[g]:
-            active[ng] = g
-            ng += 1
-    for j in range(k):
-        gj = group_of[touch[j]]
-        for r in range(ng):
-            if active[r] == gj:
-                slot[j] = r
+    ng = touching_groups(k, touch, group_of, ng_all, rest, active, slot)
     # 2. the smooth force of this evaluation (+ the user's wrenches; + the last constraint forces when lagged)
     for i in range(nv):
         f[i] = md[8][i] - md[9][i] + md[10][i] + md[11][i]

@@ -1,6 +1,6 @@
-"""The last step of an evaluation, shared by the explicit (:mod:`rft_mujoco.compiled.evaluate`) and the
-implicit (:mod:`rft_mujoco.compiled.implicit_eval`) solves: each touching body's part of its group's sand
-wrench, the diagnostics and the wrenches added into the caller's sum; and the evaluations' status codes.
+"""The first and last steps of an evaluation, shared by the explicit (:mod:`rft_mujoco.compiled.evaluate`) and
+the implicit (:mod:`rft_mujoco.compiled.implicit_eval`) solves: the touching groups; each touching body's part of
+its group's sand wrench, the diagnostics and the wrenches added into the caller's sum; the status codes.
 Nothing here calls MuJoCo.
 """
 
@@ -37,6 +37,28 @@ def _clear(force, torque, submerged, max_depth, scale, rft_force, resting, occlu
     rft_force[:] = 0.0
     resting[:] = False
     occluded_area[:] = 0.0
+
+
+@njit(**INLINE)
+def touching_groups(k, touch, group_of, ng_all, mark, active, slot):
+    """The groups of the touching bodies ``touch[:k]``, in increasing group order, into ``active``; each
+    touching body's row among them into ``slot``; ``mark`` (ng_all,) bool: whether a group touches.
+    Returns their number. Shared by the explicit and the implicit evaluations."""
+    for g in range(ng_all):
+        mark[g] = False
+    for j in range(k):
+        mark[group_of[touch[j]]] = True
+    ng = 0
+    for g in range(ng_all):
+        if mark[g]:
+            active[ng] = g
+            ng += 1
+    for j in range(k):
+        gj = group_of[touch[j]]
+        for r in range(ng):
+            if active[r] == gj:
+                slot[j] = r
+    return ng
 
 
 @njit(**INLINE)
