@@ -11,6 +11,7 @@ import pytest
 import rft_mujoco
 from rft_mujoco.compiled import implicit as cimp
 from rft_mujoco.compiled import implicit_law
+from rft_mujoco.compiled import system as csys
 from rft_mujoco.compiled.law import tolerances
 from rft_mujoco.coupling import reference
 from rft_mujoco.physics import elements, implicit
@@ -67,11 +68,12 @@ class Problem:
 
 def test_constraint_types_are_mujocos():
     c = mujoco.mjtConstraint
-    assert (cimp.EQUALITY, cimp.FRICTION_DOF, cimp.FRICTION_TENDON, cimp.LIMIT_JOINT, cimp.LIMIT_TENDON,
-            cimp.CONTACT_FRICTIONLESS, cimp.CONTACT_PYRAMIDAL, cimp.CONTACT_ELLIPTIC) == tuple(
+    assert (csys.EQUALITY, csys.FRICTION_DOF, csys.FRICTION_TENDON, csys.LIMIT_JOINT, csys.LIMIT_TENDON,
+            csys.CONTACT_FRICTIONLESS, csys.CONTACT_PYRAMIDAL, csys.CONTACT_ELLIPTIC) == tuple(
         int(x) for x in (c.mjCNSTR_EQUALITY, c.mjCNSTR_FRICTION_DOF, c.mjCNSTR_FRICTION_TENDON, c.mjCNSTR_LIMIT_JOINT,
                          c.mjCNSTR_LIMIT_TENDON, c.mjCNSTR_CONTACT_FRICTIONLESS, c.mjCNSTR_CONTACT_PYRAMIDAL,
                          c.mjCNSTR_CONTACT_ELLIPTIC))
+    assert (csys.TRN_JOINT, csys.BIAS_AFFINE) == (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtBias.mjBIAS_AFFINE))
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -147,21 +149,41 @@ def test_constrained_system_matches_the_numpy_linearization(name, jacobian):
     mujoco.mj_fwdVelocity(m, d)
     assert d.nefc > 0 and bool(mujoco.mj_isSparse(m)) == (jacobian == "sparse")
     qfrc = rng.normal(size=m.nv)
-    h_ref, f_ref = reference.constrained_free_motion(m, d, qfrc)
+    h_ref, f_ref, _ = reference.constrained_free_motion(m, d, qfrc)
     dt, damping = m.opt.timestep, reference.velocity_damping(m)
     h_ref = h_ref + dt * np.diag(damping)
     h, f = np.zeros((m.nv, m.nv)), qfrc.copy()
-    cimp.constrained_system(m.nv, m.M_rowadr.astype(np.int64), m.M_rownnz.astype(np.int64),
+    zones = np.empty(d.nefc, np.int64)
+    csys.row_zones(m.nv, d.nefc, jacobian == "sparse", d.efc_J, d.efc_J_rowadr, d.efc_J_rownnz, d.efc_J_colind,
+                   d.efc_type, d.efc_id, d.efc_D, d.efc_aref, d.efc_frictionloss, d.qacc, zones, False, zones)
+    csys.constrained_system(m.nv, m.M_rowadr.astype(np.int64), m.M_rownnz.astype(np.int64),
                             m.M_colind.astype(np.int64), d.M, d.nefc, jacobian == "sparse", d.efc_J, d.efc_J_rowadr,
-                            d.efc_J_rownnz, d.efc_J_colind, d.efc_type, d.efc_id, d.efc_D, d.efc_aref,
-                            d.efc_frictionloss, d.qacc, True, damping, dt, h, f)
+                            d.efc_J_rownnz, d.efc_J_colind, d.efc_D, d.efc_aref, d.efc_frictionloss, zones, True,
+                            damping, dt, h, f)
     np.testing.assert_allclose(h, h_ref, rtol=1e-12, atol=1e-12 * np.abs(h_ref).max())
     np.testing.assert_allclose(f, f_ref, rtol=1e-12, atol=1e-12 * np.abs(f_ref).max())
+    # the zones again at other accelerations, from zones with every dry friction saturated one way or the other
+    # (the rule of a later zone pass: a saturated friction stays while its force keeps sign and bound)
+    rows = reference.constraint_rows(m, d)
+    friction = np.isin(d.efc_type[:d.nefc], [int(mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF),
+                                            int(mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON)])
+    assert friction.any() == (name == "weld_friction")
+    for trial in range(6):
+        prev = np.where(friction, 2 + trial % 2, zones)
+        prev_ref = (prev == 1, np.where(prev >= 2, np.where(prev == 2, 1.0, -1.0) * d.efc_frictionloss[:d.nefc], 0.0))
+        qacc = d.qacc + rng.normal(scale=10.0 ** (trial // 2 - 1), size=m.nv)
+        got = np.empty(d.nefc, np.int64)
+        csys.row_zones(m.nv, d.nefc, jacobian == "sparse", d.efc_J, d.efc_J_rowadr, d.efc_J_rownnz, d.efc_J_colind,
+                       d.efc_type, d.efc_id, d.efc_D, d.efc_aref, d.efc_frictionloss, qacc, prev, True, got)
+        quad, const = reference.constraint_zones(m, d, rows, qacc, prev_ref)
+        np.testing.assert_array_equal(got == 1, quad)
+        np.testing.assert_array_equal(np.where(got == 2, 1.0, np.where(got == 3, -1.0, 0.0)) * d.efc_frictionloss[
+            :d.nefc], const)
     h2, f2 = np.zeros((m.nv, m.nv)), qfrc.copy()       # lagged: the mass matrix alone
-    cimp.constrained_system(m.nv, m.M_rowadr.astype(np.int64), m.M_rownnz.astype(np.int64),
+    csys.constrained_system(m.nv, m.M_rowadr.astype(np.int64), m.M_rownnz.astype(np.int64),
                             m.M_colind.astype(np.int64), d.M, d.nefc, jacobian == "sparse", d.efc_J, d.efc_J_rowadr,
-                            d.efc_J_rownnz, d.efc_J_colind, d.efc_type, d.efc_id, d.efc_D, d.efc_aref,
-                            d.efc_frictionloss, d.qacc, False, damping, dt, h2, f2)
+                            d.efc_J_rownnz, d.efc_J_colind, d.efc_D, d.efc_aref, d.efc_frictionloss, zones, False,
+                            damping, dt, h2, f2)
     full = np.zeros((m.nv, m.nv))
     mujoco.mj_fullM(m, d, full)
     np.testing.assert_array_equal(h2, full)

@@ -156,7 +156,7 @@ def test_linearized_constraints_predict_mujocos_next_acceleration(name):
         for b in range(1, m.nbody):
             mujoco.mj_applyFT(m, d, d.xfrc_applied[b, :3].copy(), d.xfrc_applied[b, 3:].copy(), d.xipos[b].copy(), b,
                               qfrc)
-        h, f = reference.constrained_free_motion(m, d, qfrc)
+        h, f, _ = reference.constrained_free_motion(m, d, qfrc)
         predicted = np.linalg.solve(h, f)
         assert d.nefc > 0
         mujoco.mj_forward(m, d)

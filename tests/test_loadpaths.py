@@ -37,6 +37,25 @@ def test_load_path_rests_and_the_sand_carries_the_load(name, dt, integrator):
     assert r.failures == ()
 
 
+IMPLICIT_CASES = [("frictionloss", 0.005, "Euler", "auto"), ("frictionloss", 0.002, "implicitfast", "auto"),
+                  ("frictionloss", 0.001, "implicit", "auto"), ("frictionloss", 0.005, "implicitfast", "numpy"),
+                  ("joint_limit", 0.002, "implicitfast", "auto"), ("weld", 0.005, "RK4", "auto")]
+"""The implicit solve (``solve="implicit"``) where the explicit treatment adds energy (the frictionloss
+cases), on the compiled path and the numpy reference, and two other load paths."""
+
+
+@pytest.mark.parametrize("name,dt,integrator,backend", IMPLICIT_CASES)
+def test_the_implicit_solve_rests_where_the_load_comes_through_dry_friction(name, dt, integrator, backend):
+    """Before the zone passes (physics.implicit.ZONE_PASSES) the linearized dry friction held the trunk on the
+    light foot beyond its 50 N bound: the sand held a foot that MuJoCo's own solve then moved, pulled it down
+    as it sank (energy added) and the trunk slid onto the foot and through the sand (12 of 16 cases)."""
+    r = loadpaths.run_case(name, dt, integrator, backend=backend, solve="implicit")
+    assert r.observed > 0
+    assert r.failures == ()
+    assert r.max_gain < 0.0
+    assert r.sinkage <= loadpaths.DEPTH_FACTOR * r.rest_depth
+
+
 def test_without_the_previous_constraint_forces_a_payload_sinks_forever(monkeypatch):
     """The regression this design fixes: ignoring MuJoCo's constraint forces (as the earlier treatment
     did), the plate under a 2 kg payload sinks at (M/m) g dt, forever. (The numpy reference, whose time

@@ -3,11 +3,8 @@
 Pure array functions (nothing here calls MuJoCo), the same algorithms as the numpy reference
 (tests/test_fastimplicit.py compares them):
 
-* :func:`constrained_system`: :func:`rft_mujoco.coupling.reference.constrained_free_motion` (and
-  :func:`~rft_mujoco.coupling.reference.velocity_damping`'s term) on MuJoCo's sparse mass matrix and this
-  step's constraint rows, dense or sparse;
-* :func:`free_motion`: the groups' twists now, their free twists and the mobility ``J H^-1 J^T``
-  (:func:`rft_mujoco.coupling.reference.implicit_free`), with a dense Cholesky factor of ``H``;
+* the system of this step's constraints, linearized, and the groups' free motion through it:
+  :mod:`rft_mujoco.compiled.system`;
 * :func:`implicit_wrenches`: :func:`rft_mujoco.physics.implicit.implicit_wrenches` with its Newton flow
   solve (:func:`_newton_flow`) and its rest operator (the compiled :func:`rft_mujoco.physics.rest.pivoted_factor`,
   and ``pivoted_apply`` on the vectors the operator meets instead of forming it), the law being
@@ -25,171 +22,26 @@ import numpy as np
 
 from rft_mujoco.compiled.implicit_law import group_law
 from rft_mujoco.compiled.jit import JIT, njit
-from rft_mujoco.compiled.rest import jacobian, pivoted_apply, pivoted_factor
+from rft_mujoco.compiled.rest import pivoted_apply, pivoted_factor
 
 SETTINGS = ("speed_scale", "rest_retry", "newton_iterations", "newton_rtol", "fd_step", "dependent_tol",
-            "weight_floor", "capacity_tol", "tiny")
+            "weight_floor", "capacity_tol", "tiny", "zone_passes")
 """Entries of ``st``: :data:`rft_mujoco.physics.implicit.SPEED_SCALE`, ``REST_RETRY``, ``NEWTON_ITERATIONS``,
 ``NEWTON_RTOL``, :data:`rft_mujoco.physics.elements.FD_STEP`, :data:`rft_mujoco.physics.rest.DEPENDENT_TOL`,
-``WEIGHT_FLOOR``, ``CAPACITY_TOL`` and :data:`rft_mujoco.tol.TINY` (:func:`settings`)."""
+``WEIGHT_FLOOR``, ``CAPACITY_TOL``, :data:`rft_mujoco.tol.TINY` and ``ZONE_PASSES`` (:func:`settings`)."""
 LAW_FIELDS = ("k", "slot", "arm", "n_e", "e_slot", "e_arm", "e_nrm", "e_depth", "e_area", "g_hat", "xi_n", "coef",
               "mu_surf", "no_tension", "no_forward", "no_power", "tol", "lin", "ang", "on", "scr", "pk", "wrench", "jac",
               "count", "max_depth")
 """The ``lw`` tuple: the arguments of :func:`rft_mujoco.compiled.implicit_law.group_law` that stay fixed
 within one evaluation, in its order."""
 
-# MuJoCo's mjtConstraint (checked against the bindings by tests/test_fastimplicit.py)
-EQUALITY, FRICTION_DOF, FRICTION_TENDON, LIMIT_JOINT, LIMIT_TENDON = 0, 1, 2, 3, 4
-CONTACT_FRICTIONLESS, CONTACT_PYRAMIDAL, CONTACT_ELLIPTIC = 5, 6, 7
-
-
 def settings() -> np.ndarray:
     """``st`` (:data:`SETTINGS`) from the reference modules' constants now."""
     from rft_mujoco import tol
     from rft_mujoco.physics import elements, implicit, rest
     return np.array([implicit.SPEED_SCALE, implicit.REST_RETRY, implicit.NEWTON_ITERATIONS, implicit.NEWTON_RTOL,
-                     elements.FD_STEP, rest.DEPENDENT_TOL, rest.WEIGHT_FLOOR, rest.CAPACITY_TOL, tol.TINY])
-
-
-# --- this step's constraints, linearized ---------------------------------------------------------------
-@njit(**JIT)
-def constrained_system(nv, m_rowadr, m_rownnz, m_colind, m_val, nefc, sparse, efc_j, efc_rowadr, efc_rownnz,
-                       efc_colind, efc_type, efc_id, efc_d, efc_aref, efc_frictionloss, qacc_prev, linearized,
-                       damping, dt, h, f):
-    """``h`` (nv, nv) := ``M`` (from MuJoCo's CSR lower triangle ``m_val``) and, with ``linearized``,
-    ``+ Jq^T D Jq + dt diag(damping)``; ``f`` (nv,) (the smooth force on entry) ``+= Jq^T D aref + Js^T f_s``:
-    :func:`rft_mujoco.coupling.reference.constrained_free_motion`. Row i of the constraint Jacobian is dense
-    (``efc_j[i nv:(i + 1) nv]``) or, with ``sparse``, CSR (``efc_rowadr``, ``efc_rownnz``, ``efc_colind``).
-    A row's zone is that of the force it would carry at the last solve's ``qacc_prev``: equality rows
-    quadratic; dry friction quadratic inside its bound, a constant force at it; limits and contacts
-    quadratic while pushing; an elliptic contact's rows all quadratic while its first (normal) row is."""
-    for i in range(nv):
-        for j in range(nv):
-            h[i, j] = 0.0
-    for i in range(nv):
-        for a in range(m_rowadr[i], m_rowadr[i] + m_rownnz[i]):
-            c = m_colind[a]
-            h[i, c] = m_val[a]
-            h[c, i] = m_val[a]
-    if not linearized:
-        return
-    for i in range(nv):
-        h[i, i] += dt * damping[i]
-    first = 0.0
-    for e in range(nefc):
-        a0 = efc_rowadr[e] if sparse else e * nv
-        nnz = efc_rownnz[e] if sparse else nv
-        acc = 0.0
-        for a in range(a0, a0 + nnz):
-            acc += efc_j[a] * qacc_prev[efc_colind[a] if sparse else a - a0]
-        est = -efc_d[e] * (acc - efc_aref[e])
-        t = efc_type[e]
-        quad = False
-        const = 0.0
-        if t == EQUALITY:
-            quad = True
-        elif t == FRICTION_DOF or t == FRICTION_TENDON:
-            fl = efc_frictionloss[e]
-            if abs(est) < fl:
-                quad = True
-            else:
-                const = fl if est > 0.0 else (-fl if est < 0.0 else 0.0)
-        elif t == LIMIT_JOINT or t == LIMIT_TENDON or t == CONTACT_FRICTIONLESS or t == CONTACT_PYRAMIDAL:
-            quad = est > 0.0
-        elif t == CONTACT_ELLIPTIC:
-            if e == 0 or efc_type[e - 1] != CONTACT_ELLIPTIC or efc_id[e - 1] != efc_id[e]:
-                first = est
-            quad = first > 0.0
-        if quad:
-            d = efc_d[e]
-            da = d * efc_aref[e]
-            for a in range(a0, a0 + nnz):
-                p = efc_colind[a] if sparse else a - a0
-                x = efc_j[a]
-                f[p] += x * da
-                dx = d * x
-                for b in range(a0, a0 + nnz):
-                    h[p, efc_colind[b] if sparse else b - a0] += dx * efc_j[b]
-        elif const != 0.0:
-            for a in range(a0, a0 + nnz):
-                f[efc_colind[a] if sparse else a - a0] += efc_j[a] * const
-
-
-@njit(**JIT)
-def cholesky(n, h):
-    """The lower Cholesky factor of ``h[:n, :n]`` in place (lower triangle); False when ``h`` is not
-    positive definite (or not finite)."""
-    for c in range(n):
-        t = h[c, c]
-        for j in range(c):
-            t -= h[c, j] * h[c, j]
-        if not t > 0.0:
-            return False
-        d = math.sqrt(t)
-        h[c, c] = d
-        for r in range(c + 1, n):
-            t = h[r, c]
-            for j in range(c):
-                t -= h[r, j] * h[c, j]
-            h[r, c] = t / d
-    return True
-
-
-@njit(**JIT)
-def _forward(n, low, x, col):
-    """``x[:, col] <- L^-1 x[:, col]`` (x (n, m))."""
-    for r in range(n):
-        t = x[r, col]
-        for c in range(r):
-            t -= low[r, c] * x[c, col]
-        x[r, col] = t / low[r, r]
-
-
-@njit(**JIT)
-def free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
-                body_parentid, dof_parentid, qvel, low, f, dt, jrows, y, twist, free, mob):
-    """For the reference bodies (COMs) of groups ``active[:ng]``: their Jacobians into ``jrows`` (6 ng, nv),
-    twists now (``twist`` (ng, 6)), free twists ``twist + dt J H^-1 f`` (``free``) and the mobility
-    ``mob`` (6 ng, 6 ng) ``= J H^-1 J^T = Y^T Y``, ``Y = L^-1 J^T`` (``y`` (nv, 6 ng)), for the lower
-    Cholesky factor ``low`` of ``H``. ``f`` (nv,) is overwritten with ``H^-1 f``."""
-    nv = qvel.shape[0]
-    n6 = 6 * ng
-    for r in range(ng):
-        b = ids[group_ref[active[r]]]
-        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
-                 body_parentid, dof_parentid, jrows, 6 * r)
-    for i in range(nv):                       # f <- H^-1 f
-        t = f[i]
-        for c in range(i):
-            t -= low[i, c] * f[c]
-        f[i] = t / low[i, i]
-    for i in range(nv - 1, -1, -1):
-        t = f[i]
-        for c in range(i + 1, nv):
-            t -= low[c, i] * f[c]
-        f[i] = t / low[i, i]
-    for r in range(ng):
-        for c in range(6):
-            row = 6 * r + c
-            s0 = 0.0
-            s1 = 0.0
-            for i in range(nv):
-                s0 += jrows[row, i] * qvel[i]
-                s1 += jrows[row, i] * f[i]
-            twist[r, c] = s0
-            free[r, c] = s0 + dt * s1
-    for i in range(nv):
-        for col in range(n6):
-            y[i, col] = jrows[col, i]
-    for col in range(n6):
-        _forward(nv, low, y, col)
-    for p in range(n6):
-        for q in range(p + 1):
-            s = 0.0
-            for i in range(nv):
-                s += y[i, p] * y[i, q]
-            mob[p, q] = s
-            mob[q, p] = s
+                     elements.FD_STEP, rest.DEPENDENT_TOL, rest.WEIGHT_FLOOR, rest.CAPACITY_TOL, tol.TINY,
+                     implicit.ZONE_PASSES])
 
 
 # --- the solve --------------------------------------------------------------------------------------------
@@ -548,21 +400,3 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
         end[i // 6, i % 6] = s / sv[i]
         w_out[i // 6, i % 6] = w[i] / sw[i]
     return its
-
-
-TRN_JOINT, BIAS_AFFINE = 0, 1
-"""MuJoCo's ``mjTRN_JOINT`` and ``mjBIAS_AFFINE`` (checked against the bindings by tests/test_fastimplicit.py)."""
-
-
-@njit(**JIT)
-def velocity_damping(implicit_integrator, dof_damping, jnt_dofadr, trntype, trnid, biastype, biasprm, gear, out):
-    """:func:`rft_mujoco.coupling.reference.velocity_damping` into ``out`` (nv,): joint damping plus each
-    affine joint actuator's ``-biasprm[2] gear^2`` (N s/m, N m s/rad) with an implicit integrator, else
-    zeros."""
-    for i in range(out.shape[0]):
-        out[i] = dof_damping[i] if implicit_integrator else 0.0
-    if not implicit_integrator:
-        return
-    for a in range(trntype.shape[0]):
-        if trntype[a] == TRN_JOINT and biastype[a] == BIAS_AFFINE:
-            out[jnt_dofadr[trnid[a, 0]]] += -biasprm[a, 2] * gear[a, 0] ** 2

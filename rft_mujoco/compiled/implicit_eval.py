@@ -20,10 +20,11 @@ import numpy as np
 from rft_mujoco.compiled.evaluate import _gravity
 from rft_mujoco.compiled.share import BAD_ACCELERATION, NOT_FINITE, _share_and_commit, touching_groups
 from rft_mujoco.compiled.element_pass import wrenches
-from rft_mujoco.compiled.implicit import NEED_ELEMENTS, _blend, cholesky, constrained_system, free_motion, solve_from_probe
+from rft_mujoco.compiled.implicit import NEED_ELEMENTS, _blend, solve_from_probe
 from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled.rest import jacobian
+from rft_mujoco.compiled.system import cholesky, constrained_system, end_acceleration, free_motion, row_zones
 
 IMPLICIT_FIELDS = (("e_slot", "i1"), ("e_arm", "f2"), ("e_nrm", "f2"), ("e_depth", "f1"), ("e_area", "f1"),
                    ("jac", "f3"), ("lin", "f2"), ("ang", "f2"), ("on", "b1"), ("jrows", "f2"), ("h", "f2"),
@@ -59,7 +60,7 @@ def efc_arrays(data) -> tuple:
 def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_val, damping, st, linearized):
     """The implicit solve of the ``state[2]`` touching bodies of the broadphase: the sand wrenches, the
     diagnostics and the wrenches added to ``sand_out`` (nbody, 6). ``linearized``: this step's constraints
-    (:func:`rft_mujoco.compiled.implicit.constrained_system`), else MuJoCo's previous constraint forces (when
+    (:func:`rft_mujoco.compiled.system.constrained_system`), else MuJoCo's previous constraint forces (when
     they belong to this motion); ``sparse``: MuJoCo's constraint Jacobian is sparse. Returns 1 (a non-zero
     wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing written)."""
     xipos, cdof, subtree_com, qvel = md[2], md[7], md[4], md[6]
@@ -89,76 +90,95 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     # 1. the touching groups, in increasing group order, and each touching body's row among them
     ng_all = group_ref.shape[0]
     ng = touching_groups(k, touch, group_of, ng_all, rest, active, slot)
-    # 2. the smooth force of this evaluation (+ the user's wrenches; + the last constraint forces when lagged)
-    for i in range(nv):
-        f[i] = md[8][i] - md[9][i] + md[10][i] + md[11][i]
-        if not linearized and state[3] != 0.0:
-            f[i] += md[12][i]
-    for b in range(1, user_xfrc.shape[0]):
-        nonzero = False
-        for c in range(6):
-            if user_xfrc[b, c] != 0.0:
-                nonzero = True
-        if not nonzero:
-            continue
-        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
-                 body_dofadr, body_parentid, dof_parentid, jrows, 0)
-        for i in range(nv):
-            s = 0.0
-            for c in range(6):
-                s += jrows[c, i] * user_xfrc[b, c]
-            f[i] += s
-    # 3. H (this step's constraints linearized), its factor, the free motion and mobility of the groups
-    constrained_system(nv, rowadr, rownnz, colind, m_val, efc[4].shape[0], sparse, efc[0], efc[1], efc[2], efc[3],
-                       efc[4], efc[5], efc[6], efc[7], efc[8], efc[9], linearized, damping, dt, h, f)
-    if not cholesky(nv, h):
-        return BAD_ACCELERATION
-    mob = np.empty((6 * ng, 6 * ng))
-    free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
-                body_parentid, dof_parentid, qvel, h, f, dt, jrows, y, twist, free, mob)
-    for i in range(nv):
-        if not math.isfinite(f[i]):
-            return BAD_ACCELERATION
-    # 4. the touching bodies' COMs from their groups' reference points; the capacity test's twists (the
-    #    blend of the twists now and the free ones) and the law at them, by the element pass
-    for j in range(k):
-        b_ref = ids[group_ref[active[slot[j]]]]
-        for c in range(3):
-            arm[j, c] = body_com[j, c] - xipos[b_ref, c]
-    rad_g = total                                   # (G,) the active groups' radii
-    for r in range(ng):
-        rad_g[r] = group_radius[active[r]]
-    _blend(twist, free, rad_g, ng, probe)
-    all_on = np.ones(ng, np.bool_)
-    group_twists(probe, all_on, k, slot, arm, lin, ang, on)
-    wrenches(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com, lin, ang,
-             g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
-             params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
-             params[9], md[15], md[16], ws[6], ws[49], wrench, count, depth_max, occluded, st[0])
-    group_sums(ng, all_on, k, slot, arm, on, wrench, gf)
-    # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
-    #    this motion: not after a state restore); the elements that may carry stress are found (in the world
-    #    frame, for the Newton solve) only when a group is to flow
+    # 2-5 are repeated while the end accelerations put a constraint row in another zone than the one it was
+    #    linearized in (physics.implicit.ZONE_PASSES; reference.evaluate_implicit)
+    nefc = efc[4].shape[0]
+    zones, zones_end, qacc_end = np.empty(nefc, np.int64), np.empty(nefc, np.int64), np.empty(nv)
+    if linearized:
+        row_zones(nv, nefc, sparse, efc[0], efc[1], efc[2], efc[3], efc[4], efc[5], efc[6], efc[7], efc[8], efc[9],
+                  zones, False, zones)
     prior = istate[0] != 0.0 and state[3] != 0.0      # the last evaluation was of this motion (time continuous)
     for g in range(ng_all):
         prior = prior and prev_active[g] == rest[g]
     resting = ws[15]                                # (G,) the solve's rest flags (the explicit solve's ``flow``)
     its = NEED_ELEMENTS
     n_e = 0
-    for ready in (False, True):
-        if ready:
-            n_e = loaded_candidates(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2],
-                                    body_com, g_hat, params[0], int(params[6]), hc[26], hc[27], hc[14], hc[15],
-                                    hc[16], hc[31], hc[32], hc[17], hc[33], params[9], md[15], md[16], e_slot, e_arm,
-                                    e_nrm, e_depth, e_area, occluded)
-        lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28], params[2],
-              params[3] != 0.0, params[4] != 0.0, params[5] != 0.0, hc[29], lin, ang, on, scr, pk, wrench, jac_b,
-              count, depth_max)
-        for r in range(ng):
-            flowing[r] = prev_flow[active[r]]
-        its = solve_from_probe(free, mob, lw, twist, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
-                               gdf, ready)
-        if its != NEED_ELEMENTS:
+    for j in range(k):                              # the touching bodies' COMs from their groups' reference points
+        b_ref = ids[group_ref[active[slot[j]]]]
+        for c in range(3):
+            arm[j, c] = body_com[j, c] - xipos[b_ref, c]
+    rad_g = total                                   # (G,) the active groups' radii
+    for r in range(ng):
+        rad_g[r] = group_radius[active[r]]
+    all_on = np.ones(ng, np.bool_)
+    for zone_pass in range(int(st[9])):
+        # 2. the smooth force of this evaluation (+ the user's wrenches; + the last constraint forces when lagged)
+        for i in range(nv):
+            f[i] = md[8][i] - md[9][i] + md[10][i] + md[11][i]
+            if not linearized and state[3] != 0.0:
+                f[i] += md[12][i]
+        for b in range(1, user_xfrc.shape[0]):
+            nonzero = False
+            for c in range(6):
+                if user_xfrc[b, c] != 0.0:
+                    nonzero = True
+            if not nonzero:
+                continue
+            jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
+                     body_dofadr, body_parentid, dof_parentid, jrows, 0)
+            for i in range(nv):
+                s = 0.0
+                for c in range(6):
+                    s += jrows[c, i] * user_xfrc[b, c]
+                f[i] += s
+        # 3. H (this step's constraints linearized), its factor, the free motion and mobility of the groups
+        constrained_system(nv, rowadr, rownnz, colind, m_val, nefc, sparse, efc[0], efc[1], efc[2], efc[3],
+                           efc[6], efc[7], efc[8], zones, linearized, damping, dt, h, f)
+        if not cholesky(nv, h):
+            return BAD_ACCELERATION
+        mob = np.empty((6 * ng, 6 * ng))
+        free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
+                    body_parentid, dof_parentid, qvel, h, f, dt, jrows, y, twist, free, mob)
+        for i in range(nv):
+            if not math.isfinite(f[i]):
+                return BAD_ACCELERATION
+        # 4. the capacity test's twists (the blend of the twists now and the free ones) and the law at them, by
+        #    the element pass
+        _blend(twist, free, rad_g, ng, probe)
+        group_twists(probe, all_on, k, slot, arm, lin, ang, on)
+        wrenches(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com, lin, ang,
+                 g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
+                 params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
+                 params[9], md[15], md[16], ws[6], ws[49], wrench, count, depth_max, occluded, st[0])
+        group_sums(ng, all_on, k, slot, arm, on, wrench, gf)
+        # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
+        #    this motion: not after a state restore); the elements that may carry stress are found (in the world
+        #    frame, for the Newton solve) only when a group is to flow
+        for ready in (False, True):
+            if ready:
+                n_e = loaded_candidates(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2],
+                                        body_com, g_hat, params[0], int(params[6]), hc[26], hc[27], hc[14], hc[15],
+                                        hc[16], hc[31], hc[32], hc[17], hc[33], params[9], md[15], md[16], e_slot, e_arm,
+                                        e_nrm, e_depth, e_area, occluded)
+            lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28], params[2],
+                  params[3] != 0.0, params[4] != 0.0, params[5] != 0.0, hc[29], lin, ang, on, scr, pk, wrench, jac_b,
+                  count, depth_max)
+            for r in range(ng):
+                flowing[r] = prev_flow[active[r]]
+            its = solve_from_probe(free, mob, lw, twist, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
+                                   gdf, ready)
+            if its != NEED_ELEMENTS:
+                break
+        if not linearized or nefc == 0 or zone_pass == int(st[9]) - 1:
+            break
+        end_acceleration(nv, h, jrows, ng, w, f, qacc_end)
+        row_zones(nv, nefc, sparse, efc[0], efc[1], efc[2], efc[3], efc[4], efc[5], efc[6], efc[7], efc[8], qacc_end,
+                  zones, True, zones_end)
+        same = True
+        for e in range(nefc):
+            same = same and zones[e] == zones_end[e]
+            zones[e] = zones_end[e]
+        if same:
             break
     for g in range(ng_all):
         prev_active[g] = False

@@ -4,7 +4,7 @@ The route (:mod:`rft_mujoco.compiled.route`) runs every handle of a (model, MjDa
 phase 2 calls :func:`implicit_phase` through its address (the table's header, ``t[5]``) for each touching
 handle with ``solve="implicit"``, as it calls ``route.rest_phase`` for the explicit solve. It runs what the
 dispatcher's Python path runs (:func:`rft_mujoco.coupling.implicit.evaluate_compiled`): the dofs' implicit
-damping from the model now (:func:`rft_mujoco.compiled.implicit.velocity_damping`), then
+damping from the model now (:func:`rft_mujoco.compiled.system.velocity_damping`), then
 :func:`rft_mujoco.compiled.implicit_eval.evaluate_implicit` on the same arrays, so both give the same
 numbers bit for bit (tests/test_native.py).
 
@@ -28,7 +28,7 @@ import numpy as np
 
 from rft_mujoco.compiled import implicit_eval as ie
 from rft_mujoco.compiled import route as rt
-from rft_mujoco.compiled.implicit import velocity_damping
+from rft_mujoco.compiled.system import velocity_damping
 from rft_mujoco.compiled.jit import INLINE, carray, cfunc, njit
 
 EXTRA_FIELDS = (("damping", "f1"), ("settings", "f1"), ("m_val", "f1"), ("flags", "f1"), ("dof_damping", "f1"),

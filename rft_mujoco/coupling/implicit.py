@@ -46,14 +46,14 @@ def evaluate_compiled(handle, data, work, user_xfrc: np.ndarray, dt: float, sand
     """The compiled implicit solve of the touching bodies the broadphase found (``work.state[2]``), after
     ``mj_fwdActuation``: wrenches added into ``sand_out`` (nbody, 6), the diagnostics written. Returns the
     status of :func:`rft_mujoco.compiled.implicit_eval.evaluate_implicit`."""
-    from rft_mujoco.compiled import implicit, implicit_eval
+    from rft_mujoco.compiled import implicit_eval, system
     m = handle.model
     iw = work.implicit
     if iw is None:
         iw = work.implicit = ImplicitWork(handle)
     d_, adr, trn, trnid, bias, biasprm, gear = iw.model_arrays
-    implicit.velocity_damping(int(m.opt.integrator) in _IMPLICIT, d_, adr, trn, trnid, bias, biasprm, gear,
-                              iw.damping)
+    system.velocity_damping(int(m.opt.integrator) in _IMPLICIT, d_, adr, trn, trnid, bias, biasprm, gear,
+                            iw.damping)
     return implicit_eval.evaluate_implicit(work.md, handle._hc, work.tuple, iw.tuple, user_xfrc, dt, sand_out,
                                            implicit_eval.efc_arrays(data), bool(mujoco.mj_isSparse(m)), data.M,
                                            iw.damping, iw.settings, handle._constraints == "linearized")

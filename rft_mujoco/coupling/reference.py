@@ -346,47 +346,65 @@ def constraint_rows(model, data) -> np.ndarray:
     return np.asarray(data.efc_J[:nefc * model.nv]).reshape(nefc, model.nv).copy()
 
 
-def constrained_free_motion(model, data, qfrc: np.ndarray):
-    """This step's constraints, linearized where MuJoCo's last solve left them: the matrix ``H`` (nv, nv) and the
-    force ``f`` (nv,) with ``H qacc = f + J^T W`` for any sand wrench ``W`` while the rows keep their zone.
+def constraint_zones(model, data, rows: np.ndarray, qacc: np.ndarray, prev=None):
+    """The zone of each of this step's constraint rows (``rows``: :func:`constraint_rows`) at the accelerations
+    ``qacc`` (nv,): ``quad`` (nefc,) bool, the rows in their quadratic zone, and ``const`` (nefc,), the constant
+    force of saturated dry-friction rows (N or N m). A row's zone is that of the force it would carry at
+    ``qacc`` in its quadratic zone, ``-D (J qacc - aref)``: equality rows quadratic; dry friction quadratic
+    inside its bound, a constant force at it; limits and contacts quadratic while pushing; an elliptic
+    contact's rows all quadratic while its first (normal) row is (an approximation of the cone).
 
-    MuJoCo's constraint solve minimizes ``1/2 |qacc - qacc_smooth|_M^2 + sum_i s_i(J_i qacc - aref_i)``; a row
-    in its quadratic zone has ``s = D (J qacc - aref)^2 / 2`` (force ``-D (J qacc - aref)``), a saturated
-    dry-friction row a constant force, an inactive row none. MuJoCo makes this step's rows (``efc_J``, ``efc_D``,
-    ``efc_aref``) before ``mjcb_control``; their zones are taken from the force each row would carry at the
-    accelerations of the last solve (``qacc``, :func:`rft_mujoco.physics.rest.friction_estimate`). So the
-    loads that reach the sand through contacts, welds, limits and dry friction enter with this step's
-    constraint forces, and the sand's own wrench moves them as MuJoCo's solve will. Elliptic contacts are
-    taken as quadratic in all rows while their normal row is active (an approximation of the cone)."""
-    nv = model.nv
-    mass = np.zeros((nv, nv))
-    mujoco.mj_fullM(model, data, mass)
-    rows = constraint_rows(model, data)
-    if rows.shape[0] == 0:
-        return mass, qfrc
-    kind = data.efc_type[:rows.shape[0]]
-    d = data.efc_D[:rows.shape[0]]
-    aref = data.efc_aref[:rows.shape[0]]
-    est = rest.friction_estimate(d, aref, rows @ data.qacc)
-    quad = np.zeros(rows.shape[0], dtype=bool)
-    const = np.zeros(rows.shape[0])
+    ``prev``: the zones ``(quad, const)`` that ``qacc`` was solved in. A dry friction saturated there stays
+    saturated only while the force it would carry keeps its sign and bound (the slip goes on), and sticks
+    (quadratic) otherwise: a stiff friction row's quadratic force at a slipping solution is far beyond its
+    bound, with the sign of the slip, so the plain rule would flip it from one bound to the other."""
+    n = rows.shape[0]
+    kind = data.efc_type[:n]
+    est = rest.friction_estimate(data.efc_D[:n], data.efc_aref[:n], rows @ qacc)
+    quad = np.zeros(n, dtype=bool)
+    const = np.zeros(n)
     for i, t in enumerate(kind.tolist()):
         if t == _EQUALITY:
             quad[i] = True
         elif t in _FRICTION:
             fl = data.efc_frictionloss[i]
-            if abs(est[i]) < fl:
+            if prev is not None and prev[1][i] != 0.0:
+                slip = np.sign(prev[1][i]) * est[i] >= fl
+                quad[i], const[i] = not slip, prev[1][i] if slip else 0.0
+            elif abs(est[i]) < fl:
                 quad[i] = True
             else:
                 const[i] = np.sign(est[i]) * fl
         elif t in _UNILATERAL:
             quad[i] = est[i] > 0.0
     if np.any(kind == _ELLIPTIC):
-        for c in np.unique(data.efc_id[:rows.shape[0]][kind == _ELLIPTIC]):
-            sel = np.flatnonzero((kind == _ELLIPTIC) & (data.efc_id[:rows.shape[0]] == c))
+        for c in np.unique(data.efc_id[:n][kind == _ELLIPTIC]):
+            sel = np.flatnonzero((kind == _ELLIPTIC) & (data.efc_id[:n] == c))
             quad[sel] = est[sel[0]] > 0.0
+    return quad, const
+
+
+def constrained_free_motion(model, data, qfrc: np.ndarray, zones=None):
+    """This step's constraints, linearized in their ``zones`` (:func:`constraint_zones`; default: at the
+    accelerations of MuJoCo's last solve, ``data.qacc``): the matrix ``H`` (nv, nv), the force ``f`` (nv,) with
+    ``H qacc = f + J^T W`` for any sand wrench ``W`` while the rows keep their zone, and the zones.
+
+    MuJoCo's constraint solve minimizes ``1/2 |qacc - qacc_smooth|_M^2 + sum_i s_i(J_i qacc - aref_i)``; a row
+    in its quadratic zone has ``s = D (J qacc - aref)^2 / 2`` (force ``-D (J qacc - aref)``), a saturated
+    dry-friction row a constant force, an inactive row none. MuJoCo makes this step's rows (``efc_J``, ``efc_D``,
+    ``efc_aref``) before ``mjcb_control``. So the loads that reach the sand through contacts, welds, limits
+    and dry friction enter with this step's constraint forces, and the sand's own wrench moves them as
+    MuJoCo's solve will; :func:`evaluate_implicit` takes the zones again at the step's end accelerations."""
+    nv = model.nv
+    mass = np.zeros((nv, nv))
+    mujoco.mj_fullM(model, data, mass)
+    rows = constraint_rows(model, data)
+    if rows.shape[0] == 0:
+        return mass, qfrc, None
+    quad, const = constraint_zones(model, data, rows, data.qacc) if zones is None else zones
+    d, aref = data.efc_D[:rows.shape[0]], data.efc_aref[:rows.shape[0]]
     jq, dq = rows[quad], d[quad]
-    return mass + jq.T @ (dq[:, None] * jq), qfrc + jq.T @ (dq * aref[quad]) + rows.T @ const
+    return mass + jq.T @ (dq[:, None] * jq), qfrc + jq.T @ (dq * aref[quad]) + rows.T @ const, (quad, const)
 
 
 _IMPLICIT = (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
@@ -410,16 +428,18 @@ def velocity_damping(model) -> np.ndarray:
     return out
 
 
-def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str):
-    """Jacobians (G, 6, nv), free twists (G, 6), twists now (G, 6) and the mobility (6G, 6G) of the groups'
-    reference points for the implicit solve: with ``constraints="linearized"`` through this step's constraint
-    rows (:func:`constrained_free_motion`), with ``"lagged"`` through the mass matrix and MuJoCo's previous
-    constraint forces (as :func:`free_twists`)."""
+def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str, zones=None):
+    """Jacobians (G, 6, nv), free twists (G, 6), twists now (G, 6), the mobility (6G, 6G) of the groups'
+    reference points for the implicit solve, and the end accelerations (nv,) as a function of the groups'
+    wrenches (G, 6): with ``constraints="linearized"`` through this step's constraint rows in their ``zones``
+    (:func:`constrained_free_motion`; default: at MuJoCo's last solve) and the zones, with
+    ``"lagged"`` through the mass matrix and MuJoCo's previous constraint forces (as :func:`free_twists`;
+    zones None)."""
     m = handle.model
     jac, qfrc = _jacobians_and_forces(m, data, user_xfrc, ref)
     flat = jac.reshape(-1, m.nv)
     if constraints == "linearized":
-        h, f = constrained_free_motion(m, data, qfrc)
+        h, f, zones = constrained_free_motion(m, data, qfrc, zones)
         h = h + dt * np.diag(velocity_damping(m))
         chol = np.linalg.cholesky(h)
         solve = lambda b: np.linalg.solve(chol.T, np.linalg.solve(chol, b))       # noqa: E731
@@ -433,9 +453,11 @@ def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str):
         minv_jt = np.empty_like(flat)
         mujoco.mj_solveM(m, data, minv_jt, flat)
         minv_jt = minv_jt.T
+        zones = None
     _check_acceleration(m, ref, qacc)
     twist = jac @ data.qvel
-    return jac, twist + dt * (jac @ qacc), twist, flat @ minv_jt
+    end_qacc = lambda w: qacc + minv_jt @ w.reshape(-1)                              # noqa: E731
+    return jac, twist + dt * (jac @ qacc), twist, flat @ minv_jt, end_qacc, zones
 
 
 def rft_jacobian(handle, data, work, touch, v_com, omega, g_hat, speed_scale, elements_=None):
@@ -470,7 +492,8 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
     slot = np.searchsorted(active, group_of)
     ref = handle.body_ids[grp.ref[active]]
     radius = grp.radius[active]
-    jac, free, twist, mobility = implicit_free(handle, data, user_xfrc, ref, dt, handle._constraints)
+    jac, free, twist, mobility, end_qacc, zones = implicit_free(handle, data, user_xfrc, ref, dt,
+                                                                 handle._constraints)
     arm = work.arrays["body_com"][:touch.size] - data.xipos[ref[slot]]
     shift = _shift(arm)
     last = {}
@@ -490,6 +513,16 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
     prior = work.flowing                              # (groups, flowed) of the last evaluation of this motion
     flowing = prior[1] if prior is not None and work.state[3] and np.array_equal(prior[0], active) else None
     applied_g, resting_g, end, its = implicit.implicit_wrenches(free, mobility, law, twist, radius, dt, flowing)
+    for _ in range(implicit.ZONE_PASSES - 1):
+        if zones is None:
+            break
+        now = constraint_zones(handle.model, data, constraint_rows(handle.model, data), end_qacc(applied_g), zones)
+        if np.array_equal(now[0], zones[0]) and np.array_equal(now[1], zones[1]):
+            break
+        jac, free, twist, mobility, end_qacc, zones = implicit_free(handle, data, user_xfrc, ref, dt,
+                                                                     handle._constraints, now)
+        applied_g, resting_g, end, its = implicit.implicit_wrenches(free, mobility, law, twist, radius, dt,
+                                                                    flowing)
     work.flowing = (active, ~resting_g)
     # The bodies' own law wrenches at the end twists (flow) and at the probe (capacities, rest sharing).
     probe = rest.blend(twist, free, radius)

@@ -25,6 +25,14 @@ ends its step slower than this many :data:`SPEED_SCALE` (twist speed): the capac
 NEWTON_ITERATIONS = 40
 """The most Newton iterations of one implicit flow solve."""
 
+ZONE_PASSES = 4
+"""The most implicit solves in one evaluation. The constraint rows that reach the sand are linearized in a
+zone each (quadratic, a saturated dry friction, inactive: :func:`rft_mujoco.coupling.reference.constraint_zones`),
+first at the accelerations of MuJoCo's last solve, then again at the end accelerations of this step's solve
+while any row changes zone (a dry friction that the sand's wrench saturates or releases, a limit or a contact
+that it loads or unloads): without it a friction held in the linear model beyond its bound lets the sand
+hold a body that MuJoCo's own solve then moves."""
+
 NEWTON_RTOL = 1e-3
 """The implicit flow solve stops when the residual of the end-of-step twists is below this fraction of the
 twist change that the step makes (twist speeds), or below ``SPEED_SCALE * NEWTON_RTOL``."""
