@@ -540,7 +540,8 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             False: every geom's whole surface feels sand (overlaps count twice; for comparisons).
         solve: with ``stabilize=True``, "explicit" (default: rest, or flow scaled not to reverse the motion,
             constraint forces of the previous solve) or "implicit" (the law at the twist the step ends with, per
-            direction, this step's constraints linearized; no native route: docs/rest.md "The implicit solve").
+            direction, this step's constraints linearized in the zones the step ends in; not on warp:
+            docs/rest.md "The implicit solve").
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """
