@@ -161,7 +161,7 @@ def test_attach_scene_declares_a_deformable_surface():
 
 def test_demo_on_a_deformable_surface_fills_its_heightfield():
     """demo/view --deformable: the scene gets a visual heightfield (no collisions) whose data follow the surface."""
-    from rft_mujoco.studies import prints
+    from rft_mujoco.studies import surface_view as prints
     from rft_mujoco.studies.demo import Demo
 
     demo = Demo(stand_s=0.5, deformable=True)

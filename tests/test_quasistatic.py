@@ -98,7 +98,7 @@ def test_sphere_rest_depth_grows_with_load():
 def test_scene_depths_and_loads():
     """Every load-path scene has a load and a depth; the plates rest within their thickness, the foot deeper
     than its radius (its centre below the surface) under the 3 kg trunk."""
-    from rft_mujoco.studies import loadpaths
+    from rft_mujoco.studies import loadpath_scenes
     d_contact, load_contact = qs.scene_rest_depth("contact")
     assert load_contact == pytest.approx(2.2 * 9.81)
     assert 0.0 < d_contact < 0.01
@@ -106,7 +106,7 @@ def test_scene_depths_and_loads():
     assert load_foot == pytest.approx(3.05 * 9.81)
     assert d_foot > 0.02
     d_servo, load_servo = qs.scene_rest_depth("actuator_limit")
-    assert load_servo == pytest.approx(loadpaths.ACTUATOR_FORCE + 0.05 * 9.81)
+    assert load_servo == pytest.approx(loadpath_scenes.ACTUATOR_FORCE + 0.05 * 9.81)
     assert 0.0 < d_servo < d_foot
     with pytest.raises(ValueError, match="valid names"):
         qs.scene_rest_depth("nope")

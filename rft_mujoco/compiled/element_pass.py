@@ -25,10 +25,11 @@ import math
 
 import numpy as np
 
-from rft_mujoco.compiled.elements import LANES, _inside, _nearest_face, _outside_ball
+from rft_mujoco.compiled.elements import CLUSTER_SIZE, LANES, _inside, _nearest_face, _outside_ball, pack
 from rft_mujoco.compiled.jit import INLINE, JIT_LAW, njit
 from rft_mujoco.compiled.law import _coef, _stress
 from rft_mujoco.compiled.terrain import FLAT, _depth
+from rft_mujoco.geometry.occlusion import Occluders
 
 # Scratch rows: per element of the cluster (depth, loaded flag), then per packed (loaded) element: lever
 # arm in the body frame, normal, depth, area, force, torque. Index rows: submerged, loaded elements.
@@ -251,3 +252,62 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
         wrench[j, 3] = r0 * a3 + r1 * a4 + r2 * a5
         wrench[j, 4] = r3 * a3 + r4 * a4 + r5 * a5
         wrench[j, 5] = r6 * a3 + r7 * a4 + r8 * a5
+
+
+# --- the element pass on its own (tests, benchmarks) -----------------------------------------------------
+class ElementPass:
+    """The compiled element pass of B bodies without occluders, set up once and called per pose: the
+    compiled counterpart of :func:`rft_mujoco.physics.elements.body_wrenches` (tests, benchmarks).
+
+    Args:
+        local_centroids, local_normals: (E, 3) body-frame centroids (m) and unit normals; areas: (E,) m^2;
+        elem_body: (E,) int in 0..B-1; n_bodies: B; terrain: FlatSurface, HeightfieldSurface or SandRegion;
+        g_hat: (3,) unit gravity direction; gravity: (3,) m/s^2; media, guards: as the law's.
+    """
+
+    def __init__(self, local_centroids, local_normals, areas, elem_body, n_bodies, terrain, g_hat, gravity,
+                 media, guards):
+        from rft_mujoco.compiled.law import tolerances
+        from rft_mujoco.compiled.terrain import check_gravity, terrain_spec
+        from rft_mujoco.physics import law
+
+        spec = terrain_spec(terrain)
+        if spec is None:
+            raise ValueError(f"the compiled element pass supports FlatSurface, HeightfieldSurface and SandRegion, "
+                             f"got {type(terrain).__name__}; use rft_mujoco.physics.elements.body_wrenches")
+        self.g_hat = np.ascontiguousarray(g_hat, dtype=float)
+        check_gravity(terrain, spec, self.g_hat)
+        self.n_bodies = int(n_bodies)
+        self.packed = pack(local_centroids, local_normals, areas, elem_body, self.n_bodies)
+        occ = Occluders.none(self.n_bodies)
+        g_mag = float(np.linalg.norm(gravity))
+        kind, tp, heights = spec
+        self._before = (np.arange(self.n_bodies, dtype=np.int64), self.n_bodies, *self.packed.arrays())
+        self._after = (self.g_hat, float(terrain.max_height), kind, tp, heights, media.xi_n_at(g_mag),
+                       law.COEFFICIENTS, float(media.mu_surf), guards.no_tension, guards.no_forward_tangential,
+                       guards.no_positive_power, tolerances(), *occ.arrays(), occ.margin, np.zeros((0, 3)),
+                       np.zeros((0, 9)), np.zeros((SCRATCH_ROWS, CLUSTER_SIZE)), np.zeros((2, CLUSTER_SIZE), np.int64))
+        self.wrench = np.zeros((self.n_bodies, 6))
+        self.count = np.zeros(self.n_bodies, np.int64)
+        self.max_depth = np.zeros(self.n_bodies)
+        self._occluded = np.zeros(self.n_bodies)
+
+    def __call__(self, body_pos, body_mat, body_com, v_com, omega):
+        """(wrench (B, 6) [N, N m about the COM], loaded element count (B,), max depth (B,) m) of bodies at
+        ``body_pos`` (B, 3) m, ``body_mat`` (B, 3, 3), COM ``body_com`` (B, 3) m moving with ``v_com``
+        (B, 3) m/s and ``omega`` (B, 3) rad/s; the arrays are this object's buffers (overwritten per call)."""
+        b = self.n_bodies
+        f = np.ascontiguousarray
+        wrenches(*self._before, f(body_pos, float), f(np.reshape(body_mat, (b, 9)), float), f(body_com, float),
+                 f(v_com, float), f(omega, float), *self._after, self.wrench, self.count, self.max_depth,
+                 self._occluded, 0.0)
+        return self.wrench, self.count, self.max_depth
+
+
+def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, body_pos, body_mat, body_com,
+                  v_com, omega, terrain, g_hat, gravity, media, guards):
+    """:func:`rft_mujoco.physics.elements.body_wrenches` (without ``active``) through the compiled pass:
+    the same arguments and results (new arrays)."""
+    run = ElementPass(local_centroids, local_normals, areas, elem_body, n_bodies, terrain, g_hat, gravity, media,
+                      guards)
+    return tuple(x.copy() for x in run(body_pos, body_mat, body_com, v_com, omega))

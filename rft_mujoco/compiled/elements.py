@@ -3,12 +3,13 @@
 * Elements are stored once, at attach, in a packed layout (:func:`pack`): per body, cut into spatially
   compact *clusters* of at most :data:`CLUSTER_SIZE` elements, structure of arrays. A cluster whose
   bounding sphere lies above the highest sand is skipped whole (exact).
-* Run-time culling (:class:`Occluders`): the geoms of other bodies that a body's surface can get inside of
-  (capsules meeting at a joint) are tested only against clusters whose bounding sphere reaches theirs.
+* Run-time culling (:class:`rft_mujoco.geometry.occlusion.Occluders`, built at attach): the geoms of other
+  bodies that a body's surface can get inside of (capsules meeting at a joint) are tested only against
+  clusters whose bounding sphere reaches theirs.
 * :func:`touching`: the broadphase (bodies with a submerged element).
 
-The element pass itself is :func:`rft_mujoco.compiled.element_pass.wrenches` (:class:`ElementPass` runs it on
-its own, for tests and benchmarks).
+The element pass itself is :func:`rft_mujoco.compiled.element_pass.wrenches`
+(:class:`rft_mujoco.compiled.element_pass.ElementPass` runs it on its own, for tests and benchmarks).
 """
 
 from __future__ import annotations
@@ -122,73 +123,7 @@ def pack(local_centroids, local_normals, areas, elem_body, n_bodies: int, cluste
                   center, radius, np.asarray(body_clusters, np.int64))
 
 
-# --- run-time occluders -------------------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True, eq=False)
-class Occluders:
-    """For each of B bodies, the geoms of OTHER weld groups whose solid its surface can get inside of.
-
-    Attributes:
-        start: (B + 1,) int, body b's occluders are rows ``start[b]:start[b + 1]``.
-        geom: (O,) int, MuJoCo geom id (its world pose: ``geom_xpos``/``geom_xmat``).
-        kind: (O,) int, ``mjtGeom`` type.
-        size: (O, 3) float, ``geom_size`` (m).
-        rbound: (O,) float, radius of a sphere about the geom's origin holding it (m).
-        hs_start: (O + 1,) int, a mesh's convex-hull halfspaces are rows ``hs_start[o]:hs_start[o + 1]`` of
-        halfspaces: (H, 4) float, ``[n, offset]`` in the geom frame, ``n . x <= offset`` inside.
-        margin: m, the depth an element must exceed to count as inside (:data:`occlusion.OCCLUSION_TOL`).
-    """
-
-    start: np.ndarray
-    geom: np.ndarray
-    kind: np.ndarray
-    size: np.ndarray
-    rbound: np.ndarray
-    hs_start: np.ndarray
-    halfspaces: np.ndarray
-    margin: float = occlusion.OCCLUSION_TOL
-
-    def arrays(self) -> tuple:
-        return (self.start, self.geom, self.kind, self.size, self.rbound, self.hs_start, self.halfspaces)
-
-    @classmethod
-    def none(cls, n_bodies: int) -> "Occluders":
-        return cls(np.zeros(n_bodies + 1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
-                   np.zeros((0, 3)), np.zeros(0), np.zeros(1, np.int64), np.zeros((0, 4)))
-
-
-def occluders(model, body_ids) -> Occluders:
-    """The run-time occluders of each attached body: every surface geom (:func:`occlusion.surface_geoms`,
-    terrain excluded) of every body of another weld group, the world body's included (a rock), whether
-    attached or not. Geoms of the same weld group are culled once, at attach."""
-    weld = model.body_weldid
-    surf = {b: occlusion.surface_geoms(model, b) for b in range(model.nbody)}
-    start, geom, kind, size, rbound, hs_start, hs = [0], [], [], [], [], [0], []
-    for b in body_ids:
-        for other in range(model.nbody):
-            if weld[other] == weld[b]:
-                continue
-            for g in surf[other]:
-                t = int(model.geom_type[g])
-                if t in occlusion.TERRAIN_TYPES or t not in (_MESH, _SPHERE, _CAPSULE, _CYLINDER, _BOX, _ELLIPSOID):
-                    continue
-                if t == _MESH:
-                    m = int(model.geom_dataid[g])
-                    va, vn = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
-                    h = occlusion.mesh_halfspaces(np.asarray(model.mesh_vert[va:va + vn], dtype=float))
-                    hs.append(h)
-                    hs_start.append(hs_start[-1] + h.shape[0])
-                else:
-                    hs_start.append(hs_start[-1])
-                geom.append(int(g))
-                kind.append(t)
-                size.append(np.asarray(model.geom_size[g], dtype=float))
-                rbound.append(float(model.geom_rbound[g]))
-        start.append(len(geom))
-    return Occluders(np.asarray(start, np.int64), np.asarray(geom, np.int64), np.asarray(kind, np.int64),
-                     np.asarray(size, dtype=float).reshape(-1, 3), np.asarray(rbound, dtype=float),
-                     np.asarray(hs_start, np.int64), np.vstack(hs) if hs else np.zeros((0, 4)))
-
-
+# --- run-time occluders (the set: rft_mujoco.geometry.occlusion.Occluders) -------------------------------
 @njit(**INLINE)
 def _inside(x, y, z, kind, s0, s1, s2, hs, h0, h1, margin):
     """:func:`rft_mujoco.geometry.occlusion.inside_geom` of one point in the geom frame."""
@@ -388,64 +323,3 @@ def finish_naive(wrench, count, depth_max, v_com, omega, passive, touch, n_touch
             sand_out[row, c] += force[b, c]
             sand_out[row, 3 + c] += torque[b, c]
     return status
-
-
-# --- the element pass on its own (tests, benchmarks) -----------------------------------------------------
-class ElementPass:
-    """The compiled element pass of B bodies without occluders, set up once and called per pose: the
-    compiled counterpart of :func:`rft_mujoco.physics.elements.body_wrenches` (tests, benchmarks).
-
-    Args:
-        local_centroids, local_normals: (E, 3) body-frame centroids (m) and unit normals; areas: (E,) m^2;
-        elem_body: (E,) int in 0..B-1; n_bodies: B; terrain: FlatSurface, HeightfieldSurface or SandRegion;
-        g_hat: (3,) unit gravity direction; gravity: (3,) m/s^2; media, guards: as the law's.
-    """
-
-    def __init__(self, local_centroids, local_normals, areas, elem_body, n_bodies, terrain, g_hat, gravity,
-                 media, guards):
-        from rft_mujoco.compiled.element_pass import SCRATCH_ROWS
-        from rft_mujoco.compiled.law import tolerances
-        from rft_mujoco.compiled.terrain import check_gravity, terrain_spec
-        from rft_mujoco.physics import law
-
-        spec = terrain_spec(terrain)
-        if spec is None:
-            raise ValueError(f"the compiled element pass supports FlatSurface, HeightfieldSurface and SandRegion, "
-                             f"got {type(terrain).__name__}; use rft_mujoco.physics.elements.body_wrenches")
-        self.g_hat = np.ascontiguousarray(g_hat, dtype=float)
-        check_gravity(terrain, spec, self.g_hat)
-        self.n_bodies = int(n_bodies)
-        self.packed = pack(local_centroids, local_normals, areas, elem_body, self.n_bodies)
-        occ = Occluders.none(self.n_bodies)
-        g_mag = float(np.linalg.norm(gravity))
-        kind, tp, heights = spec
-        self._before = (np.arange(self.n_bodies, dtype=np.int64), self.n_bodies, *self.packed.arrays())
-        self._after = (self.g_hat, float(terrain.max_height), kind, tp, heights, media.xi_n_at(g_mag),
-                       law.COEFFICIENTS, float(media.mu_surf), guards.no_tension, guards.no_forward_tangential,
-                       guards.no_positive_power, tolerances(), *occ.arrays(), occ.margin, np.zeros((0, 3)),
-                       np.zeros((0, 9)), np.zeros((SCRATCH_ROWS, CLUSTER_SIZE)), np.zeros((2, CLUSTER_SIZE), np.int64))
-        self.wrench = np.zeros((self.n_bodies, 6))
-        self.count = np.zeros(self.n_bodies, np.int64)
-        self.max_depth = np.zeros(self.n_bodies)
-        self._occluded = np.zeros(self.n_bodies)
-
-    def __call__(self, body_pos, body_mat, body_com, v_com, omega):
-        """(wrench (B, 6) [N, N m about the COM], loaded element count (B,), max depth (B,) m) of bodies at
-        ``body_pos`` (B, 3) m, ``body_mat`` (B, 3, 3), COM ``body_com`` (B, 3) m moving with ``v_com``
-        (B, 3) m/s and ``omega`` (B, 3) rad/s; the arrays are this object's buffers (overwritten per call)."""
-        from rft_mujoco.compiled.element_pass import wrenches
-        b = self.n_bodies
-        f = np.ascontiguousarray
-        wrenches(*self._before, f(body_pos, float), f(np.reshape(body_mat, (b, 9)), float), f(body_com, float),
-                 f(v_com, float), f(omega, float), *self._after, self.wrench, self.count, self.max_depth,
-                 self._occluded, 0.0)
-        return self.wrench, self.count, self.max_depth
-
-
-def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, body_pos, body_mat, body_com,
-                  v_com, omega, terrain, g_hat, gravity, media, guards):
-    """:func:`rft_mujoco.physics.elements.body_wrenches` (without ``active``) through the compiled pass:
-    the same arguments and results (new arrays)."""
-    run = ElementPass(local_centroids, local_normals, areas, elem_body, n_bodies, terrain, g_hat, gravity, media,
-                      guards)
-    return tuple(x.copy() for x in run(body_pos, body_mat, body_com, v_com, omega))

@@ -158,16 +158,11 @@ def option_offset(name: str) -> int:
     return _offsets[name]
 
 
-def table_part(handle, work, data) -> list:
-    """[(name, kind, array)] of :data:`FIELDS` for ``handle`` on ``data`` (its :class:`~rft_mujoco.coupling.
-    implicit.ImplicitWork` created if the Python path has not yet)."""
-    from rft_mujoco.coupling.implicit import ImplicitWork
-    if work.implicit is None:
-        work.implicit = ImplicitWork(handle)
-    iw = work.implicit
+def table_part(handle, iw, data) -> list:
+    """[(name, kind, array)] of :data:`FIELDS` for ``handle`` on ``data``, its implicit solve's buffers being ``iw``
+    (:class:`rft_mujoco.coupling.implicit.ImplicitWork`)."""
     m = handle.model
     flags = np.array([1.0 if handle._constraints == "linearized" else 0.0])
     extra = (iw.damping, iw.settings, data.M, flags, *iw.model_arrays,
              _int_view(m, lambda o: o.integrator, "integrator"), _int_view(m, lambda o: o.jacobian, "jacobian"))
     return [(name, kind, a) for (name, kind), a in zip(FIELDS, (*iw.tuple, *extra))]
-

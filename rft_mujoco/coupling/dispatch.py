@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco import compiled
-from rft_mujoco.compiled import implicit_route as _IMPLICIT
+from rft_mujoco.coupling import implicit as _IMPLICIT
 from rft_mujoco.compiled import route as _ROUTE
 from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_components  # noqa: F401  (their home before)
 
@@ -503,7 +503,7 @@ class Dispatcher:
 
     def _build_route(self, data, book, handles, rows):
         """The native route of (model, data) (:class:`rft_mujoco.compiled.route.Route`; a handle with
-        ``solve="implicit"`` adds its part: :func:`rft_mujoco.compiled.implicit_route.table_part`)."""
+        ``solve="implicit"`` adds its part: :func:`rft_mujoco.coupling.implicit.table_part`)."""
         parts = []
         for h in handles:
             h._refresh()

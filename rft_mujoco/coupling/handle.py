@@ -44,6 +44,7 @@ from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.monitor import ValidityMonitor
 from rft_mujoco.coupling.workspace import Diagnostics, _Workspace
 from rft_mujoco.geometry import surface
+from rft_mujoco.geometry.occlusion import Occluders, occluders
 from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
 from rft_mujoco.physics.media import Media, f_hat, get_media
@@ -104,7 +105,6 @@ class SandHandle:
                                                                                           minlength=n))]),
                                                  dtype=np.int64)
         self.groups = setup.groups(model, self.body_ids, self.local_centroids, self.elem_body, size)
-        from rft_mujoco.compiled.elements import Occluders, occluders
         self._occluders = occluders(model, self.body_ids) if self.cull else Occluders.none(n)
         # the geoms whose sizes the elements and occluders were built from (model edits: _check_model)
         self._geoms = np.union1d(np.flatnonzero(np.isin(model.geom_bodyid, self.body_ids)),

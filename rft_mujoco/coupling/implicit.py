@@ -42,15 +42,32 @@ class ImplicitWork:
         return ImplicitWork(handle, {name: a.copy() for name, a in self.arrays.items()})
 
 
+def implicit_work(handle, work) -> ImplicitWork:
+    """The compiled implicit solve's buffers of ``handle`` on the MjData of ``work``, created at the first use."""
+    if work.implicit is None:
+        work.implicit = ImplicitWork(handle)
+    return work.implicit
+
+
+def table_part(handle, work, data) -> list:
+    """The handle's part of the native route's table (:func:`rft_mujoco.compiled.implicit_route.table_part`)."""
+    from rft_mujoco.compiled import implicit_route
+    return implicit_route.table_part(handle, implicit_work(handle, work), data)
+
+
+def cfunc_address() -> int:
+    """The implicit evaluation's C function (:func:`rft_mujoco.compiled.implicit_route.cfunc_address`)."""
+    from rft_mujoco.compiled import implicit_route
+    return implicit_route.cfunc_address()
+
+
 def evaluate_compiled(handle, data, work, user_xfrc: np.ndarray, dt: float, sand_out: np.ndarray) -> int:
     """The compiled implicit solve of the touching bodies the broadphase found (``work.state[2]``), after
     ``mj_fwdActuation``: wrenches added into ``sand_out`` (nbody, 6), the diagnostics written. Returns the
     status of :func:`rft_mujoco.compiled.implicit_eval.evaluate_implicit`."""
     from rft_mujoco.compiled import implicit_eval, system
     m = handle.model
-    iw = work.implicit
-    if iw is None:
-        iw = work.implicit = ImplicitWork(handle)
+    iw = implicit_work(handle, work)
     d_, adr, trn, trnid, bias, biasprm, gear = iw.model_arrays
     system.velocity_damping(int(m.opt.integrator) in _IMPLICIT, d_, adr, trn, trnid, bias, biasprm, gear,
                             iw.damping)

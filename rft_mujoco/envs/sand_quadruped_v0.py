@@ -125,6 +125,7 @@ class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
         self,
         xml_file: str = "quadruped.xml",
         frame_skip: int = 10,
+        *,
         default_camera_config: dict[str, float | int] = DEFAULT_CAMERA_CONFIG,
         reward_weights: dict[str, float] | None = None,
         tracking_sigma: float = 0.25,

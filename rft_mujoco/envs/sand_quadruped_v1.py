@@ -176,6 +176,7 @@ class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
         self,
         xml_file: str = "quadruped.xml",
         frame_skip: int = 10,
+        *,
         default_camera_config: dict[str, float | int] = DEFAULT_CAMERA_CONFIG,
         reward_weights: Mapping[str, float] | None = None,
         lin_vel_sigma: float = 0.1,

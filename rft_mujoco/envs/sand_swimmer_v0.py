@@ -127,6 +127,7 @@ class SandSwimmerEnv(SandTaskEnv, utils.EzPickle):
         self,
         xml_file: str = "sand_swimmer.xml",
         frame_skip: int = 4,
+        *,
         timestep_s: float = 0.005,
         default_camera_config: dict[str, float | int] = DEFAULT_CAMERA_CONFIG,
         forward_reward_weight: float = 10.0,

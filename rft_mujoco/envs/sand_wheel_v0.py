@@ -130,6 +130,7 @@ class SandWheelEnv(SandTaskEnv, utils.EzPickle):
         self,
         xml_file: str = "sand_wheel.xml",
         frame_skip: int = 10,
+        *,
         default_camera_config: dict[str, float | int] = DEFAULT_CAMERA_CONFIG,
         drive: str = "torque",
         max_torque_nm: float = 3.0,

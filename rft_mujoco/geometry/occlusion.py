@@ -394,3 +394,75 @@ def occluded(points, occluders, *, owner=None, margin=OCCLUSION_TOL, exact_mesh=
         if test.size:
             hidden[test] = occ.contains(p[test], margin=margin, exact_mesh=exact_mesh)
     return hidden
+
+
+# --- run-time occluders: the geoms of other bodies a body's surface can get inside of --------------------
+@dataclasses.dataclass(frozen=True, eq=False)
+class Occluders:
+    """For each of B bodies, the geoms of OTHER weld groups whose solid its surface can get inside of (the
+    run-time culling of the compiled kernels and of warp: :mod:`rft_mujoco.compiled.elements`).
+
+    Attributes:
+        start: (B + 1,) int, body b's occluders are rows ``start[b]:start[b + 1]``.
+        geom: (O,) int, MuJoCo geom id (its world pose: ``geom_xpos``/``geom_xmat``).
+        kind: (O,) int, ``mjtGeom`` type.
+        size: (O, 3) float, ``geom_size`` (m).
+        rbound: (O,) float, radius of a sphere about the geom's origin holding it (m).
+        hs_start: (O + 1,) int, a mesh's convex-hull halfspaces are rows ``hs_start[o]:hs_start[o + 1]`` of
+        halfspaces: (H, 4) float, ``[n, offset]`` in the geom frame, ``n . x <= offset`` inside.
+        margin: m, the depth an element must exceed to count as inside (:data:`OCCLUSION_TOL`).
+    """
+
+    start: np.ndarray
+    geom: np.ndarray
+    kind: np.ndarray
+    size: np.ndarray
+    rbound: np.ndarray
+    hs_start: np.ndarray
+    halfspaces: np.ndarray
+    margin: float = OCCLUSION_TOL
+
+    def arrays(self) -> tuple:
+        return (self.start, self.geom, self.kind, self.size, self.rbound, self.hs_start, self.halfspaces)
+
+    @classmethod
+    def none(cls, n_bodies: int) -> "Occluders":
+        return cls(np.zeros(n_bodies + 1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                   np.zeros((0, 3)), np.zeros(0), np.zeros(1, np.int64), np.zeros((0, 4)))
+
+
+_RUN_TIME_KINDS = tuple(int(t) for t in (_GEOM.mjGEOM_MESH, _GEOM.mjGEOM_SPHERE, _GEOM.mjGEOM_CAPSULE,
+                                          _GEOM.mjGEOM_CYLINDER, _GEOM.mjGEOM_BOX, _GEOM.mjGEOM_ELLIPSOID))
+
+
+def occluders(model, body_ids) -> Occluders:
+    """The run-time occluders of each attached body: every surface geom (:func:`surface_geoms`, terrain
+    excluded) of every body of another weld group, the world body's included (a rock), whether attached or
+    not. Geoms of the same weld group are culled once, at attach. Each geom's entry (a mesh's hull
+    halfspaces included) is built once and shared by every body it occludes."""
+    weld = np.asarray(model.body_weldid)
+    entries = []                                   # (weld group, geom, kind, size, rbound, halfspaces or None)
+    for other in range(model.nbody):
+        for g in surface_geoms(model, other):
+            t = int(model.geom_type[g])
+            if t in TERRAIN_TYPES or t not in _RUN_TIME_KINDS:
+                continue
+            h = None
+            if t == int(_GEOM.mjGEOM_MESH):
+                m = int(model.geom_dataid[g])
+                va, vn = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+                h = mesh_halfspaces(np.asarray(model.mesh_vert[va:va + vn], dtype=float))
+            entries.append((int(weld[other]), int(g), t, np.asarray(model.geom_size[g], dtype=float),
+                            float(model.geom_rbound[g]), h))
+    start, rows = [0], []
+    for b in body_ids:
+        mine = [e for e in entries if e[0] != weld[b]]
+        rows.extend(mine)
+        start.append(len(rows))
+    hs = [e[5] for e in rows if e[5] is not None]
+    hs_start = np.concatenate([[0], np.cumsum([0 if e[5] is None else e[5].shape[0] for e in rows])])
+    return Occluders(np.asarray(start, np.int64), np.asarray([e[1] for e in rows], np.int64),
+                     np.asarray([e[2] for e in rows], np.int64),
+                     np.asarray([e[3] for e in rows], dtype=float).reshape(-1, 3),
+                     np.asarray([e[4] for e in rows], dtype=float), hs_start.astype(np.int64),
+                     np.vstack(hs) if hs else np.zeros((0, 4)))

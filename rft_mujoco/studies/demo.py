@@ -70,7 +70,7 @@ class Demo:
         self.grid = None
         if deformable:   # a DeformableSurface, drawn by a visual heightfield in place of the floor
             from rft_mujoco.physics.deform import DeformableSurface
-            from rft_mujoco.studies.prints import GRID, add_surface_hfield
+            from rft_mujoco.studies.surface_view import GRID, add_surface_hfield
 
             spec = mujoco.MjSpec.from_file(str(scene_path()))
             plain = spec.compile()
@@ -113,7 +113,7 @@ class Demo:
         to a renderer or viewer), else None."""
         if self.grid is None:
             return None
-        from rft_mujoco.studies.prints import write_surface
+        from rft_mujoco.studies.surface_view import write_surface
         return write_surface(self.model, self.sand.surface(self.data).heights, self.grid)
 
     def close(self) -> None:

@@ -38,6 +38,7 @@ from rft_mujoco.physics import elements, law
 from rft_mujoco.physics.law import PUBLISHED
 from rft_mujoco.physics.media import MALADEN_GLASS_BEADS, Media, get_media
 from rft_mujoco.physics.terrain import FlatSurface
+from rft_mujoco.studies import loadpath_scenes
 from rft_mujoco.tables import RIGHT, Columns
 
 # --- settings: one place ---------------------------------------------------------------------------------
@@ -491,22 +492,20 @@ lowest point on the surface."""
 
 
 def scene_load(name: str) -> tuple[mujoco.MjModel, str, float]:
-    """(model, sand body, load N) of a load-path scene (:data:`rft_mujoco.studies.loadpaths.SCENES`: the load is
-    :func:`rft_mujoco.studies.loadpaths.expected_force`'s vertical part: the scene's total weight, the
+    """(model, sand body, load N) of a load-path scene (:data:`rft_mujoco.studies.loadpath_scenes.SCENES`: the load is
+    :func:`rft_mujoco.studies.loadpath_scenes.expected_force`'s vertical part: the scene's total weight, the
     saturated servo force plus the foot's weight for ``actuator_limit``, the ball's weight for ``rock``) or of
     :data:`SELF_WEIGHT` (the body's weight)."""
-    from rft_mujoco.studies import loadpaths
-
-    if name in loadpaths.SCENES:
-        xml, bodies = loadpaths.SCENES[name]
+    if name in loadpath_scenes.SCENES:
+        xml, bodies = loadpath_scenes.SCENES[name]
         model = mujoco.MjModel.from_xml_string(xml.format(dt=0.002, integrator="Euler"))
-        load, _ = loadpaths.expected_force(name, model)
+        load, _ = loadpath_scenes.expected_force(name, model)
         return model, bodies[0], float(load[2])
     if name in SELF_WEIGHT:
         xml, body = SELF_WEIGHT[name]
         model = mujoco.MjModel.from_xml_string(xml)
         return model, body, float(model.body(body).mass[0] * -model.opt.gravity[2])
-    raise ValueError(f"unknown scene {name!r}; valid names: {sorted(loadpaths.SCENES) + sorted(SELF_WEIGHT)}")
+    raise ValueError(f"unknown scene {name!r}; valid names: {sorted(loadpath_scenes.SCENES) + sorted(SELF_WEIGHT)}")
 
 
 def scene_rest_depth(name: str, *, element_size: float | None = None, media: Media | str | None = None
@@ -516,22 +515,18 @@ def scene_rest_depth(name: str, *, element_size: float | None = None, media: Med
     The depth is the body's displacement from the scene's start pose (its lowest point on the surface), i.e.
     what :class:`rft_mujoco.studies.loadpaths.Result` reports as ``sinkage`` and the depth of its lowest point;
     :func:`rest_depth_of` with the scene's medium and element size (default
-    :data:`rft_mujoco.studies.loadpaths.MEDIA` and :data:`~rft_mujoco.studies.loadpaths.RESOLUTION`: the
-    surface the simulation has). Scenes: :data:`rft_mujoco.studies.loadpaths.SCENES` and :data:`SELF_WEIGHT`.
+    :data:`rft_mujoco.studies.loadpath_scenes.MEDIA` and :data:`~rft_mujoco.studies.loadpath_scenes.RESOLUTION`: the
+    surface the simulation has). Scenes: :data:`rft_mujoco.studies.loadpath_scenes.SCENES` and :data:`SELF_WEIGHT`.
     """
-    from rft_mujoco.studies import loadpaths
-
     model, body, load = scene_load(name)
-    depth = rest_depth_of(model, body, load, element_size=loadpaths.RESOLUTION if element_size is None
-                          else element_size, media=loadpaths.MEDIA if media is None else media)
+    depth = rest_depth_of(model, body, load, element_size=loadpath_scenes.RESOLUTION if element_size is None
+                          else element_size, media=loadpath_scenes.MEDIA if media is None else media)
     return depth, load
 
 
 # --- command line --------------------------------------------------------------------------------------------
 def run(quick: bool = False, progress=print) -> dict:
     """The swimmer's limits at :data:`SWIM_AMPLITUDES` (1 Hz) and every scene's rest depth; prints tables."""
-    from rft_mujoco.studies import loadpaths
-
     size, steps = (0.006, 25) if quick else (SWIM_ELEMENT_SIZE, STEPS_PER_CYCLE)
     progress(f"swimmer, inertia-free limit (1 Hz, {size * 1e3:g} mm elements, {steps} RK4 steps per period, "
              f"speed over the last 2 of 4 periods)")
@@ -545,9 +540,9 @@ def run(quick: bool = False, progress=print) -> dict:
         progress(columns.row([f"{a:.2f}", f"{r['a_over_lambda']:.3f}", f"{r['eta']:.4f}", f"{r['forward_mps']:.5f}",
                               f"{r['lateral_mps']:.5f}", f"{r['yaw_drift_rad']:.4f}", f"{r['max_residual']:.1e}",
                               f"{r['wall_s']:.1f}"]))
-    progress(f"\nquasi-static rest depths ({loadpaths.MEDIA}, {loadpaths.RESOLUTION * 1e3:g} mm elements as the "
+    progress(f"\nquasi-static rest depths ({loadpath_scenes.MEDIA}, {loadpath_scenes.RESOLUTION * 1e3:g} mm elements as the "
              "load-path study; depth = the sand body's displacement from its start pose = its lowest point's depth)")
-    names = list(loadpaths.SCENES) + list(SELF_WEIGHT)
+    names = list(loadpath_scenes.SCENES) + list(SELF_WEIGHT)
     columns = Columns(["scene", "load N", "depth mm"], widths=[max(map(len, names)), 8, 9])
     progress(columns.header())
     depths = {}

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rft_mujoco.studies.stability import (DEFAULT_HEIGHT, DEFAULT_MEDIA, INTEGRATORS, MASSES, REST_DEADLINE,
-                                          REST_SPEED, SHAPES, TIMESTEPS, Result)
+from rft_mujoco.studies.stability_cases import (DEFAULT_HEIGHT, DEFAULT_MEDIA, INTEGRATORS, MASSES, REST_DEADLINE,
+                                                REST_SPEED, SHAPES, TIMESTEPS, Result)
 
 
 def plot(results: list[Result], path: Path) -> None:

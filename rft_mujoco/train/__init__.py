@@ -47,8 +47,8 @@ def find_run(run):
 
 
 def load_run(run, **kwargs):
-    """``(act, env, config)`` of a run folder or shipped run name: see :func:`.evaluate.load_run`."""
-    from .evaluate import load_run as _load
+    """``(act, env, config)`` of a run folder or shipped run name: see :func:`.policies.load_run`."""
+    from .policies import load_run as _load
 
     return _load(run, **kwargs)
 

@@ -25,7 +25,7 @@ from rft_mujoco.tables import Columns, table
 
 from .config import load_config, set_num_threads
 from .environments import make_env
-from .evaluate import EVAL_SEED_OFFSET, load_policy, zero_action
+from .policies import EVAL_SEED_OFFSET, load_policy, zero_action
 from .runs import check_free, find_run
 
 COMMANDS = ((0.2, 0.0, 0.0), (0.4, 0.0, 0.0), (0.6, 0.0, 0.0), (0.3, 0.0, 0.4))

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import json
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -104,14 +103,3 @@ def plot(runs: Sequence[str | Path], out: str | Path, *, window: int = 10) -> Pa
     finally:
         plt.close(fig)
     return out
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m rft_mujoco.train.plot``: same as ``python -m rft_mujoco.train plot``."""
-    from .cli import main as cli_main
-
-    return cli_main(["plot", *(sys.argv[1:] if argv is None else argv)])
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

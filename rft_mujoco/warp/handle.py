@@ -174,7 +174,7 @@ class WarpSandHandle:
         n_elements: E, surface elements over those bodies. groups: the weld groups.
         stabilize, passive, guards, terrain, cull: as in :func:`rft_mujoco.attach`.
         culled_area: (B,) m^2 of each body's surface culled at attach.
-        occluders: the run-time occluders (:class:`rft_mujoco.compiled.elements.Occluders`, the CPU path's list);
+        occluders: the run-time occluders (:class:`rft_mujoco.geometry.occlusion.Occluders`, the CPU path's list);
             n_occluders: their number (0 with ``cull=False``).
         device: the warp device of the model.
     """

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rft_mujoco.compiled.elements import Occluders, occluders
+from rft_mujoco.geometry.occlusion import Occluders, occluders
 from rft_mujoco.coupling import setup
 from rft_mujoco.coupling.setup import Groups
 from rft_mujoco.geometry import surface
@@ -37,7 +37,7 @@ class Layout:
         element_size: m.
         cull: culling on (at attach and at run time), as ``rft_mujoco.attach(cull=...)``.
         culled_area: (B,) m^2 of each body's surface culled at attach.
-        occluders: the run-time occluders of each body (:class:`rft_mujoco.compiled.elements.Occluders`; none
+        occluders: the run-time occluders of each body (:class:`rft_mujoco.geometry.occlusion.Occluders`; none
             when ``cull`` is False).
     """
 

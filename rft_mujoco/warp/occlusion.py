@@ -29,7 +29,7 @@ MESH = wp.constant(int(_G.mjGEOM_MESH))
 
 
 def device_arrays(occ, n_bodies: int, device) -> dict:
-    """Warp arrays of a :class:`rft_mujoco.compiled.elements.Occluders` (``occ``) of ``n_bodies`` bodies: the
+    """Warp arrays of a :class:`rft_mujoco.geometry.occlusion.Occluders` (``occ``) of ``n_bodies`` bodies: the
     kernels' ``occ_*`` arguments (empty tables get one unused row: warp arrays are never empty here)."""
     n = int(occ.geom.size)
     start = np.ascontiguousarray(occ.start, dtype=np.int32)

@@ -41,9 +41,9 @@ def _random_elements(n: int, n_bodies: int = 8, seed: int = 0):
 def throughput(sizes) -> list[dict]:
     """ns per element at each N of the law (numpy :func:`rft_mujoco.physics.law.element_forces` against the
     compiled :func:`rft_mujoco.compiled.law.element_forces`) and of the element pass (numpy
-    :func:`rft_mujoco.physics.elements.body_wrenches` against :class:`rft_mujoco.compiled.elements.ElementPass`).
+    :func:`rft_mujoco.physics.elements.body_wrenches` against :class:`rft_mujoco.compiled.element_pass.ElementPass`).
     Elements: random unit normals, all submerged (depth 10-20 cm), 8 bodies moving at random; about half lead."""
-    from rft_mujoco.compiled import elements as fast
+    from rft_mujoco.compiled import element_pass as fast
     from rft_mujoco.compiled import law as fastlaw
 
     media = MPM_VALIDATION
@@ -149,7 +149,7 @@ def _forces(el, rot, depth, directions) -> np.ndarray:
 
 def _evaluation_time(el, rot, depth) -> tuple[float, float]:
     """Seconds per evaluation of one body with these elements: compiled and numpy element pass."""
-    from rft_mujoco.compiled import elements as fast
+    from rft_mujoco.compiled import element_pass as fast
 
     local, nrm, areas = np.ascontiguousarray(el.centroids), np.ascontiguousarray(el.normals), el.areas.copy()
     body = np.zeros(len(el), dtype=np.int64)
