@@ -179,8 +179,7 @@ def test_implicit_solve_runs_on_the_compiled_backend_and_the_native_route():
         for _ in range(20):
             mujoco.mj_step(m, d)
         assert h.evaluations == 20 and h.diagnostics(d).submerged[0] > 0
-        assert DISPATCHER._books[d].native is not None                       # the route was built for it
-        assert DISPATCHER._registry is None or DISPATCHER._registry.routed(m, d)
+        assert h.evaluation_path(d) == ("native" if DISPATCHER._registry is not None else "python")
     finally:
         h.detach()
     with pytest.raises(ValueError, match="solve must be one of"):

@@ -185,10 +185,10 @@ def test_rollouts_repeat_from_a_reset():
 def test_errors_raise_from_mj_step_naming_the_bodies():
     model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
     data = mujoco.MjData(model)
-    rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+    handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
     for _ in range(5):
         mujoco.mj_step(model, data)
-    assert DISPATCHER._registry.routed(model, data)                       # the native route is in use
+    assert handle.evaluation_path(data) == "native"
     data.qfrc_applied[0] = np.nan
     with pytest.raises(FloatingPointError, match="ball"):
         mujoco.mj_step(model, data)
@@ -258,6 +258,38 @@ def test_user_actuator_callbacks_run_from_python():
 
 
 @needs_native
+@needs_native
+def test_the_evaluation_path_says_which_path_runs():
+    """handle.evaluation_path: "none" before a data's first step, "native" once the route runs it, "python"
+    with an observer (the dispatcher's Python callback calls it) and on the numpy backend."""
+    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    data, other = mujoco.MjData(model), mujoco.MjData(model)
+    handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+    try:
+        assert handle.evaluation_path(data) == "none"
+        for _ in range(5):
+            mujoco.mj_step(model, data)
+        assert handle.evaluation_path(data) == "native" and handle.evaluation_path(other) == "none"
+        seen = []
+        handle.observe(lambda d, w, stage: seen.append(stage))
+        for _ in range(3):
+            mujoco.mj_step(model, data)
+        assert seen and handle.evaluation_path(data) == "python"
+        with pytest.raises(TypeError, match="MjData"):
+            handle.evaluation_path(model)
+    finally:
+        handle.detach()
+    numpy_model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+    numpy_data = mujoco.MjData(numpy_model)
+    slow = rft_mujoco.attach(numpy_model, MEDIA, None, 0.0, 0.01, backend="numpy")
+    try:
+        for _ in range(3):
+            mujoco.mj_step(numpy_model, numpy_data)
+        assert slow.evaluation_path(numpy_data) == "python"
+    finally:
+        slow.detach()
+
+
 def test_a_collected_data_leaves_the_registry():
     model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
     rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)

@@ -264,6 +264,17 @@ class SandHandle:
         """The backend in use: "numba" (:mod:`rft_mujoco.compiled`) or "numpy" (the reference)."""
         return "numpy" if self._fast is None else "numba"
 
+    def evaluation_path(self, data) -> str:
+        """The path that evaluates this handle's sand on ``data`` now: "native" (the compiled route that MuJoCo's
+        callbacks call directly: the fast path), "python" (the dispatcher's Python callback: the numpy backend,
+        an observer, the first evaluations of a model) or "none" (not evaluated on ``data`` yet)."""
+        if not isinstance(data, mujoco.MjData):
+            raise TypeError(f"data must be a mujoco.MjData, got {type(data).__name__}")
+        registry = DISPATCHER._registry
+        if registry is not None and self.attached and registry.routed(self.model, data):
+            return "native"
+        return "none" if self._work.get(data) is None else "python"
+
     def _select_backend(self, terrain) -> None:
         from rft_mujoco.compiled.jit import AVAILABLE, IMPORT_ERROR
         request = self._backend_request
