@@ -39,11 +39,12 @@ _RELAX_SHARE = 0.125        # rft_mujoco.physics.deform.RELAX_SHARE
 
 
 @njit(**JIT)
-def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox):
+def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox, top):
     """One ``covering`` pass: every element facing ``facing`` (-1: down, +1: up) over the nodes of its grown
     projected rectangle, at its plane's height there. ``facing=-1``: only where below ``h`` (the surface), the
     highest such height kept in ``val`` and the node marked 1 in ``mark`` (a node met first sets ``bbox``);
-    ``facing=+1``: only nodes marked ``want`` (1) or 2, the highest height in ``val`` and the mark set to 2."""
+    ``facing=+1``: only nodes marked ``want`` (1) or 2 (inside ``bbox``), the highest height in ``val`` and the mark
+    set to 2. ``top``: m, no node is higher (elements wholly above it are skipped; NaN: none is)."""
     sx, sy, ox, oy = tp[2], tp[4], tp[1], tp[3]
     smin = min(sx, sy)
     grow = tp[19] * smin
@@ -52,29 +53,41 @@ def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox):
         if nrm[e, 2] * -facing < -_FACING:
             half_max = max(half_max, 0.5 * math.sqrt(areas[e]))
     k = int(math.ceil(half_max / smin)) + 2
+    isx, isy = 1.0 / sx, 1.0 / sy
     for e in range(n):
         n0, n1, n2 = nrm[e, 0], nrm[e, 1], nrm[e, 2]
         if not n2 * -facing < -_FACING:
             continue
         half = 0.5 * math.sqrt(areas[e])
-        flat_h = math.hypot(n0, n1)
+        flat_h = math.sqrt(n0 * n0 + n1 * n1)
         level = flat_h <= _FACING
         tx = 1.0 if level else n0 / flat_h
         ty = 0.0 if level else n1 / flat_h
         along = half * abs(n2)
         slope = flat_h / n2
         p0, p1, p2 = pts[e, 0], pts[e, 1], pts[e, 2]
-        jc = int(np.rint((p0 - ox) / sx))
-        ic = int(np.rint((p1 - oy) / sy))
-        for a in range(-k, k + 1):
-            ii = ic + a
-            if ii < 0 or ii >= ny:
+        # the nodes tested: numpy's window (k nodes around the nearest) cut to the grown rectangle's extent
+        # along x and y, with slack (the test below decides, as in numpy)
+        eu, ew = along + grow, half + grow
+        ex = (eu * abs(tx) + ew * abs(ty)) * (1.0 + 1e-9) + 1e-12
+        ey = (eu * abs(ty) + ew * abs(tx)) * (1.0 + 1e-9) + 1e-12
+        a0 = max(int(math.floor((p1 - ey - oy) * isy)), 0)
+        a1 = min(int(math.ceil((p1 + ey - oy) * isy)), ny - 1)
+        b0 = max(int(math.floor((p0 - ex - ox) * isx)), 0)
+        b1 = min(int(math.ceil((p0 + ex - ox) * isx)), nx - 1)
+        if ex > (k - 2) * sx or ey > (k - 2) * sy:      # the extent may reach beyond numpy's window: cut it
+            jc = int(np.rint((p0 - ox) / sx))
+            ic = int(np.rint((p1 - oy) / sy))
+            a0, a1 = max(a0, ic - k), min(a1, ic + k)
+            b0, b1 = max(b0, jc - k), min(b1, jc + k)
+        if facing < 0:                    # no node of the window is above this element's lowest point
+            if p2 - abs(slope) * along >= top:
                 continue
+        elif a1 < bbox[0] or a0 > bbox[1] or b1 < bbox[2] or b0 > bbox[3]:
+            continue                      # no node under a downward surface in its window
+        for ii in range(a0, a1 + 1):
             dy = (oy + sy * ii) - p1
-            for b in range(-k, k + 1):
-                jj = jc + b
-                if jj < 0 or jj >= nx:
-                    continue
+            for jj in range(b0, b1 + 1):
                 dx = (ox + sx * jj) - p0
                 u = dx * tx + dy * ty
                 w = dy * tx - dx * ty
@@ -104,6 +117,12 @@ def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox):
 
 
 @njit(**JIT)
+def _sign(d):
+    """``np.sign`` of a float (NaN: 0), written out: numba's ``np.sign`` costs 3x the whole flux (measured)."""
+    return 1.0 if d > 0.0 else (-1.0 if d < 0.0 else 0.0)
+
+
+@njit(**JIT)
 def _berm(tp, nx, ny, nodes, m, bbox, mark, rim):
     """``berm_nodes``: the nodes (sorted flat indices, into ``rim``) within ``tp[15]`` nodes (Chebyshev) of the
     ``m`` covered ``nodes`` (marked 3 in ``mark``) and not covered; returns their number."""
@@ -111,84 +130,134 @@ def _berm(tp, nx, ny, nodes, m, bbox, mark, rim):
     i0, i1 = max(bbox[0] - r, 0), min(bbox[1] + r, ny - 1)
     j0, j1 = max(bbox[2] - r, 0), min(bbox[3] + r, nx - 1)
     rows, cols = i1 - i0 + 1, j1 - j0 + 1
-    wide = np.zeros((rows, cols), dtype=np.bool_)            # dilation along x, then along y
+    wide = np.zeros((rows + 1, cols), dtype=np.int64)    # row a + 1: covered nodes within r columns, rows <= a
     for t in range(m):
         i, j = nodes[t] // nx - i0, nodes[t] % nx - j0
         for b in range(max(j - r, 0), min(j + r, cols - 1) + 1):
-            wide[i, b] = True
+            wide[i + 1, b] = 1
+    for a in range(rows):                                # running sums down each column
+        for j in range(cols):
+            wide[a + 1, j] += wide[a, j]
     count = 0
     for i in range(rows):
+        lo, hi = max(i - r, 0), min(i + r, rows - 1) + 1
         for j in range(cols):
-            node = (i + i0) * nx + j + j0
-            if mark[node] == 3:
-                continue
-            hit = False
-            for a in range(max(i - r, 0), min(i + r, rows - 1) + 1):
-                if wide[a, j]:
-                    hit = True
-                    break
-            if hit:
-                rim[count] = node
-                count += 1
+            if wide[hi, j] - wide[lo, j] > 0:
+                node = (i + i0) * nx + j + j0
+                if mark[node] != 3:
+                    rim[count] = node
+                    count += 1
     return count
 
 
 @njit(**JIT)
 def _relax(tp, nx, ny, h, q, bbox, mark):
-    """``relax``: the slope flow around the covered nodes (marked 3 in ``mark``; they exchange nothing), then
-    ``bury`` of the sand received (the numpy sweeps' order of operations, pair by pair)."""
+    """``relax``: the slope flow at the nodes within ``tp[16]`` nodes of the covered nodes (marked 3 in ``mark``;
+    they exchange nothing), then ``bury`` of the sand received: the numpy sweeps' numbers in their order of
+    operations (each sweep's fluxes from the heights at its start; ``h[1:] -= f``, then ``h[:-1] += f``), row by
+    row over each row's free nodes, skipping the rows where nothing can flow: a row none of whose nodes changed
+    since the last sweep of the same direction began moves nothing (every pair's flux was, and is, 0)."""
     r = int(tp[16])
     i0, i1 = max(bbox[0] - r, 0), min(bbox[1] + r, ny - 1) + 1
     j0, j1 = max(bbox[2] - r, 0), min(bbox[3] + r, nx - 1) + 1
     rows, cols = i1 - i0, j1 - j0
-    before = np.empty((rows, cols))
-    for i in range(rows):
-        for j in range(cols):
-            before[i, j] = h[(i + i0) * nx + j + j0]
-    lim_x, lim_y = tp[18] * tp[2], tp[18] * tp[4]
-    prev = np.empty(cols)
-    for _ in range(_RELAX_ITERATIONS):
-        for i in range(i0, i1):                              # along x: every pair from the sweep's start
-            base = i * nx
-            a = h[base + j0]
-            for j in range(j0, j1 - 1):
-                b = h[base + j + 1]
-                f = 0.0
-                if mark[base + j] != 3 and mark[base + j + 1] != 3:
-                    d = b - a
-                    f = _RELAX_SHARE * np.sign(d) * max(abs(d) - lim_x, 0.0)
-                h[base + j + 1] = b - f
-                h[base + j] += f
-                a = b
-        for j in range(cols):                                # along y
-            prev[j] = h[i0 * nx + j + j0]
-        for i in range(i0, i1 - 1):
-            for j in range(j0, j1):
-                lo, hi = i * nx + j, (i + 1) * nx + j
-                a = prev[j - j0]
-                b = h[hi]
-                f = 0.0
-                if mark[lo] != 3 and mark[hi] != 3:
-                    d = b - a
-                    f = _RELAX_SHARE * np.sign(d) * max(abs(d) - lim_y, 0.0)
-                h[hi] = b - f
-                h[lo] += f
-                prev[j - j0] = b
+    w = np.empty((rows, cols))
+    free = np.zeros((rows, cols), dtype=np.bool_)
+    near = np.zeros((rows + 1, cols), dtype=np.int64)   # row a + 1: covered nodes within r columns, rows <= a
     for i in range(rows):
         for j in range(cols):
             node = (i + i0) * nx + j + j0
-            q[node] = max(q[node] - max(h[node] - before[i, j], 0.0), 0.0)
+            w[i, j] = h[node]
+            if mark[node] == 3:
+                for b in range(max(j - r, 0), min(j + r, cols - 1) + 1):
+                    near[i + 1, b] = 1
+    for a in range(rows):
+        for j in range(cols):
+            near[a + 1, j] += near[a, j]
+    span_lo, span_hi = np.full(rows, cols), np.full(rows, -1)    # each row's free nodes (first, last)
+    for i in range(rows):                           # free: within r nodes of a covered node, not covered
+        lo, hi = max(i - r, 0), min(i + r, rows - 1) + 1
+        for j in range(cols):
+            if near[hi, j] - near[lo, j] > 0 and mark[(i + i0) * nx + j + j0] != 3:
+                free[i, j] = True
+                span_lo[i] = min(span_lo[i], j)
+                span_hi[i] = j
+    before = w.copy()
+    lim_x, lim_y = tp[18] * tp[2], tp[18] * tp[4]
+    f = np.empty(max(cols - 1, 0))
+    fy = np.empty((max(rows - 1, 0), cols))
+    dirty_x = np.ones(rows, dtype=np.bool_)         # rows changed since the last x sweep began
+    dirty_y = np.ones(rows, dtype=np.bool_)         # ... since the last y sweep began
+    moved_y = np.zeros(rows, dtype=np.bool_)
+    for _ in range(_RELAX_ITERATIONS):
+        any_moved = False
+        for i in range(rows):                       # along x
+            if not dirty_x[i]:
+                continue
+            dirty_x[i] = False
+            row, fr = w[i], free[i]
+            moved = False
+            t0, t1 = span_lo[i], span_hi[i]         # (outside the row's free span every pair's flux is 0)
+            for j in range(t0, t1):
+                d = row[j + 1] - row[j]
+                v = _RELAX_SHARE * _sign(d) * max(abs(d) - lim_x, 0.0)
+                f[j] = v if fr[j] and fr[j + 1] else 0.0
+                moved = moved or f[j] != 0.0
+            if moved:
+                for j in range(t0, t1):
+                    row[j + 1] -= f[j]
+                for j in range(t0, t1):
+                    row[j] += f[j]
+                dirty_x[i] = dirty_y[i] = True
+                any_moved = True
+        for i in range(rows - 1):                   # along y: every flux first, from the sweep's start
+            moved_y[i] = False
+            if not (dirty_y[i] or dirty_y[i + 1]):
+                continue
+            lo, hi, flo, fhi = w[i], w[i + 1], free[i], free[i + 1]
+            fi = fy[i]
+            moved = False
+            t0, t1 = max(span_lo[i], span_lo[i + 1]), min(span_hi[i], span_hi[i + 1])
+            for j in range(min(span_lo[i], span_lo[i + 1]), max(span_hi[i], span_hi[i + 1]) + 1):
+                fi[j] = 0.0
+            for j in range(t0, t1 + 1):
+                d = hi[j] - lo[j]
+                v = _RELAX_SHARE * _sign(d) * max(abs(d) - lim_y, 0.0)
+                fi[j] = v if flo[j] and fhi[j] else 0.0
+                moved = moved or fi[j] != 0.0
+            moved_y[i] = moved
+        for i in range(rows):
+            dirty_y[i] = False
+        for i in range(rows - 1):
+            if moved_y[i]:
+                hi, fi = w[i + 1], fy[i]
+                for j in range(max(span_lo[i], span_lo[i + 1]), min(span_hi[i], span_hi[i + 1]) + 1):
+                    hi[j] -= fi[j]
+        for i in range(rows - 1):
+            if moved_y[i]:
+                lo, fi = w[i], fy[i]
+                for j in range(max(span_lo[i], span_lo[i + 1]), min(span_hi[i], span_hi[i + 1]) + 1):
+                    lo[j] += fi[j]
+                dirty_x[i] = dirty_x[i + 1] = dirty_y[i] = dirty_y[i + 1] = True
+                any_moved = True
+        if not any_moved:
+            break                                   # nothing moved: the next sweeps move nothing
+    for i in range(rows):
+        for j in range(cols):
+            node = (i + i0) * nx + j + j0
+            h[node] = w[i, j]
+            q[node] = max(q[node] - max(w[i, j] - before[i, j], 0.0), 0.0)
 
 
 @njit(**JIT)
-def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, low, rim, stats):
+def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, low, rim, stats, highest=np.nan):
     """Deform the state (``grid`` (2 ny, nx): heights over preload, m; ``cycles``, ``reach`` (ny, nx)) in place
     under the ``n`` elements ``pts`` (n, 3) m, ``nrm`` (n, 3), ``areas`` (n,) m^2: :func:`rft_mujoco.physics.
     deform.press`, its result in ``stats`` (:data:`STATS`). ``live`` (ny nx + 1,): the number of nodes whose
     reach may be non-zero, then those nodes (written for the next press). Scratch: ``mark`` (ny nx,) int, all 0
-    (left so), ``val`` (ny nx,), ``nodes``, ``rim`` (ny nx,) int, ``low`` (ny nx,). Returns the highest node of
-    the surface after the press (m; at least the initial height), or NaN when no node was lowered (the heights
-    did not change)."""
+    (left so), ``val`` (ny nx,), ``nodes``, ``rim`` (ny nx,) int, ``low`` (ny nx,). ``highest``: the surface's
+    highest point before the press (m; NaN: unknown). Returns the highest point after the press (m; at least the
+    initial height), or NaN when no node was lowered (the heights did not change)."""
     ny, nx = cycles.shape
     size = ny * nx
     flat = grid.reshape(2 * size)
@@ -199,11 +268,11 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
     for c in range(6):
         stats[c] = 0.0
     bbox = np.array((ny, -1, nx, -1))
-    _cover(tp, nx, ny, h, pts, nrm, areas, n, -1, mark, val, 1, bbox)
+    _cover(tp, nx, ny, h, pts, nrm, areas, n, -1, mark, val, 1, bbox, highest)
     m = 0
     kept = np.array((ny, -1, nx, -1))                 # the kept nodes' rows and columns
     if bbox[1] >= 0:
-        _cover(tp, nx, ny, h, pts, nrm, areas, n, 1, mark, low, 1, bbox)   # the highest upward surface: low
+        _cover(tp, nx, ny, h, pts, nrm, areas, n, 1, mark, low, 1, bbox, highest)   # the highest upward surface
         for i in range(bbox[0], bbox[1] + 1):              # sorted; kept where no upward surface is under the sand
             for j in range(bbox[2], bbox[3] + 1):
                 node = i * nx + j
@@ -288,9 +357,17 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
             _relax(tp, nx, ny, h, q, kept, mark)
     for t in range(m):
         mark[nodes[t]] = 0
+    # the highest point now (DeformedSurface.max_height): every node that changed is within the slope flow's
+    # window; when a node there reaches the highest point before, it is the highest now, else look everywhere
+    r = int(tp[16])
     top = tp[0]
-    for node in range(size):                           # the highest point now (DeformedSurface.max_height)
-        top = max(top, h[node])
+    for i in range(max(kept[0] - r, 0), min(kept[1] + r, ny - 1) + 1):
+        for j in range(max(kept[2] - r, 0), min(kept[3] + r, nx - 1) + 1):
+            top = max(top, h[i * nx + j])
+    if not top >= highest:
+        top = tp[0]
+        for node in range(size):
+            top = max(top, h[node])
     return top
 
 
@@ -302,8 +379,8 @@ def press_touching(tp, grid, cycles, reach, live, clock, time, dt, slack, k, tou
     (``clock[0]``, s) was not the previous step's (``time - clock[0]`` in ``[0, dt slack]``), then press the grid
     with the elements of the ``k`` touching bodies (``touch``, their poses ``body_pos`` (k, 3) m and
     ``body_mat`` (k, 9): the broadphase's rows) that are below ``max_height`` (m), from the handle's packed
-    elements (padding slots are NaN: never below). ``pts``, ``nrm`` (E, 3), ``ar`` (E,): gather buffers; the
-    rest as :func:`press`. Returns what :func:`press` returns."""
+    elements (padding slots are NaN: never below); ``max_height``: the surface's highest point now (m). ``pts``,
+    ``nrm`` (E, 3), ``ar`` (E,): gather buffers; the rest as :func:`press`. Returns what :func:`press` returns."""
     if not (0.0 <= time - clock[0] <= dt * slack):
         for t in range(int(live[0])):
             reach.reshape(-1)[live[1 + t]] = 0.0
@@ -329,7 +406,7 @@ def press_touching(tp, grid, cycles, reach, live, clock, time, dt, slack, k, tou
                 nrm[n, 2] = r[6] * m0 + r[7] * m1 + r[8] * m2
                 ar[n] = areas[e]
                 n += 1
-    return press(tp, grid, cycles, reach, live, pts, nrm, ar, n, mark, val, nodes, low, rim, stats)
+    return press(tp, grid, cycles, reach, live, pts, nrm, ar, n, mark, val, nodes, low, rim, stats, max_height)
 
 
 def buffers(shape: tuple[int, int], n_elements: int) -> dict:
