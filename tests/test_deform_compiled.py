@@ -179,3 +179,13 @@ def test_a_box_pushed_about_is_the_same_on_both_backends():
     np.testing.assert_allclose(s_nb.heights, s_np.heights, rtol=0, atol=1e-9)
     np.testing.assert_allclose(s_nb.preload, s_np.preload, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(s_nb.cycles, s_np.cycles)
+
+
+def test_the_cost_benchmark_times_both_surfaces():
+    """``bench --deformable``'s function on a short trot: every run timed, on the backend it names (it raises
+    otherwise), the numpy run skipped when asked."""
+    from rft_mujoco.studies.bench.coupling import deformable_trot
+
+    cpu = deformable_trot(seconds=0.02, reps=1, numpy_seconds=0.0)
+    assert len(cpu["flat"]) == len(cpu["deformable"]) == 1 and cpu["deformable_numpy"] == []
+    assert all(v > 0.0 for v in cpu["flat"] + cpu["deformable"])

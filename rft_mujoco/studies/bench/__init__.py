@@ -142,11 +142,9 @@ def _print_deformable(cpu: dict) -> None:
     print("The demo quadruped trotting (prints study: 2 x 1 m grid, 1 cm cells), CPU s per simulated s; flat and "
           "deformable (compiled) alternated")
     flat = float(np.median(cpu["flat"]))
-    print(f"{'surface':<22}{'runs':>30}{'median':>9}{'x flat':>8}")
-    for run, values in cpu.items():
-        if values:
-            med = float(np.median(values))
-            print(f"{run:<22}{', '.join(f'{v:.3f}' for v in values):>30}{med:>9.3f}{med / flat:>7.2f}x")
+    print(table(["surface", "runs", "median", "x flat"],
+                [[run, ", ".join(f"{v:.3f}" for v in values), f"{np.median(values):.3f}",
+                  f"{np.median(values) / flat:.2f}x"] for run, values in cpu.items() if values]))
     pairs = [d / f for d, f in zip(cpu["deformable"], cpu["flat"])]
     print("deformable / flat per repetition: " + ", ".join(f"{r:.2f}" for r in pairs))
     print(_verdict("deformable / flat (median)", float(np.median(cpu["deformable"])) / flat, 1.3, "<=", "x"), flush=True)
