@@ -16,9 +16,9 @@ BOX = """<mujoco><option timestep="0.002"/><worldbody>
 GRID = dict(size=(0.3, 0.3), cell=0.005)
 
 
-def scene(x=0.0, terrain=None):
+def scene(x=0.0, terrain=None, backend="auto"):
     model = mujoco.MjModel.from_xml_string(BOX.format(x=x))
-    handle = rft_mujoco.attach(model, rft_mujoco.LI_LOOSE_GLASS_BEADS,
+    handle = rft_mujoco.attach(model, rft_mujoco.LI_LOOSE_GLASS_BEADS, backend=backend,
                                surface_height=rft_mujoco.DeformableSurface(**GRID) if terrain is None else terrain)
     return model, handle
 
@@ -30,9 +30,11 @@ def run(model, data, steps=150):
 
 def test_footprint_of_a_resting_box_and_its_backend():
     model, handle = scene()
-    assert handle.backend == "numpy"
+    assert handle.backend == "numba"                   # compiled by default (rft_mujoco.compiled.deform)
     data = mujoco.MjData(model)
     run(model, data)
+    from rft_mujoco.coupling.dispatch import DISPATCHER
+    assert DISPATCHER._books[data].native is None      # the Python path: the press runs after each evaluation
     sinkage = 0.02 - data.qpos[2]
     s = handle.surface(data)
     assert s.heights.shape == (61, 61) and s.x.shape == (61,) and s.y.shape == (61,)
@@ -52,15 +54,16 @@ def test_footprint_of_a_resting_box_and_its_backend():
     flat.detach()
 
 
-def test_numba_backend_is_refused_with_a_way_out():
-    model = mujoco.MjModel.from_xml_string(BOX.format(x=0.0))
-    with pytest.raises(ValueError, match="backend='auto'"):
-        rft_mujoco.attach(model, rft_mujoco.LI_LOOSE_GLASS_BEADS, surface_height=rft_mujoco.DeformableSurface(),
-                          backend="numba")
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_both_backends_are_taken_when_asked(backend):
+    model, handle = scene(backend=backend)
+    assert handle.backend == backend
+    handle.detach()
 
 
-def test_two_datas_deform_independently_and_reset_restores():
-    model, handle = scene(x=0.06)
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_two_datas_deform_independently_and_reset_restores(backend):
+    model, handle = scene(x=0.06, backend=backend)
     a, b = mujoco.MjData(model), mujoco.MjData(model)
     b.qpos[0] = -0.06                                  # b's box elsewhere
     run(model, a)
@@ -80,9 +83,10 @@ def test_two_datas_deform_independently_and_reset_restores():
     handle.detach()
 
 
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
 @pytest.mark.parametrize("how", ["copy", "mj_copyData"])
-def test_copies_for_the_same_model_keep_the_surface(how):
-    model, handle = scene()
+def test_copies_for_the_same_model_keep_the_surface(how, backend):
+    model, handle = scene(backend=backend)
     data = mujoco.MjData(model)
     run(model, data, 40)                               # still sinking: the surface changes after the copy
     if how == "copy":
@@ -127,7 +131,7 @@ def test_env_deformable_option_deforms_and_resets():
     env = gym.make("rft_mujoco/SandWheel-v0", drive="slip", deformable=True)
     env.reset(seed=0)
     handle, data = env.unwrapped.sand.handle, env.unwrapped.data
-    assert isinstance(handle.terrain, rft_mujoco.DeformableSurface) and handle.backend == "numpy"
+    assert isinstance(handle.terrain, rft_mujoco.DeformableSurface) and handle.backend == "numba"
     for _ in range(30):
         env.step(np.array([0.2], np.float32))
     assert handle.surface(data).heights.min() < -0.01              # the wheel's rut
@@ -165,7 +169,7 @@ def test_demo_on_a_deformable_surface_fills_its_heightfield():
     from rft_mujoco.studies.demo import Demo
 
     demo = Demo(stand_s=0.5, deformable=True)
-    assert demo.sand.backend == "numpy" and isinstance(demo.sand.terrain, rft_mujoco.DeformableSurface)
+    assert demo.sand.backend == "numba" and isinstance(demo.sand.terrain, rft_mujoco.DeformableSurface)
     geom = demo.model.geom(prints.HFIELD)
     assert geom.contype[0] == 0 and geom.conaffinity[0] == 0
     for _ in range(40):

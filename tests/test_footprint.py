@@ -1,7 +1,8 @@
 """Issue 31's done-when measurements (studies/footprint.py): a 5 kg box's footprint in a deformable surface,
 set back into it, and loaded twice as much. One run of the study, every criterion asserted on what it
 measured. The run skips the two flat-surface references (``references=False``): they are only printed, no
-criterion reads them, and they were a third of the study's mj_steps (4,400 of 13,200)."""
+criterion reads them, and they were a third of the study's mj_steps (4,400 of 13,200). The study runs on the
+compiled backend (its default); tests/test_deform_compiled.py compares that with the numpy reference."""
 
 import numpy as np
 import pytest

@@ -2,7 +2,8 @@
 
 What the model gives (docs/deformable.md, "Ruts"): the wheel sinks deeper pass after pass, by less each pass
 (each reload settles by a plastic increment that shrinks with the loading cycles, and the rut's slumped walls
-are loose sand that the wheel presses out again), and the rut is kept."""
+are loose sand that the wheel presses out again), and the rut is kept. On the compiled backend (the study's
+default; tests/test_deform_compiled.py compares it with the numpy reference)."""
 
 import numpy as np
 

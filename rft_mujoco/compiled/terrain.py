@@ -14,12 +14,15 @@ import numpy as np
 
 from rft_mujoco import tol
 from rft_mujoco.compiled.jit import JIT, njit
+from rft_mujoco.physics.deform import COVER_GROW, DeformableSurface
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
 
 FLAT = 0
 """Terrain kind of :func:`terrain_spec`: a flat surface (any gravity direction)."""
 HEIGHTFIELD = 1
 """Terrain kind of :func:`terrain_spec`: a bilinear heightfield (gravity along -z)."""
+DEFORMABLE = 2
+"""Terrain kind of :func:`terrain_spec`: a deformable surface's grid with its loading memory (gravity along -z)."""
 
 
 @njit(**JIT)
@@ -31,6 +34,8 @@ def _depth(px, py, pz, g0, g1, g2, kind, tp, heights):
             return -np.inf
     if kind == FLAT:
         return tp[0] + (px * g0 + py * g1 + pz * g2)
+    if kind == DEFORMABLE:
+        return _deformed_depth(px, py, pz, tp, heights)
     nrow = heights.shape[0]
     ncol = heights.shape[1]
     u = (px - tp[1]) / (tp[2] - tp[1]) * (ncol - 1)
@@ -51,15 +56,71 @@ def _depth(px, py, pz, g0, g1, g2, kind, tp, heights):
     return z - pz
 
 
+@njit(**JIT)
+def _deformed_depth(px, py, pz, tp, grid):
+    """Effective depth (m) of a world point below a deformed surface: the numbers of
+    :meth:`rft_mujoco.physics.deform.DeformedSurface.depth` (bilinear height and preload, in the same order
+    of operations, then :func:`rft_mujoco.physics.deform.effective_depth`). ``grid`` (2 ny, nx): heights (m)
+    in rows ``0..ny-1``, preload (m) in rows ``ny..2 ny-1``; ``tp`` of :func:`terrain_spec`: ``[initial
+    height, x origin, x spacing, y origin, y spacing, 0, 0, 0, 0, 0, 0, reload_ratio]``."""
+    ny = grid.shape[0] // 2
+    nx = grid.shape[1]
+    u = (px - tp[1]) / tp[2]
+    w = (py - tp[3]) / tp[4]
+    if not (u >= 0 and u <= nx - 1 and w >= 0 and w <= ny - 1):
+        return tp[0] - pz                            # outside the grid: the initial surface, no memory
+    i0 = min(int(math.floor(w)), max(ny - 2, 0))
+    j0 = min(int(math.floor(u)), max(nx - 2, 0))
+    i1 = min(i0 + 1, ny - 1)
+    j1 = min(j0 + 1, nx - 1)
+    fu = u - j0
+    fw = w - i0
+    h = ((1 - fw) * ((1 - fu) * grid[i0, j0] + fu * grid[i0, j1])
+         + fw * ((1 - fu) * grid[i1, j0] + fu * grid[i1, j1]))
+    q = ((1 - fw) * ((1 - fu) * grid[ny + i0, j0] + fu * grid[ny + i0, j1])
+         + fw * ((1 - fu) * grid[ny + i1, j0] + fu * grid[ny + i1, j1]))
+    d = h - pz
+    ratio = tp[11]
+    e = q / ratio
+    if d <= 0.0:
+        return d
+    if d <= e:
+        return ratio * d
+    return q + d - e
+
+
 _NO_HEIGHTS = np.zeros((2, 2))
+
+
+def deformable_heights(grid: DeformableSurface) -> np.ndarray:
+    """A fresh ``(2 ny, nx)`` array of a deformable surface's state for the kernels: the initial heights (m)
+    over a zero preload (m). The coupling keeps one per MjData; ``heights[:ny]`` and ``heights[ny:]`` are the
+    ``heights`` and ``preload`` of its :class:`~rft_mujoco.physics.deform.DeformedSurface` (views)."""
+    ny, nx = grid.shape
+    out = np.zeros((2 * ny, nx))
+    out[:ny] = grid.height
+    return out
 
 
 def terrain_spec(terrain) -> tuple[int, np.ndarray, np.ndarray] | None:
     """``(kind, params (11,) float, heights (nrow, ncol) float)`` for the compiled depth, or None for a
     terrain the compiled kernel does not know (the caller falls back to numpy).
 
-    params: ``[flat height, x0, x1, y0, y1, outside_none, is_region, rx0, rx1, ry0, ry1]``.
+    params: ``[flat height, x0, x1, y0, y1, outside_none, is_region, rx0, rx1, ry0, ry1]``; for a
+    :class:`DeformableSurface` (kind :data:`DEFORMABLE`) ``[initial height, x origin, x spacing, y origin,
+    y spacing, 0, 0, 0, 0, 0, 0, reload_ratio, ...]`` (:data:`rft_mujoco.compiled.deform.TP`) and the initial
+    state's heights (each MjData has its own).
     """
+    if type(terrain) is DeformableSurface:
+        tp = np.zeros(20)                            # (rft_mujoco.compiled.deform.TP)
+        tp[0] = terrain.height
+        tp[1:5] = (terrain.origin[0], terrain.spacing[0], terrain.origin[1], terrain.spacing[1])
+        tp[11:15] = (terrain.reload_ratio, terrain.reload_sinkage, terrain.reload_decay, terrain.compaction)
+        berm = max(1, int(math.floor(terrain.berm_width / min(terrain.spacing) + tol.ROUND_RTOL)))
+        tp[15:18] = (berm, berm + 2, terrain.repose_angle is not None)
+        tp[18] = math.tan(math.radians(terrain.repose_angle)) if terrain.repose_angle is not None else 0.0
+        tp[19] = COVER_GROW
+        return DEFORMABLE, tp, deformable_heights(terrain)
     tp = np.zeros(11)
     inner = terrain
     if type(terrain) is SandRegion:

@@ -3,11 +3,16 @@
 The physics is :mod:`rft_mujoco.physics.deform`; the state of each MjData is the ``surface`` of the handle's
 workspace (:class:`rft_mujoco.coupling.workspace._Workspace`), so it follows the workspace's rules
 (docs/architecture.md, "State and copies"): a reset drops it (the next evaluation starts from the initial
-surface), a copy for the same model copies it, a copy with a copy of the model starts fresh. Deformable
-terrains run on the numpy reference (the compiled kernels read one heightfield per handle, not per MjData,
-and no loading memory): ``backend="auto"`` chooses it, ``backend="numba"`` raises. The grid is pressed once per
-step while bodies touch the sand; a step without a press (no body touching) unloads every node
-(:func:`rft_mujoco.physics.deform.unload`: the next press begins a new loading cycle).
+surface), a copy for the same model copies it, a copy with a copy of the model starts fresh. The grid is
+pressed once per step while bodies touch the sand; a step without a press (no body touching) unloads every
+node (:func:`rft_mujoco.physics.deform.unload`: the next press begins a new loading cycle).
+
+Both backends run it. numpy: :func:`press_touching` (the reference). Compiled (``backend="auto"`` or
+``"numba"``): the kernels read this MjData's grid (the workspace's own handle constants, ``work.hc``: the
+terrain kind :data:`rft_mujoco.compiled.terrain.DEFORMABLE`, heights and preload of this data) and
+:func:`press_compiled` runs the compiled mirror of the press (:mod:`rft_mujoco.compiled.deform`) after each
+evaluation, on the dispatcher's Python path (the native route, which calls no Python, is not built for a
+deformable handle: docs/deformable.md "Backends").
 """
 
 from __future__ import annotations
@@ -35,6 +40,22 @@ def press_touching(handle, data, work, touch: np.ndarray) -> deform.PressResult:
     low = pos[:, 2] < surface.max_height
     nrm = np.einsum("eij,ej->ei", rot[low], handle.local_normals[sel[low]])
     return deform.press(surface, pos[low], nrm, handle.areas[sel[low]])
+
+
+def press_compiled(handle, data, work, k: int) -> None:
+    """:func:`press_touching` compiled (:func:`rft_mujoco.compiled.deform.press_touching`), for the ``k`` touching
+    bodies of the compiled broadphase of this evaluation; the surface's highest point, which the broadphase
+    reads (``work.hc``'s ``params[0]``), follows the grid."""
+    from rft_mujoco.compiled import deform as compiled_deform
+    a, b, hc = work.arrays, work.press, work.hc
+    params = hc[35]
+    top = compiled_deform.press_touching(
+        hc[26], hc[27], a["surface_cycles"], a["surface_reach"], b["live"], a["surface_clock"], data.time,
+        handle.model.opt.timestep, 1.0 + tol.TIME_RTOL, k, a["touch"], a["body_pos"], a["body_mat"], hc[21], hc[22],
+        hc[23], hc[4], hc[5], params[0], b["pts"], b["nrm"], b["ar"], b["mark"], b["val"], b["nodes"], b["low"],
+        b["rim"], b["stats"])
+    if top == top:                                   # not NaN: the heights changed
+        params[0] = top
 
 
 def snapshot(handle, work) -> deform.DeformedSurface:

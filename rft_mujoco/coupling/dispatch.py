@@ -438,7 +438,7 @@ class Dispatcher:
                 return                       # xfrc_applied still holds the first stage's user + sand wrench
         if book.native is not None and book.native[0] != self._generation:
             book.native = None
-        routable = book.native is None and all(h._fast is not None and not h._observers for h in handles) \
+        routable = book.native is None and all(h._native_ok for h in handles) \
             and compiled.ready() and _route_layout()
         if routable and (book.rows is rows or book.rows.size == 0):
             # no rows of detached handles to clear: the native route from this evaluation on, the first of a

@@ -156,6 +156,10 @@ class SandHandle:
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
                               self._fast[0], self.stabilize, self.passive, self._occluders.margin, every,
                               self.rk4_stages == "first", out=self._params)   # read live by the native route
+        for work in self._work.values():
+            if work.press is not None:                   # a deformable surface's own copy, its own highest point
+                np.copyto(work.hc[35], self._params)
+                work.hc[35][0] = work.surface.max_height
 
     # --- public -------------------------------------------------------------------------------------
     @property
@@ -267,13 +271,21 @@ class SandHandle:
     def evaluation_path(self, data) -> str:
         """The path that evaluates this handle's sand on ``data`` now: "native" (the compiled route that MuJoCo's
         callbacks call directly: the fast path), "python" (the dispatcher's Python callback: the numpy backend,
-        an observer, the first evaluations of a model) or "none" (not evaluated on ``data`` yet)."""
+        an observer, a deformable surface, the first evaluations of a model) or "none" (not evaluated on
+        ``data`` yet)."""
         if not isinstance(data, mujoco.MjData):
             raise TypeError(f"data must be a mujoco.MjData, got {type(data).__name__}")
         registry = DISPATCHER._registry
         if registry is not None and self.attached and registry.routed(self.model, data):
             return "native"
         return "none" if self._work.get(data) is None else "python"
+
+    @property
+    def _native_ok(self) -> bool:
+        """Whether the dispatcher's native route may evaluate this handle: compiled, no observer, and not a
+        deformable surface (its grid update runs after each evaluation on the Python path)."""
+        from rft_mujoco.compiled.terrain import DEFORMABLE
+        return self._fast is not None and not self._observers and self._fast[0] != DEFORMABLE
 
     def _select_backend(self, terrain) -> None:
         from rft_mujoco.compiled.jit import AVAILABLE, IMPORT_ERROR
@@ -286,8 +298,8 @@ class SandHandle:
             raise ValueError(f"backend='numba' needs numba, which failed to import ({IMPORT_ERROR}); "
                              "use backend='auto' or 'numpy'")
         if request == "numba" and spec is None:
-            raise ValueError("backend='numba' supports FlatSurface, HeightfieldSurface and SandRegion "
-                             f"terrains, got {type(terrain).__name__}; use backend='auto' (numpy for this "
+            raise ValueError("backend='numba' supports FlatSurface, HeightfieldSurface, SandRegion and "
+                             f"DeformableSurface terrains, got {type(terrain).__name__}; use backend='auto' (numpy for this "
                              "terrain) or 'numpy'")
         self._fast = None
         self._hc = None
@@ -458,7 +470,7 @@ class SandHandle:
     def _evaluate_compiled(self, data, work, user_xfrc, sand_out, dt) -> bool:
         from rft_mujoco.compiled import evaluate
         self._gravity()                                  # raises on a zero gravity set after attach
-        k = evaluate.broadphase(work.md, self._hc, work.tuple, data.time, dt)
+        k = evaluate.broadphase(work.md, work.hc, work.tuple, data.time, dt)
         if k == evaluate.NOT_FINITE_STATE:
             reference.touching(self, data, self._g_hat, work)       # raises the non-finite state error
         if k <= 0:
@@ -467,12 +479,14 @@ class SandHandle:
             mujoco.mj_fwdActuation(self.model, data)
         status = implicit.evaluate_compiled(self, data, work, user_xfrc, dt, sand_out) \
             if self.stabilize and self.solve == "implicit" else \
-            evaluate.evaluate(work.md, self._hc, work.tuple, user_xfrc, dt, sand_out, evaluate.friction_arrays(data))
+            evaluate.evaluate(work.md, work.hc, work.tuple, user_xfrc, dt, sand_out, evaluate.friction_arrays(data))
         touch = work.arrays["touch"][:k]
         if status == evaluate.BAD_ACCELERATION:
             reference.free_twists(self, data, user_xfrc, self.body_ids[self.groups.ref], dt, False)  # raises
         if status < 0:
             self._raise_not_finite(work.diag, touch)
+        if work.press is not None and work.state[5] < 2:
+            deformable.press_compiled(self, data, work, k)
         self._check_validity(data, work, touch, int(work.state[4]))
         return bool(status)
 
@@ -522,8 +536,8 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         media: a :class:`Media` or a preset name (see ``rft_mujoco.PRESETS``).
         bodies: body names (or ids) whose geoms touch the sand; None means every body but the world.
         surface_height: a flat free surface height in m, or a terrain (:class:`FlatSurface`,
-            :class:`HeightfieldSurface`, :class:`SandRegion`, or :class:`DeformableSurface`: footprints, numpy
-            backend, :meth:`SandHandle.surface`).
+            :class:`HeightfieldSurface`, :class:`SandRegion`, or :class:`DeformableSurface`: footprints,
+            :meth:`SandHandle.surface`).
         resolution: element size: a preset name (``rft_mujoco.geometry.surface.RESOLUTIONS``) or metres.
         guards: clean-ups of the fit's artefacts (default none: the published law).
         stabilize: the rest treatment (default True, :mod:`rft_mujoco.physics.rest`): a body the sand can hold is

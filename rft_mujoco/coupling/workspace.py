@@ -66,9 +66,13 @@ class _Workspace:
     (its arrays are ``arrays["surface_heights"]``, ``["surface_preload"]``, ``["surface_cycles"]`` and
     ``["surface_reach"]``, with ``["surface_clock"]`` (1,) the time of its last update, s, so that copies of the
     workspace copy it) and ``terrain`` is that surface; otherwise ``surface`` is None and ``terrain`` the
-    handle's."""
+    handle's. ``hc`` is the handle constants the compiled evaluation of this MjData reads: the handle's, except
+    with a deformable terrain, whose heights (``(2 ny, nx)``: this surface's heights over its preload, of which
+    ``surface.heights`` and ``surface.preload`` are views) and ``params`` (``["surface_params"]``: the handle's
+    settings with this surface's highest point) are this MjData's; ``press`` the compiled grid update's buffers
+    (:func:`rft_mujoco.compiled.deform.buffers`; its state ``["surface_live"]``)."""
 
-    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing", "surface", "terrain", "implicit")
+    __slots__ = ("arrays", "tuple", "md", "diag", "keep", "flowing", "surface", "terrain", "implicit", "hc", "press")
 
     def __init__(self, handle, data) -> None:
         from rft_mujoco.compiled import evaluate
@@ -83,8 +87,20 @@ class _Workspace:
         self.flowing = None                 # the implicit solve's (touching groups, flowed) of the last evaluation
         self.surface = None
         self.terrain = handle.terrain
+        self.hc = handle._hc                # the compiled evaluation's handle constants (None: numpy)
+        self.press = None                   # the compiled grid update's buffers (a deformable terrain)
         if isinstance(self.terrain, DeformableSurface):
             fresh = self.terrain.initial()
+            if self.hc is not None:         # compiled: this MjData's heights and preload in the kernels' array
+                from rft_mujoco.compiled import deform, terrain
+                grid = terrain.deformable_heights(self.terrain)
+                ny = self.terrain.shape[0]
+                fresh = type(fresh)(self.terrain, grid[:ny], grid[ny:], fresh.cycles, fresh.reach)
+                self.press = deform.buffers(self.terrain.shape, self.hc[21].shape[1])
+                a["surface_live"], a["surface_stats"] = self.press["live"], self.press["stats"]
+                a["surface_params"] = handle._params.copy()             # max_height: this surface's
+                self.hc = tuple(grid if name == "heights" else a["surface_params"] if name == "params" else x
+                                for (name, _), x in zip(evaluate.HANDLE_FIELDS, self.hc))
             a["surface_heights"], a["surface_preload"] = fresh.heights, fresh.preload
             a["surface_cycles"], a["surface_reach"] = fresh.cycles, fresh.reach
             a["surface_clock"] = np.full(1, -np.inf)

@@ -61,8 +61,8 @@ class SandTaskEnv(MujocoEnv):
     Every task takes ``deformable`` (keyword, default None: the sand's free surface never changes): True for
     a :class:`~rft_mujoco.DeformableSurface` at the floor's height with :data:`DEFORMABLE_GRID`, or a
     ``DeformableSurface`` of the caller's. Its bodies then leave footprints and ruts that later steps of the
-    episode feel (:mod:`rft_mujoco.physics.deform`); a reset restores the initial surface. It runs on the
-    numpy backend (docs/deformable.md: about 40 times the compiled cost for the quadruped).
+    episode feel (:mod:`rft_mujoco.physics.deform`); a reset restores the initial surface. It runs compiled
+    (docs/deformable.md, "The cost": the trotting quadruped about 3 times its flat-surface cost).
     """
 
     def __init__(self, xml_file: str, frame_skip: int, *, media: Media | str, resolution: str | float,

@@ -334,7 +334,7 @@ def covering(grid: DeformableSurface, points: np.ndarray, normals: np.ndarray, a
         return np.zeros(0, np.int64), np.zeros(0)
     p, n = points[down], normals[down]
     half = 0.5 * np.sqrt(areas[down])                                                 # (k,) m
-    flat_h = np.hypot(n[:, 0], n[:, 1])
+    flat_h = np.sqrt(n[:, 0] * n[:, 0] + n[:, 1] * n[:, 1])
     level = flat_h <= FACING_DOWN
     tx = np.where(level, 1.0, n[:, 0] / np.where(level, 1.0, flat_h))                 # tilt direction (k,)
     ty = np.where(level, 0.0, n[:, 1] / np.where(level, 1.0, flat_h))
@@ -464,8 +464,9 @@ one sweep without overshooting)."""
 
 def relax(surface: DeformedSurface, covered: np.ndarray) -> None:
     """Let slopes steeper than the angle of repose flow (in place, volume conserved): around the ``covered``
-    nodes (flat indices; they exchange nothing: the body holds them), within the berm width and two cells
-    more, :data:`RELAX_ITERATIONS` sweeps move :data:`RELAX_SHARE` of each neighbouring pair's height difference
+    nodes (flat indices; they exchange nothing: the body holds them), at the nodes within the berm width and
+    two cells more of them (Chebyshev distance, in nodes: around each body, not over the box that holds them
+    all), :data:`RELAX_ITERATIONS` sweeps move :data:`RELAX_SHARE` of each neighbouring pair's height difference
     beyond ``tan(repose_angle) * spacing`` from the higher node to the lower one (along x and along y). The
     nodes that gained sand are buried under it (:func:`bury`: the sand that flowed is loose); those that lost
     some keep their preload."""
@@ -477,8 +478,8 @@ def relax(surface: DeformedSurface, covered: np.ndarray) -> None:
     i0, i1 = max(int(ci.min()) - r, 0), min(int(ci.max()) + r, ny - 1) + 1
     j0, j1 = max(int(cj.min()) - r, 0), min(int(cj.max()) + r, nx - 1) + 1
     h = surface.heights[i0:i1, j0:j1]                 # a view: updated in place
-    free = np.ones(h.shape, dtype=bool)
-    free[ci - i0, cj - j0] = False
+    free = _dilated(ci - i0, cj - j0, h.shape, r)   # within r nodes (Chebyshev) of a covered node ...
+    free[ci - i0, cj - j0] = False                  # ... and not covered
     slope = math.tan(math.radians(grid.repose_angle))
     pair_x = free[:, 1:] & free[:, :-1]
     pair_y = free[1:, :] & free[:-1, :]
@@ -493,6 +494,23 @@ def relax(surface: DeformedSurface, covered: np.ndarray) -> None:
         h[1:, :] -= f
         h[:-1, :] += f
     bury(surface.preload[i0:i1, j0:j1], h - before)
+
+
+def _dilated(ci: np.ndarray, cj: np.ndarray, shape: tuple[int, int], r: int) -> np.ndarray:
+    """(shape) bool: the nodes within ``r`` nodes (Chebyshev distance) of the nodes (``ci``, ``cj``) of a window of
+    ``shape`` (themselves included)."""
+    rows, cols = shape
+    win = np.zeros(shape, dtype=bool)
+    win[ci, cj] = True
+    wide = win.copy()                                # along x, then along y
+    for b in range(1, r + 1):
+        wide[:, b:] |= win[:, :cols - b]
+        wide[:, :cols - b] |= win[:, b:]
+    grown = wide.copy()
+    for a in range(1, r + 1):
+        grown[a:, :] |= wide[:rows - a, :]
+        grown[:rows - a, :] |= wide[a:, :]
+    return grown
 
 
 def bury(preload: np.ndarray, added: np.ndarray) -> None:

@@ -324,8 +324,8 @@ def parser(command: str = "demo") -> argparse.ArgumentParser:
     p.add_argument("--seconds", type=float, default=5.0 if command == "demo" else 60.0,
                    help="simulated time in s")
     p.add_argument("--stand", type=float, default=1.0, help="standing time before trotting, s")
-    p.add_argument("--deformable", action="store_true", help="a deformable surface (footprints; numpy backend, "
-                   "about 40x slower; docs/deformable.md)")
+    p.add_argument("--deformable", action="store_true", help="a deformable surface (footprints; about 3x "
+                   "slower; docs/deformable.md)")
     if command == "demo":
         p.add_argument("--out", type=Path, default=None,
                        help="folder for the plot and video (default: out/, replaced on every run; a folder given "

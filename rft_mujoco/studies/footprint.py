@@ -2,7 +2,8 @@
 
 ``python -m rft_mujoco footprint [--plot PATH]``. A 5 kg box (10 x 10 x 4 cm, free joint) on loose glass
 beads (``li_loose_glass_beads``) with a :class:`~rft_mujoco.DeformableSurface` (0.4 x 0.4 m, 5 mm cells,
-defaults otherwise: reload ratio 20, no compaction, berm 5 cm wide), numpy backend, timestep 1 ms.
+defaults otherwise: reload ratio 20, no compaction, berm 5 cm wide), compiled backend (``--backend numpy``: the
+reference), timestep 1 ms.
 
 Every load is applied quasi-statically: the box starts touching the surface, held by an upward force at its
 COM equal to its weight, and that support is ramped to zero over :data:`RAMP` s, then held :data:`HOLD` s
@@ -64,12 +65,12 @@ XML = f"""<mujoco><option timestep="{TIMESTEP}"/><worldbody>
 class Bed:
     """The box on a fresh bed (deformable, or flat with ``deformable=False``)."""
 
-    def __init__(self, deformable: bool = True) -> None:
+    def __init__(self, deformable: bool = True, backend: str = "auto") -> None:
         self.model = mujoco.MjModel.from_xml_string(XML)
         terrain = DeformableSurface(**GRID) if deformable else 0.0
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            self.handle = attach(self.model, MEDIA, surface_height=terrain, backend="numpy", monitor=False)
+            self.handle = attach(self.model, MEDIA, surface_height=terrain, backend=backend, monitor=False)
         self.data = mujoco.MjData(self.model)
         self.body = self.model.body("box").id
         self.weight = MASS * float(-self.model.opt.gravity[2])
@@ -106,12 +107,13 @@ def outline_error(surface: deform.DeformedSurface, depth: float) -> float:
                      abs(ys.max() - HALF[1])))
 
 
-def run(references: bool = True) -> dict:
+def run(references: bool = True, backend: str = "auto") -> dict:
     """The three measurements and (``references``, default True) the flat references (module docstring); every
     length in m. ``references=False`` skips the two flat runs (``flat_s1``, ``flat_s2`` absent), which only
-    the printed table shows and no criterion reads: a third of the study's steps (tests/test_footprint.py)."""
+    the printed table shows and no criterion reads: a third of the study's steps (tests/test_footprint.py).
+    ``backend``: of every bed (``attach``'s; "auto": compiled)."""
     t0 = time.perf_counter()
-    bed = Bed()
+    bed = Bed(backend=backend)
     w = bed.weight
     s1 = bed.load(0.0, w)
     surf = bed.handle.surface(bed.data)
@@ -132,10 +134,10 @@ def run(references: bool = True) -> dict:
     r["s2"] = bed.load(w, 2 * w)
     r["surface_after"] = bed.handle.surface(bed.data)
     r["surface_first"] = first
-    r["s2_fresh"] = Bed().load(0.0, 2 * w)
+    r["s2_fresh"] = Bed(backend=backend).load(0.0, 2 * w)
     if references:
-        r["flat_s1"] = Bed(deformable=False).load(0.0, w)
-        r["flat_s2"] = Bed(deformable=False).load(0.0, 2 * w)
+        r["flat_s1"] = Bed(deformable=False, backend=backend).load(0.0, w)
+        r["flat_s2"] = Bed(deformable=False, backend=backend).load(0.0, 2 * w)
     r["wall_s"] = time.perf_counter() - t0
     return r
 
@@ -182,8 +184,10 @@ def main(argv: list[str] | None = None, command: str = "footprint") -> int:
                                      description="A 5 kg box's footprint in a deformable surface, set back into it "
                                                  "and loaded twice as much (issue 31)")
     parser.add_argument("--plot", default=None, help="also save the surface sections to this PNG")
+    parser.add_argument("--backend", default="auto", choices=("auto", "numba", "numpy"),
+                        help="attach's backend (default auto: compiled)")
     args = parser.parse_args(argv)
-    r = run()
+    r = run(backend=args.backend)
     mm = lambda v: f"{v * 1e3:.2f}"                                 # noqa: E731
     table = Columns(["quantity", "mm (or ratio)"], widths=[52, 14])
     print(table.header())

@@ -3,8 +3,8 @@
 ``python -m rft_mujoco ruts [--passes N] [--slip S] [--plot PATH]``. The bundled wheel rig
 (``models/sand_wheel.xml``: wheel 0.10 m radius, 0.06 m wide, 30 N on the axle) on loose glass beads
 (``li_loose_glass_beads``, element size 0.015 m as the SandWheel env), a
-:class:`~rft_mujoco.DeformableSurface` 1.0 x 0.3 m with 5 mm cells (defaults otherwise), numpy backend,
-timestep 2 ms (``--repose`` sets its angle of repose, ``none`` for no slope flow). Each pass the wheel is
+:class:`~rft_mujoco.DeformableSurface` 1.0 x 0.3 m with 5 mm cells (defaults otherwise), compiled backend
+(``--backend numpy``: the reference), timestep 2 ms (``--repose`` sets its angle of repose, ``none`` for no slope flow). Each pass the wheel is
 set down (still) at x = 0 on the surface as the previous passes left it, spun at :data:`WHEEL_SPEED` rad/s with the carriage servoed to ``w r (1 - slip)`` (the SandWheel env's
 slip drive), and driven :data:`TRAVEL` m (``--reload-sinkage`` sets the surface's plastic sinkage per
 reload; 0 makes reloading elastic). Reported per pass: the wheel's mean sinkage below the *initial*
@@ -40,9 +40,10 @@ WINDOW = (0.15, 0.40)
 GRID = dict(size=(1.0, 0.3), cell=0.005, center=(0.35, 0.0))
 
 
-def rig(repose_angle: float | None = 30.0, reload_sinkage: float | None = None):
+def rig(repose_angle: float | None = 30.0, reload_sinkage: float | None = None, backend: str = "auto"):
     """The wheel rig with deformable sand on its wheel (``repose_angle``: of the DeformableSurface, degrees or
-    None; ``reload_sinkage``: its plastic sinkage per reload, None for the default): (model, data, handle)."""
+    None; ``reload_sinkage``: its plastic sinkage per reload, None for the default; ``backend``: attach's):
+    (model, data, handle)."""
     path = str(importlib.resources.files("rft_mujoco.models") / "sand_wheel.xml")
     model = mujoco.MjModel.from_xml_path(path)
     extra = {} if reload_sinkage is None else {"reload_sinkage": reload_sinkage}
@@ -54,7 +55,7 @@ def rig(repose_angle: float | None = 30.0, reload_sinkage: float | None = None):
         warnings.simplefilter("ignore")
         handle = attach(model, MEDIA, bodies=["wheel"],
                         surface_height=DeformableSurface(**GRID, repose_angle=repose_angle, **extra),
-                        resolution=0.015, backend="numpy", monitor=False)
+                        resolution=0.015, backend=backend, monitor=False)
         handle.replace_rigid("floor")
     return model, mujoco.MjData(model), handle
 
@@ -87,11 +88,11 @@ def drive_pass(model, data, handle, slip: float = SLIP) -> dict:
 
 
 def run(passes: int = 3, slip: float = SLIP, repose_angle: float | None = 30.0,
-        reload_sinkage: float | None = None) -> dict:
+        reload_sinkage: float | None = None, backend: str = "auto") -> dict:
     """``passes`` passes (module docstring); per pass its sinkage (m), rut depth (m, below the initial
     surface under the centre line, mean over WINDOW), pull (N); the surfaces after each pass."""
     t0 = time.perf_counter()
-    model, data, handle = rig(repose_angle, reload_sinkage)
+    model, data, handle = rig(repose_angle, reload_sinkage, backend)
     out = {"sinkage": [], "rut": [], "pull": [], "surfaces": [], "tracks": []}
     for _ in range(passes):
         p = drive_pass(model, data, handle, slip)
@@ -138,13 +139,15 @@ def main(argv: list[str] | None = None, command: str = "ruts") -> int:
                         help="the surface's plastic sinkage per reload, a fraction of the preload (default: "
                         "DeformableSurface's, 0.1; 0: elastic reloading)")
     parser.add_argument("--plot", default=None, help="also save the rut sections to this PNG")
+    parser.add_argument("--backend", default="auto", choices=("auto", "numba", "numpy"),
+                        help="attach's backend (default auto: compiled)")
     args = parser.parse_args(argv)
     repose = None if args.repose.lower() == "none" else float(args.repose)
     if args.passes < 1 or not -1.0 <= args.slip <= 1.0:
         parser.error(f"--passes must be >= 1 and --slip in [-1, 1], got {args.passes}, {args.slip}")
     if args.reload_sinkage is not None and not args.reload_sinkage >= 0.0:
         parser.error(f"--reload-sinkage must be >= 0 (a fraction of the preload), got {args.reload_sinkage}")
-    r = run(args.passes, args.slip, repose, args.reload_sinkage)
+    r = run(args.passes, args.slip, repose, args.reload_sinkage, args.backend)
     table = Columns(["pass", "wheel sinkage mm", "increment mm", "rut depth mm", "drawbar pull N"])
     print(table.header())
     prev = 0.0

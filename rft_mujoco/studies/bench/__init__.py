@@ -31,7 +31,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rft_mujoco.studies.bench import plots
+import numpy as np
+
+from rft_mujoco.studies.bench import coupling, plots
 from rft_mujoco.studies.bench.coupling import (above_sand, env_rates, quadruped_overhead, rk4_stages_accuracy,
                                                 sand_phases)
 from rft_mujoco.studies.bench.kernels import DIRECTIONS_DEG, TARGET_ERROR, public_law, speed_accuracy, throughput
@@ -133,6 +135,19 @@ def _print_accuracy(acc, quick: bool) -> None:
     worst = max(r["max_error"] for r in default) if default else float("nan")
     print(f"default preset: worst error {worst * 100:.2f}% (target {TARGET_ERROR * 100:g}%): "
           f"{'met' if worst <= TARGET_ERROR else 'NOT met'}")
+
+
+def _print_deformable(cpu: dict) -> None:
+    """The table of :func:`rft_mujoco.studies.bench.coupling.deformable_trot` and the issue's verdict."""
+    print("The demo quadruped trotting (prints study: 2 x 1 m grid, 1 cm cells), CPU s per simulated s; flat and "
+          "deformable (compiled) alternated")
+    flat = float(np.median(cpu["flat"]))
+    print(table(["surface", "runs", "median", "x flat"],
+                [[run, ", ".join(f"{v:.3f}" for v in values), f"{np.median(values):.3f}",
+                  f"{np.median(values) / flat:.2f}x"] for run, values in cpu.items() if values]))
+    pairs = [d / f for d, f in zip(cpu["deformable"], cpu["flat"])]
+    print("deformable / flat per repetition: " + ", ".join(f"{r:.2f}" for r in pairs))
+    print(_verdict("deformable / flat (median)", float(np.median(cpu["deformable"])) / flat, 1.3, "<=", "x"), flush=True)
 
 
 def mesh_robots(quick: bool = False) -> list[dict]:
@@ -261,6 +276,12 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
     parser.add_argument("--law", action="store_true",
                         help="section 1b alone: the public element_forces against the numpy law and the kernel "
                              "(~1 min)")
+    parser.add_argument("--deformable", action="store_true",
+                        help="issue 31's cost alone: the demo quadruped trotting on a deformable surface against the "
+                             "flat one, CPU s per simulated s, alternated (~1-2 min)")
+    parser.add_argument("--reps", type=int, default=3, help="with --deformable: repetitions (default 3)")
+    parser.add_argument("--seconds", type=float, default=1.0,
+                        help="with --deformable: s of trot timed per run (default 1.0; numpy: a fifth, once)")
     args = parser.parse_args(argv)
     from rft_mujoco import compiled
 
@@ -273,6 +294,11 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
         print("5. Mesh robots on loose glass beads, every body attached, floor replaced, servos holding home: "
               "us per mj_step after 2.5 s (alternating runs with the bare model; the humanoid balanced by its ankles)", flush=True)
         mesh_robots(args.quick)
+        return 0
+    if args.deformable:
+        print(machine())
+        compiled.ensure_compiled()
+        _print_deformable(coupling.deformable_trot(args.seconds, args.reps, args.seconds / 5))
         return 0
     if args.law:
         print(machine())

@@ -322,3 +322,56 @@ def implicit_cost(names=("explicit", "explicit, Python path", "implicit", "impli
         steps = int(round(swimmer_cycles / anymass.FREQUENCY / 0.002))
         swim_rows.append(dict(setting=name, steps=steps, s_per_step=r["wall_s"] / steps))
     return dict(quadruped=quad, swimmer=swim_rows)
+
+
+DEFORMABLE_RUNS = ("flat", "deformable", "deformable_numpy")
+"""The runs of :func:`deformable_trot`: the demo's flat surface (compiled, native route), the prints study's
+deformable surface compiled (the default backend), and the same deformable surface on the numpy reference."""
+
+
+def _trot_cpu(run: str, seconds: float) -> float:
+    """CPU s per simulated s of the demo quadruped trotting for ``seconds`` s after its stand (untimed) on the
+    surface of ``run`` (:data:`DEFORMABLE_RUNS`), a fresh demo."""
+    from rft_mujoco.physics.deform import DeformableSurface
+    from rft_mujoco.studies.demo import Demo
+    from rft_mujoco.studies.prints import GRID, STAND_S
+
+    warnings.simplefilter("ignore")                  # (the validity monitor's warnings of the trot: not timed here)
+    demo = Demo(stand_s=STAND_S)
+    if run != "flat":
+        if run == "deformable_numpy":
+            demo.sand._backend_request = "numpy"
+        demo.sand.terrain = DeformableSurface(height=float(demo.sand.terrain.max_height), **GRID)
+    want = "numpy" if run == "deformable_numpy" else "numba"
+    if demo.sand.backend != want:
+        raise RuntimeError(f"the {run} run needs the {want} backend, got {demo.sand.backend}")
+    dt = demo.model.opt.timestep
+    for _ in range(int(round(STAND_S / dt))):
+        demo.step()
+    n = int(round(seconds / dt))
+    cpu = time.process_time()
+    for _ in range(n):
+        demo.step()
+    cpu = time.process_time() - cpu
+    demo.close()
+    return cpu / (n * dt)
+
+
+def deformable_trot(seconds: float = 1.0, reps: int = 3, numpy_seconds: float = 0.2) -> dict:
+    """Issue 31's cost target: CPU s (``time.process_time``) per simulated s of the demo quadruped trotting (the
+    prints study's scene and gait, :mod:`rft_mujoco.studies.prints`) on its flat surface and on a deformable one,
+    compiled, alternated ``reps`` times in this process (each run a fresh demo, timed over ``seconds`` s of trot
+    after its untimed stand), and once on the deformable surface with numpy (``numpy_seconds`` s of trot).
+    Returns {run: [CPU s per simulated s, one per repetition]} over :data:`DEFORMABLE_RUNS`."""
+    out = {run: [] for run in DEFORMABLE_RUNS}
+    with warnings.catch_warnings():
+        return _alternate(out, seconds, reps, numpy_seconds)
+
+
+def _alternate(out: dict, seconds: float, reps: int, numpy_seconds: float) -> dict:
+    for _ in range(reps):
+        for run in DEFORMABLE_RUNS[:2]:
+            out[run].append(_trot_cpu(run, seconds))
+    if numpy_seconds > 0:
+        out["deformable_numpy"].append(_trot_cpu("deformable_numpy", numpy_seconds))
+    return out

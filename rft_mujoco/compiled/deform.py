@@ -1,0 +1,420 @@
+"""The deformable surface's grid update, compiled: the numba mirror of :func:`rft_mujoco.physics.deform.press`.
+
+:func:`press` does what the numpy :func:`~rft_mujoco.physics.deform.press` does (footprint, yield and reload
+settlement, berm, slope flow, burying of the sand received), in the same order of operations, on one
+MjData's state (the ``(2 ny, nx)`` heights-over-preload array of :func:`rft_mujoco.compiled.terrain.
+deformable_heights`, ``cycles`` and ``reach`` (ny, nx)); the numpy function stays the reference
+(tests/test_deform_compiled.py compares them on random and structured inputs: heights and preload to
+round-off). What differs is the bookkeeping, so that a press costs what the pressed nodes cost and not the
+grid's size: the nodes are found element by element (a node's lowest or highest body surface kept in
+grid-sized scratch arrays that are cleared where they were written), and the reach is zeroed only at the
+nodes the last press left it on (``live``: count, then the nodes). :func:`press_touching` gathers the
+elements of the touching bodies that the compiled broadphase found (the coupling's
+:func:`rft_mujoco.coupling.deformable.press_touching` in numpy) and presses with them.
+
+``tp`` (:func:`rft_mujoco.compiled.terrain.terrain_spec` of a :class:`~rft_mujoco.DeformableSurface`, 20
+entries) carries the grid and its rules: see :data:`TP`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rft_mujoco.compiled.jit import JIT, njit
+
+TP = ("height", "x_origin", "x_spacing", "y_origin", "y_spacing", "", "", "", "", "", "", "reload_ratio",
+      "reload_sinkage", "reload_decay", "compaction", "berm_cells", "relax_cells", "relax", "slope", "cover_grow")
+"""Entries of a deformable terrain's ``tp``: initial height (m); grid origin and spacing along x and y (m);
+(5-10 unused: the heightfield's); ``reload_ratio``, ``reload_sinkage``, ``reload_decay``, ``compaction``; the berm's
+half-width in nodes (``berm_nodes``'s r), the slope flow's margin in nodes (``relax``'s r); 1 when the slope flow
+is on; ``tan(repose_angle)``; :data:`rft_mujoco.physics.deform.COVER_GROW`."""
+STATS = ("covered", "yielded", "displaced", "deposited", "lost", "settled")
+"""Entries of :func:`press`'s ``stats`` (6,): those of :class:`rft_mujoco.physics.deform.PressResult`."""
+
+_FACING = 1e-6              # rft_mujoco.physics.deform.FACING_DOWN (tests check they are equal)
+_RELAX_ITERATIONS = 10      # rft_mujoco.physics.deform.RELAX_ITERATIONS
+_RELAX_SHARE = 0.125        # rft_mujoco.physics.deform.RELAX_SHARE
+
+
+@njit(**JIT)
+def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox, top):
+    """One ``covering`` pass: every element facing ``facing`` (-1: down, +1: up) over the nodes of its grown
+    projected rectangle, at its plane's height there. ``facing=-1``: only where below ``h`` (the surface), the
+    highest such height kept in ``val`` and the node marked 1 in ``mark`` (a node met first sets ``bbox``);
+    ``facing=+1``: only nodes marked ``want`` (1) or 2 (inside ``bbox``), the highest height in ``val`` and the mark
+    set to 2. ``top``: m, no node is higher (elements wholly above it are skipped; NaN: none is)."""
+    sx, sy, ox, oy = tp[2], tp[4], tp[1], tp[3]
+    smin = min(sx, sy)
+    grow = tp[19] * smin
+    half_max = 0.0
+    for e in range(n):
+        if nrm[e, 2] * -facing < -_FACING:
+            half_max = max(half_max, 0.5 * math.sqrt(areas[e]))
+    k = int(math.ceil(half_max / smin)) + 2
+    isx, isy = 1.0 / sx, 1.0 / sy
+    for e in range(n):
+        n0, n1, n2 = nrm[e, 0], nrm[e, 1], nrm[e, 2]
+        if not n2 * -facing < -_FACING:
+            continue
+        half = 0.5 * math.sqrt(areas[e])
+        flat_h = math.sqrt(n0 * n0 + n1 * n1)
+        level = flat_h <= _FACING
+        tx = 1.0 if level else n0 / flat_h
+        ty = 0.0 if level else n1 / flat_h
+        along = half * abs(n2)
+        slope = flat_h / n2
+        p0, p1, p2 = pts[e, 0], pts[e, 1], pts[e, 2]
+        # the nodes tested: numpy's window (k nodes around the nearest) cut to the grown rectangle's extent
+        # along x and y, with slack (the test below decides, as in numpy)
+        eu, ew = along + grow, half + grow
+        ex = (eu * abs(tx) + ew * abs(ty)) * (1.0 + 1e-9) + 1e-12
+        ey = (eu * abs(ty) + ew * abs(tx)) * (1.0 + 1e-9) + 1e-12
+        a0 = max(int(math.floor((p1 - ey - oy) * isy)), 0)
+        a1 = min(int(math.ceil((p1 + ey - oy) * isy)), ny - 1)
+        b0 = max(int(math.floor((p0 - ex - ox) * isx)), 0)
+        b1 = min(int(math.ceil((p0 + ex - ox) * isx)), nx - 1)
+        if ex > (k - 2) * sx or ey > (k - 2) * sy:      # the extent may reach beyond numpy's window: cut it
+            jc = int(np.rint((p0 - ox) / sx))
+            ic = int(np.rint((p1 - oy) / sy))
+            a0, a1 = max(a0, ic - k), min(a1, ic + k)
+            b0, b1 = max(b0, jc - k), min(b1, jc + k)
+        if facing < 0:                    # no node of the window is above this element's lowest point
+            if p2 - abs(slope) * along >= top:
+                continue
+        elif a1 < bbox[0] or a0 > bbox[1] or b1 < bbox[2] or b0 > bbox[3]:
+            continue                      # no node under a downward surface in its window
+        for ii in range(a0, a1 + 1):
+            dy = (oy + sy * ii) - p1
+            for jj in range(b0, b1 + 1):
+                dx = (ox + sx * jj) - p0
+                u = dx * tx + dy * ty
+                w = dy * tx - dx * ty
+                if not (abs(u) <= along + grow and abs(w) <= half + grow):
+                    continue
+                z = p2 - slope * min(max(u, -along), along)
+                node = ii * nx + jj
+                if facing < 0:
+                    if not z < h[node]:
+                        continue
+                    if mark[node] == 0:
+                        mark[node] = 1
+                        val[node] = z
+                        bbox[0] = min(bbox[0], ii)
+                        bbox[1] = max(bbox[1], ii)
+                        bbox[2] = min(bbox[2], jj)
+                        bbox[3] = max(bbox[3], jj)
+                    elif z > val[node]:
+                        val[node] = z
+                else:
+                    m = mark[node]
+                    if m == want:
+                        mark[node] = 2
+                        val[node] = z
+                    elif m == 2 and z > val[node]:
+                        val[node] = z
+
+
+@njit(**JIT)
+def _sign(d):
+    """``np.sign`` of a float (NaN: 0), written out: numba's ``np.sign`` costs 3x the whole flux (measured)."""
+    return 1.0 if d > 0.0 else (-1.0 if d < 0.0 else 0.0)
+
+
+@njit(**JIT)
+def _berm(tp, nx, ny, nodes, m, bbox, mark, rim):
+    """``berm_nodes``: the nodes (sorted flat indices, into ``rim``) within ``tp[15]`` nodes (Chebyshev) of the
+    ``m`` covered ``nodes`` (marked 3 in ``mark``) and not covered; returns their number."""
+    r = int(tp[15])
+    i0, i1 = max(bbox[0] - r, 0), min(bbox[1] + r, ny - 1)
+    j0, j1 = max(bbox[2] - r, 0), min(bbox[3] + r, nx - 1)
+    rows, cols = i1 - i0 + 1, j1 - j0 + 1
+    wide = np.zeros((rows + 1, cols), dtype=np.int64)    # row a + 1: covered nodes within r columns, rows <= a
+    for t in range(m):
+        i, j = nodes[t] // nx - i0, nodes[t] % nx - j0
+        for b in range(max(j - r, 0), min(j + r, cols - 1) + 1):
+            wide[i + 1, b] = 1
+    for a in range(rows):                                # running sums down each column
+        for j in range(cols):
+            wide[a + 1, j] += wide[a, j]
+    count = 0
+    for i in range(rows):
+        lo, hi = max(i - r, 0), min(i + r, rows - 1) + 1
+        for j in range(cols):
+            if wide[hi, j] - wide[lo, j] > 0:
+                node = (i + i0) * nx + j + j0
+                if mark[node] != 3:
+                    rim[count] = node
+                    count += 1
+    return count
+
+
+@njit(**JIT)
+def _relax(tp, nx, ny, h, q, bbox, mark):
+    """``relax``: the slope flow at the nodes within ``tp[16]`` nodes of the covered nodes (marked 3 in ``mark``;
+    they exchange nothing), then ``bury`` of the sand received: the numpy sweeps' numbers in their order of
+    operations (each sweep's fluxes from the heights at its start; ``h[1:] -= f``, then ``h[:-1] += f``), row by
+    row over each row's free nodes, skipping the rows where nothing can flow: a row none of whose nodes changed
+    since the last sweep of the same direction began moves nothing (every pair's flux was, and is, 0)."""
+    r = int(tp[16])
+    i0, i1 = max(bbox[0] - r, 0), min(bbox[1] + r, ny - 1) + 1
+    j0, j1 = max(bbox[2] - r, 0), min(bbox[3] + r, nx - 1) + 1
+    rows, cols = i1 - i0, j1 - j0
+    w = np.empty((rows, cols))
+    free = np.zeros((rows, cols), dtype=np.bool_)
+    near = np.zeros((rows + 1, cols), dtype=np.int64)   # row a + 1: covered nodes within r columns, rows <= a
+    for i in range(rows):
+        for j in range(cols):
+            node = (i + i0) * nx + j + j0
+            w[i, j] = h[node]
+            if mark[node] == 3:
+                for b in range(max(j - r, 0), min(j + r, cols - 1) + 1):
+                    near[i + 1, b] = 1
+    for a in range(rows):
+        for j in range(cols):
+            near[a + 1, j] += near[a, j]
+    span_lo, span_hi = np.full(rows, cols), np.full(rows, -1)    # each row's free nodes (first, last)
+    for i in range(rows):                           # free: within r nodes of a covered node, not covered
+        lo, hi = max(i - r, 0), min(i + r, rows - 1) + 1
+        for j in range(cols):
+            if near[hi, j] - near[lo, j] > 0 and mark[(i + i0) * nx + j + j0] != 3:
+                free[i, j] = True
+                span_lo[i] = min(span_lo[i], j)
+                span_hi[i] = j
+    before = w.copy()
+    lim_x, lim_y = tp[18] * tp[2], tp[18] * tp[4]
+    f = np.empty(max(cols - 1, 0))
+    fy = np.empty((max(rows - 1, 0), cols))
+    dirty_x = np.ones(rows, dtype=np.bool_)         # rows changed since the last x sweep began
+    dirty_y = np.ones(rows, dtype=np.bool_)         # ... since the last y sweep began
+    moved_y = np.zeros(rows, dtype=np.bool_)
+    for _ in range(_RELAX_ITERATIONS):
+        any_moved = False
+        for i in range(rows):                       # along x
+            if not dirty_x[i]:
+                continue
+            dirty_x[i] = False
+            row, fr = w[i], free[i]
+            moved = False
+            t0, t1 = span_lo[i], span_hi[i]         # (outside the row's free span every pair's flux is 0)
+            for j in range(t0, t1):
+                d = row[j + 1] - row[j]
+                v = _RELAX_SHARE * _sign(d) * max(abs(d) - lim_x, 0.0)
+                f[j] = v if fr[j] and fr[j + 1] else 0.0
+                moved = moved or f[j] != 0.0
+            if moved:
+                for j in range(t0, t1):
+                    row[j + 1] -= f[j]
+                for j in range(t0, t1):
+                    row[j] += f[j]
+                dirty_x[i] = dirty_y[i] = True
+                any_moved = True
+        for i in range(rows - 1):                   # along y: every flux first, from the sweep's start
+            moved_y[i] = False
+            if not (dirty_y[i] or dirty_y[i + 1]):
+                continue
+            lo, hi, flo, fhi = w[i], w[i + 1], free[i], free[i + 1]
+            fi = fy[i]
+            moved = False
+            t0, t1 = max(span_lo[i], span_lo[i + 1]), min(span_hi[i], span_hi[i + 1])
+            for j in range(min(span_lo[i], span_lo[i + 1]), max(span_hi[i], span_hi[i + 1]) + 1):
+                fi[j] = 0.0
+            for j in range(t0, t1 + 1):
+                d = hi[j] - lo[j]
+                v = _RELAX_SHARE * _sign(d) * max(abs(d) - lim_y, 0.0)
+                fi[j] = v if flo[j] and fhi[j] else 0.0
+                moved = moved or fi[j] != 0.0
+            moved_y[i] = moved
+        for i in range(rows):
+            dirty_y[i] = False
+        for i in range(rows - 1):
+            if moved_y[i]:
+                hi, fi = w[i + 1], fy[i]
+                for j in range(max(span_lo[i], span_lo[i + 1]), min(span_hi[i], span_hi[i + 1]) + 1):
+                    hi[j] -= fi[j]
+        for i in range(rows - 1):
+            if moved_y[i]:
+                lo, fi = w[i], fy[i]
+                for j in range(max(span_lo[i], span_lo[i + 1]), min(span_hi[i], span_hi[i + 1]) + 1):
+                    lo[j] += fi[j]
+                dirty_x[i] = dirty_x[i + 1] = dirty_y[i] = dirty_y[i + 1] = True
+                any_moved = True
+        if not any_moved:
+            break                                   # nothing moved: the next sweeps move nothing
+    for i in range(rows):
+        for j in range(cols):
+            node = (i + i0) * nx + j + j0
+            h[node] = w[i, j]
+            q[node] = max(q[node] - max(w[i, j] - before[i, j], 0.0), 0.0)
+
+
+@njit(**JIT)
+def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, low, rim, stats, highest=np.nan):
+    """Deform the state (``grid`` (2 ny, nx): heights over preload, m; ``cycles``, ``reach`` (ny, nx)) in place
+    under the ``n`` elements ``pts`` (n, 3) m, ``nrm`` (n, 3), ``areas`` (n,) m^2: :func:`rft_mujoco.physics.
+    deform.press`, its result in ``stats`` (:data:`STATS`). ``live`` (ny nx + 1,): the number of nodes whose
+    reach may be non-zero, then those nodes (written for the next press). Scratch: ``mark`` (ny nx,) int, all 0
+    (left so), ``val`` (ny nx,), ``nodes``, ``rim`` (ny nx,) int, ``low`` (ny nx,). ``highest``: the surface's
+    highest point before the press (m; NaN: unknown). Returns the highest point after the press (m; at least the
+    initial height), or NaN when no node was lowered (the heights did not change)."""
+    ny, nx = cycles.shape
+    size = ny * nx
+    flat = grid.reshape(2 * size)
+    h = flat[:size]
+    q = flat[size:]
+    cyc = cycles.reshape(size)
+    rch = reach.reshape(size)
+    for c in range(6):
+        stats[c] = 0.0
+    bbox = np.array((ny, -1, nx, -1))
+    _cover(tp, nx, ny, h, pts, nrm, areas, n, -1, mark, val, 1, bbox, highest)
+    m = 0
+    kept = np.array((ny, -1, nx, -1))                 # the kept nodes' rows and columns
+    if bbox[1] >= 0:
+        _cover(tp, nx, ny, h, pts, nrm, areas, n, 1, mark, low, 1, bbox, highest)   # the highest upward surface
+        for i in range(bbox[0], bbox[1] + 1):              # sorted; kept where no upward surface is under the sand
+            for j in range(bbox[2], bbox[3] + 1):
+                node = i * nx + j
+                mk = mark[node]
+                if mk == 0:
+                    continue
+                if mk == 1 or low[node] >= h[node]:
+                    nodes[m] = node
+                    low[m] = val[node]
+                    m += 1
+                    kept[0] = min(kept[0], i)
+                    kept[1] = max(kept[1], i)
+                    kept[2] = min(kept[2], j)
+                    kept[3] = max(kept[3], j)
+                mark[node] = 0
+    w0 = val                                          # (val's grid use is over: the first m entries)
+    for t in range(m):
+        w0[t] = rch[nodes[t]]
+    for t in range(int(live[0])):
+        rch[live[1 + t]] = 0.0
+    live[0] = m
+    for t in range(m):
+        live[1 + t] = nodes[t]
+    if m == 0:
+        return np.nan
+    stats[0] = m
+    ratio, sink, decay = tp[11], tp[12], tp[13]
+    n_yield = n_settle = 0
+    displaced = 0.0
+    for t in range(m):
+        node = nodes[t]
+        if w0[t] == 0.0:
+            cyc[node] += 1.0
+        qn = q[node]
+        elastic = qn / ratio
+        nc = cyc[node]
+        a_n = sink * decay ** max(nc - 2.0, 0.0) if nc >= 2.0 else 0.0
+        settle_rate = a_n * qn
+        rate = elastic + settle_rate
+        push = h[node] - low[t] - w0[t] * elastic
+        along = max(min(push, (1.0 - w0[t]) * rate), 0.0)
+        w1 = w0[t] + along / rate if rate > 0.0 else 1.0
+        beyond = push - along
+        yielded = beyond > 0.0
+        settle = settle_rate * (w1 - w0[t])
+        rch[node] = 1.0 if yielded else w1
+        q_new = qn + max(beyond, 0.0)
+        q[node] = q_new
+        new_h = low[t] + q_new / ratio if yielded else h[node] - settle
+        if yielded or settle > 0.0:
+            n_yield += yielded
+            n_settle += not yielded
+            displaced += h[node] - new_h
+            h[node] = new_h
+    stats[1] = n_yield
+    stats[5] = n_settle
+    if n_yield + n_settle == 0:
+        return np.nan
+    cell_area = tp[2] * tp[4]
+    displaced *= cell_area
+    stats[2] = displaced
+    volume = (1.0 - tp[14]) * displaced
+    for t in range(m):
+        mark[nodes[t]] = 3
+    nr = _berm(tp, nx, ny, nodes, m, kept, mark, rim)
+    virgin = 0
+    for t in range(nr):
+        if q[rim[t]] == 0.0:
+            rim[virgin] = rim[t]                          # (in place: virgin <= t)
+            virgin += 1
+    nr = virgin if virgin else nr
+    if nr == 0:
+        stats[4] = volume
+    else:
+        add = volume / (nr * cell_area)
+        for t in range(nr):
+            node = rim[t]
+            h[node] += add
+            q[node] = max(q[node] - add, 0.0)
+        stats[3] = volume
+        if tp[17] != 0.0:
+            _relax(tp, nx, ny, h, q, kept, mark)
+    for t in range(m):
+        mark[nodes[t]] = 0
+    # the highest point now (DeformedSurface.max_height): every node that changed is within the slope flow's
+    # window; when a node there reaches the highest point before, it is the highest now, else look everywhere
+    r = int(tp[16])
+    top = tp[0]
+    for i in range(max(kept[0] - r, 0), min(kept[1] + r, ny - 1) + 1):
+        for j in range(max(kept[2] - r, 0), min(kept[3] + r, nx - 1) + 1):
+            top = max(top, h[i * nx + j])
+    if not top >= highest:
+        top = tp[0]
+        for node in range(size):
+            top = max(top, h[node])
+    return top
+
+
+@njit(**JIT)
+def press_touching(tp, grid, cycles, reach, live, clock, time, dt, slack, k, touch, body_pos, body_mat, centroids,
+                   normals, areas, cluster_start, body_clusters, max_height, pts, nrm, ar, mark, val, nodes, low,
+                   rim, stats):
+    """:func:`rft_mujoco.coupling.deformable.press_touching`, compiled: unload every node when the last press
+    (``clock[0]``, s) was not the previous step's (``time - clock[0]`` in ``[0, dt slack]``), then press the grid
+    with the elements of the ``k`` touching bodies (``touch``, their poses ``body_pos`` (k, 3) m and
+    ``body_mat`` (k, 9): the broadphase's rows) that are below ``max_height`` (m), from the handle's packed
+    elements (padding slots are NaN: never below); ``max_height``: the surface's highest point now (m). ``pts``,
+    ``nrm`` (E, 3), ``ar`` (E,): gather buffers; the rest as :func:`press`. Returns what :func:`press` returns."""
+    if not (0.0 <= time - clock[0] <= dt * slack):
+        for t in range(int(live[0])):
+            reach.reshape(-1)[live[1 + t]] = 0.0
+        live[0] = 0
+    clock[0] = time
+    n = 0
+    for j in range(k):
+        b = touch[j]
+        r = body_mat[j]
+        px, py, pz = body_pos[j, 0], body_pos[j, 1], body_pos[j, 2]
+        for c in range(body_clusters[b], body_clusters[b + 1]):
+            for e in range(cluster_start[c], cluster_start[c + 1]):
+                l0, l1, l2 = centroids[0, e], centroids[1, e], centroids[2, e]
+                z = pz + (r[6] * l0 + r[7] * l1 + r[8] * l2)
+                if not z < max_height:
+                    continue
+                pts[n, 0] = px + (r[0] * l0 + r[1] * l1 + r[2] * l2)
+                pts[n, 1] = py + (r[3] * l0 + r[4] * l1 + r[5] * l2)
+                pts[n, 2] = z
+                m0, m1, m2 = normals[0, e], normals[1, e], normals[2, e]
+                nrm[n, 0] = r[0] * m0 + r[1] * m1 + r[2] * m2
+                nrm[n, 1] = r[3] * m0 + r[4] * m1 + r[5] * m2
+                nrm[n, 2] = r[6] * m0 + r[7] * m1 + r[8] * m2
+                ar[n] = areas[e]
+                n += 1
+    return press(tp, grid, cycles, reach, live, pts, nrm, ar, n, mark, val, nodes, low, rim, stats, max_height)
+
+
+def buffers(shape: tuple[int, int], n_elements: int) -> dict:
+    """The arrays :func:`press_touching` needs besides the state, for a grid of ``shape`` (ny, nx) and a handle of
+    ``n_elements`` packed elements: ``live`` (state: the nodes whose reach may be non-zero; all zero: none),
+    ``stats`` (the last press's :data:`STATS`), and scratch (``mark`` zero, the others uninitialized)."""
+    size = shape[0] * shape[1]
+    e = max(int(n_elements), 1)
+    return dict(live=np.zeros(size + 1, np.int64), stats=np.zeros(len(STATS)), mark=np.zeros(size, np.int64),
+                val=np.empty(size), nodes=np.empty(size, np.int64), low=np.empty(size), rim=np.empty(size, np.int64),
+                pts=np.empty((e, 3)), nrm=np.empty((e, 3)), ar=np.empty(e))
