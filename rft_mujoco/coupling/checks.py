@@ -455,3 +455,12 @@ def check_model_edits(handle) -> None:
                          f"{handle._geom_size0[i].tolist()} -> {sizes[i].tolist()} m, but the sand's surface "
                          "elements and occluders were built from the sizes at attach. Detach and attach the "
                          "sand again after resizing geoms (or set geom_size back)")
+
+
+def raise_not_finite(body_names: Sequence[str], diag, touch) -> None:
+    """Raise a FloatingPointError naming the touching bodies (indices ``touch``) whose sand wrench in ``diag``
+    (:class:`rft_mujoco.coupling.workspace.Diagnostics`) is not finite."""
+    bad = [body_names[i] for i in touch
+           if not (np.all(np.isfinite(diag.force[i])) and np.all(np.isfinite(diag.torque[i])))]
+    raise FloatingPointError(f"non-finite sand wrench on bodies {bad}; nothing was written to xfrc_applied. "
+                             "Check the model's inputs (ctrl, qfrc_applied, xfrc_applied, masses) for NaN/inf")

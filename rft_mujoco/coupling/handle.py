@@ -9,23 +9,17 @@ times for RK4) the dispatcher (:mod:`rft_mujoco.coupling.dispatch`) evaluates ev
    root, converted to each body's COM); elements inside a geom of another weld group (a calf inside its
    thigh at the knee) carry nothing (run-time culling; culling inside a body and its weld group is done
    once, at attach: :mod:`rft_mujoco.coupling.setup`);
-3. with ``stabilize=True`` (default), the rest treatment of :mod:`rft_mujoco.physics.rest`: per touching
-   *group* (the attached bodies of one MuJoCo weld group, i.e. one rigid body) the free twist at the end
-   of the step without sand, from the smooth forces of this evaluation and the constraint forces of
-   MuJoCo's previous solve (``qfrc_constraint``: contacts, equalities, joint/tendon limits,
-   frictionloss); the RFT wrench at the blended motion direction; the rest wrenches that hold every
-   group the sand can hold, solved together through ``J M^-1 J^T``, and the published force for the
-   others. With ``stabilize=False``, the published force at each element's velocity (the naive
-   coupling);
+3. with ``stabilize=True`` (default), the sand solve of ``attach(solve=...)`` per touching *group* (the
+   attached bodies of one weld group): "explicit" (:mod:`rft_mujoco.physics.rest`: rest or flow, with the
+   constraint forces of MuJoCo's previous solve) or "implicit" (:mod:`rft_mujoco.physics.implicit`: the law
+   at the motion the step ends with, this step's constraints linearized); docs/rest.md. With
+   ``stabilize=False``, the published force at each element's velocity (the naive coupling);
 4. the wrenches are added to ``data.xfrc_applied`` on top of the user's own wrench (the dispatcher's book);
 5. every ``monitor.every`` evaluations, the loaded bodies are checked against the validity range of 3D-RFT
    (:mod:`rft_mujoco.coupling.monitor`; ``attach(monitor=False)`` switches it off).
 
 Steps 1-4 run compiled (:mod:`rft_mujoco.compiled`, the default) or in the numpy reference
 (:mod:`rft_mujoco.coupling.reference`, ``backend="numpy"``); the tests compare the two.
-
-Why the previous solve's constraint forces: MuJoCo calls ``mjcb_control`` before its constraint solve;
-they are the best estimate, exact once the scene rests (docs/rest.md measures the alternatives).
 """
 
 from __future__ import annotations
@@ -282,8 +276,7 @@ class SandHandle:
 
     @property
     def _native_ok(self) -> bool:
-        """Whether the dispatcher's native route may evaluate this handle: compiled, no observer, and not a
-        deformable surface (its grid update runs after each evaluation on the Python path)."""
+        """Whether the native route may evaluate this handle: compiled, no observer, not deformable."""
         from rft_mujoco.compiled.terrain import DEFORMABLE
         return self._fast is not None and not self._observers and self._fast[0] != DEFORMABLE
 
@@ -461,7 +454,7 @@ class SandHandle:
         else:
             status = reference.evaluate_naive(self, data, work, touch, g_hat, sand_out)
         if status < 0:
-            self._raise_not_finite(work.diag, touch)
+            checks.raise_not_finite(self.body_names, work.diag, touch)
         if work.surface is not None and stage < 2:
             deformable.press_touching(self, data, work, touch)
         self._check_validity(data, work, touch, self._evaluations)
@@ -484,7 +477,7 @@ class SandHandle:
         if status == evaluate.BAD_ACCELERATION:
             reference.free_twists(self, data, user_xfrc, self.body_ids[self.groups.ref], dt, False)  # raises
         if status < 0:
-            self._raise_not_finite(work.diag, touch)
+            checks.raise_not_finite(self.body_names, work.diag, touch)
         if work.press is not None and work.state[5] < 2:
             deformable.press_compiled(self, data, work, k)
         self._check_validity(data, work, touch, int(work.state[4]))
@@ -515,13 +508,6 @@ class SandHandle:
                 from rft_mujoco.compiled.terrain import check_gravity
                 check_gravity(self._terrain, self._fast, self._g_hat)
         return self._g_hat
-
-    def _raise_not_finite(self, diag, touch) -> None:
-        bad = [self.body_names[i] for i in touch
-               if not (np.all(np.isfinite(diag.force[i])) and np.all(np.isfinite(diag.torque[i])))]
-        raise FloatingPointError(f"non-finite sand wrench on bodies {bad}; nothing was written to "
-                                 "xfrc_applied. Check the model's inputs (ctrl, qfrc_applied, "
-                                 "xfrc_applied, masses) for NaN/inf")
 
 
 def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
