@@ -44,31 +44,9 @@ _SPARSE_NV = 60
 checks the native choice against ``mj_isSparse``)."""
 
 
-@njit(**INLINE)
-def _j1(t, s):
-    return carray(rt._as_i4(t[s]), (t[s + 1],))
-
-
-@njit(**INLINE)
-def _j2(t, s):
-    return carray(rt._as_i4(t[s]), (t[s + 1], t[s + 2]))
-
-
-@njit(**INLINE)
-def _iw(t, base):
-    """The ``iw`` tuple from the table entries at ``base`` (:data:`rft_mujoco.compiled.implicit_eval.IMPLICIT_FIELDS`)."""
-    f1, f2, f3, i1, b1 = rt._f1, rt._f2, _f3, rt._i1, rt._b1
-    return (
-        i1(t, base + 0), f2(t, base + 4), f2(t, base + 8), f1(t, base + 12), f1(t, base + 16), f3(t, base + 20),
-        f2(t, base + 24), f2(t, base + 28), b1(t, base + 32), f2(t, base + 36), f2(t, base + 40), f1(t, base + 44),
-        f2(t, base + 48), f2(t, base + 52), f2(t, base + 56), f2(t, base + 60), f3(t, base + 64), b1(t, base + 68),
-        b1(t, base + 72), b1(t, base + 76), f1(t, base + 80), f2(t, base + 84), i1(t, base + 88),
-    )
-
-
-@njit(**INLINE)
-def _f3(t, s):
-    return carray(rt._as_f8(t[s]), (t[s + 1], t[s + 2], t[s + 3]))
+_j1, _j2 = rt._j1, rt._j2
+_iw = rt._loader(ie.IMPLICIT_FIELDS) if rt.AVAILABLE else None
+"""The ``iw`` tuple from the table entries at ``base`` (:data:`rft_mujoco.compiled.implicit_eval.IMPLICIT_FIELDS`)."""
 
 
 @njit(**INLINE)
