@@ -28,6 +28,7 @@ import numpy as np
 
 from rft_mujoco.compiled import implicit_eval as ie
 from rft_mujoco.compiled import route as rt
+from rft_mujoco.compiled import table
 from rft_mujoco.compiled.implicit import velocity_damping
 from rft_mujoco.compiled.jit import INLINE, carray, cfunc, njit
 
@@ -45,8 +46,14 @@ checks the native choice against ``mj_isSparse``)."""
 
 
 _j1, _j2 = rt._j1, rt._j2
-_iw = rt._loader(ie.IMPLICIT_FIELDS) if rt.AVAILABLE else None
-"""The ``iw`` tuple from the table entries at ``base`` (:data:`rft_mujoco.compiled.implicit_eval.IMPLICIT_FIELDS`)."""
+if rt.AVAILABLE:
+    _iw = table.loader(ie.IMPLICIT_FIELDS)
+    """The ``iw`` tuple from the table entries at ``base`` (:data:`rft_mujoco.compiled.implicit_eval.IMPLICIT_FIELDS`)."""
+    _md, _hc, _ws = (table.loader(fields) for fields in (rt.ev.MJDATA_FIELDS, rt.ev.HANDLE_FIELDS, rt.ev.WORK_FIELDS))
+    """``md``, ``hc``, ``ws`` as tuples (the route's phases take views): ``evaluate_implicit`` is a function of
+    its own, compiled once for the tuples of both the Python path and this route."""
+else:  # pragma: no cover - without numba the route is never built
+    _iw = _md = _hc = _ws = None
 
 
 @njit(**INLINE)
@@ -77,7 +84,7 @@ def implicit_phase(ptr, h, dt):
     base = t[rt._HEADER + h]
     ib = t[rt._HEADER + n + h]
     _, _, _, _, user, sand, _, _, _, _ = rt._book(t, t[1])
-    md = rt._md(t, t[2])
+    md = _md(t, t[2])
     nv = md[6].shape[0]
     fr = rt._fr(t, t[3], nv)
     jac, rowadr, rownnz, colind = _jac_rows(t, t[3], nv)
@@ -88,7 +95,7 @@ def implicit_phase(ptr, h, dt):
     velocity_damping(integrator == _IMPLICIT[0] or integrator == _IMPLICIT[1], rt._f1(t, s + 16), rt._i1(t, s + 20),
                      _j1(t, s + 24), _j2(t, s + 28), _j1(t, s + 32), rt._f2(t, s + 36), rt._f2(t, s + 40), damping)
     sparse = jacobian == _JAC_SPARSE or (jacobian == _JAC_AUTO and nv >= _SPARSE_NV)
-    return ie.evaluate_implicit(md, rt._hc(t, base), rt._ws(t, base + rt._HC_SLOTS), _iw(t, ib), user, dt, sand,
+    return ie.evaluate_implicit(md, _hc(t, base), _ws(t, base + rt._HC_SLOTS), _iw(t, ib), user, dt, sand,
                                 efc, sparse, m_val, damping, st, flags[0] != 0.0)
 
 

@@ -136,8 +136,8 @@ second process's CPU seconds (its compile is the critical path) plus the first's
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",
-                  "compiled/route.py", "compiled/native.py", "compiled/implicit_law.py", "compiled/implicit.py",
-                  "compiled/implicit_eval.py", "physics/rest.py", "tol.py")
+                  "compiled/table.py", "compiled/route.py", "compiled/native.py", "compiled/implicit_law.py",
+                  "compiled/implicit.py", "compiled/implicit_eval.py", "physics/rest.py", "tol.py")
 """Every source file (relative to the package) whose code ends up in compiled machine code."""
 
 

@@ -28,10 +28,10 @@ import threading
 import numpy as np
 
 from rft_mujoco.compiled import evaluate as ev
+from rft_mujoco.compiled import table
 from rft_mujoco.compiled.jit import AVAILABLE, INLINE, JIT, carray, cfunc, njit, types
+from rft_mujoco.compiled.table import SLOT
 
-SLOT = 4
-"""Table entries per array: address, then up to 3 dimensions."""
 DONE, ACTUATE, CONTINUE, PYTHON, MONITOR = 0, 1, 2, 3, 4
 """Phase results: committed and finished; touching, run mj_fwdActuation then phase 2; touching, phase 2
 without actuation (no stabilized handle touches); nothing committed, run the Python path; committed, run
@@ -132,56 +132,17 @@ else:  # pragma: no cover - without numba the route is never built
     _as_f8 = _as_i8 = _as_i4 = _as_b1 = _call_rest = None
 
 
-def _loader(fields, one=False):
-    """An intrinsic ``(t, base) ->`` the tuple of arrays of ``fields`` ((name, kind) pairs, kind: dtype letter of
-    :data:`_DTYPES` and ndim) from the table entries at ``base`` (one :data:`SLOT` per field, in order), the
-    array itself when ``one``. The same arrays as ``carray(address, shape)`` per field (C layout, the table's
-    shape, not memory-managed), but built by one call: the table accessors written as inlined numba functions
-    (``carray`` per field) cost numba's inliner, type inference and lowering about 10 CPU s per route phase at the
-    first use (profiled: 7,400 call resolutions for the rest phase alone), about a third of its compile."""
-    arrays = [types.Array(_NB_DTYPES[kind[0]], int(kind[1]), "C") for _, kind in fields]
-    result = arrays[0] if one else types.BaseTuple.from_types(arrays)
-
-    @intrinsic
-    def load(typingctx, t, base):
-        if not (isinstance(t, types.Array) and t.dtype == types.int64 and t.ndim == 1):
-            return None
-        return result(t, types.int64), _codegen
-
-    def _codegen(context, builder, signature, args):
-        from numba.np.arrayobj import make_array, populate_array
-        i64 = ir.IntType(64)
-        data = make_array(signature.args[0])(context, builder, args[0]).data
-        out = []
-        for i, aty in enumerate(arrays):
-            def entry(k, i=i):
-                return builder.load(builder.gep(data, [builder.add(args[1], i64(SLOT * i + k))]))
-            shape = [entry(1 + d) for d in range(aty.ndim)]
-            item = context.get_abi_sizeof(context.get_data_type(aty.dtype))
-            strides, off = [], i64(item)
-            for dim in reversed(shape):
-                strides.insert(0, off)
-                off = builder.mul(off, dim)
-            ary = make_array(aty)(context, builder)
-            populate_array(ary, data=builder.inttoptr(entry(0), context.get_data_type(aty.dtype).as_pointer()),
-                           shape=shape, strides=strides, itemsize=i64(item), meminfo=None)
-            out.append(ary._getvalue())
-        return out[0] if one else context.make_tuple(builder, result, out)
-    return load
-
-
 if AVAILABLE:
-    _NB_DTYPES = {"f": types.float64, "i": types.int64, "b": types.boolean, "j": types.int32}
-    _f1, _f2, _i1, _i2, _b1, _j1, _j2, _f3 = (_loader([("", k)], one=True)
+    _f1, _f2, _i1, _i2, _b1, _j1, _j2, _f3 = (table.loader([("", k)], one=True)
                                               for k in ("f1", "f2", "i1", "i2", "b1", "j1", "j2", "f3"))
-    _md = _loader(ev.MJDATA_FIELDS)
-    """The ``md`` tuple from the table entries at ``base`` (schema order)."""
-    _hc = _loader(ev.HANDLE_FIELDS)
-    """The ``hc`` tuple from the table entries at ``base`` (schema order)."""
-    _ws = _loader(ev.WORK_FIELDS)
-    """The ``ws`` tuple from the table entries at ``base`` (schema order)."""
-    _book = _loader(BOOK_FIELDS)
-    """The book's arrays (:data:`BOOK_FIELDS`)."""
+    _md = table.viewer(ev.MJDATA_FIELDS)
+    """The ``md`` arguments (:data:`~rft_mujoco.compiled.evaluate.MJDATA_FIELDS`) at ``base``, a view."""
+    _hc = table.viewer(ev.HANDLE_FIELDS)
+    """The ``hc`` arguments at ``base``, a view."""
+    _ws = table.viewer(ev.WORK_FIELDS)
+    """The ``ws`` arguments at ``base``, a view."""
+    _book = table.loader(BOOK_FIELDS)
+    """The book's arrays (:data:`BOOK_FIELDS`), a tuple."""
 else:  # pragma: no cover - without numba the route is never built
     _f1 = _f2 = _i1 = _i2 = _b1 = _j1 = _j2 = _f3 = _md = _hc = _ws = _book = None
 

@@ -31,7 +31,7 @@ import time
 import mujoco
 
 from rft_mujoco.compiled import evaluate as ev
-from rft_mujoco.compiled import jit, locks, route
+from rft_mujoco.compiled import jit, locks, route, table
 from rft_mujoco.compiled.jit import types
 
 _MODEL = """<mujoco><worldbody>
@@ -71,8 +71,8 @@ def locked_rest_signature() -> tuple:
     """The numba argument types of ``locks.locked_rest`` as the rest phase calls it (arrays as the route's table
     gives them: C layout, the schema's dtype and rank)."""
     kinds = dict(ev.WORK_FIELDS + ev.HANDLE_FIELDS)
-    typed = [types.float64 if name == "dt" else types.int64 if name == "ng"
-             else types.Array(route._NB_DTYPES[kinds[name][0]], int(kinds[name][1]), "C") for name in _LOCKED_REST_WORK]
+    typed = [types.float64 if name == "dt" else types.int64 if name == "ng" else table.array_type(kinds[name])
+             for name in _LOCKED_REST_WORK]
     return (types.int64, *typed, types.boolean)
 
 
