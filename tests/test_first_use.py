@@ -149,6 +149,20 @@ def test_rest_process_only_when_useful(monkeypatch, tmp_path):
     assert not warmup.rest_cached() and warmup.start_rest_process() is None
 
 
+def test_the_second_processs_locked_rest_is_the_one_the_rest_phase_calls():
+    """The second compile process compiles ``locks.locked_rest`` for the signature spelled out in
+    ``warmup.locked_rest_signature`` before the rest phase: after a warm-up its cache index holds exactly one
+    signature for this CPU, that one (a mismatch would compile it twice, the second time for the rest phase)."""
+    from rft_mujoco.compiled import locks, warmup
+
+    compiled.ensure_compiled(verbose=False)
+    from numba.core.registry import cpu_target
+
+    index = locks.locked_rest._cache._cache_file._load_index()       # numba's index of it in the per-user cache
+    here = cpu_target.target_context.codegen().magic_tuple()
+    assert [key[0] for key in index if key[1] == here] == [warmup.locked_rest_signature()]
+
+
 def test_the_inliner_memo_is_shared_only_for_this_packages_functions(monkeypatch):
     """numba's inliner copies a callee's IR blocks with one shared deepcopy memo only when the caller is one
     of rft_mujoco's functions (compiled/jit.py): any other code's inlining is compiled exactly as numba

@@ -13,7 +13,8 @@ Modules, each importing only those before it (no cycles):
   :mod:`~rft_mujoco.compiled.implicit_eval`, :mod:`~rft_mujoco.compiled.implicit_route`: the implicit solve
   (``attach(solve="implicit")``): the regularized law and its derivative, the Newton / rest solve with this
   step's constraints linearized, its evaluation, and its C function on the native route;
-* :mod:`~rft_mujoco.compiled.route`: every handle of a model as one native call per evaluation;
+* :mod:`~rft_mujoco.compiled.table`, :mod:`~rft_mujoco.compiled.route`: every handle of a model as one native
+  call per evaluation (the table of its arrays, read in compiled code; the two phases);
 * :mod:`~rft_mujoco.compiled.deform`: a deformable surface's grid update (the mirror of
   :func:`rft_mujoco.physics.deform.press`), after each evaluation of a deformable handle.
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from rft_mujoco.compiled import implicit_eval as ie
 from rft_mujoco.compiled import route as rt
+from rft_mujoco.compiled import table
 from rft_mujoco.compiled.system import velocity_damping
 from rft_mujoco.compiled.jit import INLINE, carray, cfunc, njit
 
@@ -44,31 +45,15 @@ _SPARSE_NV = 60
 checks the native choice against ``mj_isSparse``)."""
 
 
-@njit(**INLINE)
-def _j1(t, s):
-    return carray(rt._as_i4(t[s]), (t[s + 1],))
-
-
-@njit(**INLINE)
-def _j2(t, s):
-    return carray(rt._as_i4(t[s]), (t[s + 1], t[s + 2]))
-
-
-@njit(**INLINE)
-def _iw(t, base):
+_j1, _j2 = rt._j1, rt._j2
+if rt.AVAILABLE:
+    _iw = table.loader(ie.IMPLICIT_FIELDS)
     """The ``iw`` tuple from the table entries at ``base`` (:data:`rft_mujoco.compiled.implicit_eval.IMPLICIT_FIELDS`)."""
-    f1, f2, f3, i1, b1 = rt._f1, rt._f2, _f3, rt._i1, rt._b1
-    return (
-        i1(t, base + 0), f2(t, base + 4), f2(t, base + 8), f1(t, base + 12), f1(t, base + 16), f3(t, base + 20),
-        f2(t, base + 24), f2(t, base + 28), b1(t, base + 32), f2(t, base + 36), f2(t, base + 40), f1(t, base + 44),
-        f2(t, base + 48), f2(t, base + 52), f2(t, base + 56), f2(t, base + 60), f3(t, base + 64), b1(t, base + 68),
-        b1(t, base + 72), b1(t, base + 76), f1(t, base + 80), f2(t, base + 84), i1(t, base + 88),
-    )
-
-
-@njit(**INLINE)
-def _f3(t, s):
-    return carray(rt._as_f8(t[s]), (t[s + 1], t[s + 2], t[s + 3]))
+    _md, _hc, _ws = (table.loader(fields) for fields in (rt.ev.MJDATA_FIELDS, rt.ev.HANDLE_FIELDS, rt.ev.WORK_FIELDS))
+    """``md``, ``hc``, ``ws`` as tuples (the route's phases take views): ``evaluate_implicit`` is a function of
+    its own, compiled once for the tuples of both the Python path and this route."""
+else:  # pragma: no cover - without numba the route is never built
+    _iw = _md = _hc = _ws = None
 
 
 @njit(**INLINE)
@@ -99,7 +84,7 @@ def implicit_phase(ptr, h, dt):
     base = t[rt._HEADER + h]
     ib = t[rt._HEADER + n + h]
     _, _, _, _, user, sand, _, _, _, _ = rt._book(t, t[1])
-    md = rt._md(t, t[2])
+    md = _md(t, t[2])
     nv = md[6].shape[0]
     fr = rt._fr(t, t[3], nv)
     jac, rowadr, rownnz, colind = _jac_rows(t, t[3], nv)
@@ -110,7 +95,7 @@ def implicit_phase(ptr, h, dt):
     velocity_damping(integrator == _IMPLICIT[0] or integrator == _IMPLICIT[1], rt._f1(t, s + 16), rt._i1(t, s + 20),
                      _j1(t, s + 24), _j2(t, s + 28), _j1(t, s + 32), rt._f2(t, s + 36), rt._f2(t, s + 40), damping)
     sparse = jacobian == _JAC_SPARSE or (jacobian == _JAC_AUTO and nv >= _SPARSE_NV)
-    return ie.evaluate_implicit(md, rt._hc(t, base), rt._ws(t, base + rt._HC_SLOTS), _iw(t, ib), user, dt, sand,
+    return ie.evaluate_implicit(md, _hc(t, base), _ws(t, base + rt._HC_SLOTS), _iw(t, ib), user, dt, sand,
                                 efc, sparse, m_val, damping, st, flags[0] != 0.0)
 
 

@@ -127,18 +127,20 @@ JIT_LAW = dict(JIT, fastmath={"contract"})
 """The two element loops: multiply-add fusion (FMA), nothing else; measured 5-7% fewer ns per element,
 results within round-off of the numpy law (tests), deterministic run to run."""
 
-COMPILE_SECONDS = 120
+COMPILE_SECONDS = 60
 """First-use compile time in s on a quiet 2-core machine in one process, for the progress line: about the CPU
-seconds the demo's first use took (docs/performance.md "The very first compile", second round)."""
-COMPILE_SECONDS_PARALLEL = 80
+seconds the demo's first use took in one process (73 at load average 5, docs/performance.md "The very first
+compile", third round)."""
+COMPILE_SECONDS_PARALLEL = 40
 """The same with the rest treatment compiled in a second process (:mod:`rft_mujoco.compiled.warmup`): the
-second process's CPU seconds (its compile is the critical path) plus the first's wait and the loading."""
+second process's CPU seconds (35 at load average 5; its compile is the critical path) plus the first's
+loading of its result and the warm-up."""
 
 KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "compiled/elements.py",
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",
-                  "compiled/route.py", "compiled/native.py", "compiled/implicit_law.py", "compiled/implicit.py",
-                  "compiled/system.py", "compiled/implicit_eval.py", "compiled/deform.py", "physics/rest.py",
-                  "tol.py")
+                  "compiled/table.py", "compiled/route.py", "compiled/native.py", "compiled/implicit_law.py",
+                  "compiled/implicit.py", "compiled/system.py", "compiled/implicit_eval.py", "compiled/deform.py",
+                  "physics/rest.py", "tol.py")
 """Every source file (relative to the package) whose code ends up in compiled machine code."""
 
 

@@ -28,10 +28,10 @@ import threading
 import numpy as np
 
 from rft_mujoco.compiled import evaluate as ev
+from rft_mujoco.compiled import table
 from rft_mujoco.compiled.jit import AVAILABLE, INLINE, JIT, carray, cfunc, njit, types
+from rft_mujoco.compiled.table import SLOT
 
-SLOT = 4
-"""Table entries per array: address, then up to 3 dimensions."""
 DONE, ACTUATE, CONTINUE, PYTHON, MONITOR = 0, 1, 2, 3, 4
 """Phase results: committed and finished; touching, run mj_fwdActuation then phase 2; touching, phase 2
 without actuation (no stabilized handle touches); nothing committed, run the Python path; committed, run
@@ -57,8 +57,11 @@ JAC_POINTERS = ("efc_J", "efc_J_rowadr", "efc_J_rownnz", "efc_J_colind")
 def user_part(xfrc, written, added, rows, user):
     """The dispatcher's user wrench (nbody, 6) into ``user``: ``xfrc`` with the sand ``added`` last time
     taken out of the components of rows ``rows`` the user left alone (the rule of
-    :func:`rft_mujoco.coupling.dispatch.untouched_components`)."""
-    user[:] = xfrc
+    :func:`rft_mujoco.coupling.dispatch.untouched_components`). Copied element by element: ``user[:] = xfrc``
+    compiles numba's broadcasting assignment and its error messages, 8 of the first use's CPU s (measured)."""
+    for r in range(xfrc.shape[0]):
+        for k in range(6):
+            user[r, k] = xfrc[r, k]
     for r in rows:
         whole = True
         for k in range(6):
@@ -129,40 +132,19 @@ else:  # pragma: no cover - without numba the route is never built
     _as_f8 = _as_i8 = _as_i4 = _as_b1 = _call_rest = None
 
 
-@njit(**INLINE)
-def _f1(t, s):
-    return carray(_as_f8(t[s]), (t[s + 1],))
-
-
-@njit(**INLINE)
-def _f2(t, s):
-    return carray(_as_f8(t[s]), (t[s + 1], t[s + 2]))
-
-
-@njit(**INLINE)
-def _i1(t, s):
-    return carray(_as_i8(t[s]), (t[s + 1],))
-
-
-@njit(**INLINE)
-def _i2(t, s):
-    return carray(_as_i8(t[s]), (t[s + 1], t[s + 2]))
-
-
-@njit(**INLINE)
-def _b1(t, s):
-    return carray(_as_b1(t[s]), (t[s + 1],))
-
-
-@njit(**INLINE)
-def _md(t, base):
-    """The ``md`` tuple from the table entries at ``base`` (schema order)."""
-    return (
-        _f2(t, base + 0), _f2(t, base + 4), _f2(t, base + 8), _f2(t, base + 12), _f2(t, base + 16),
-        _f1(t, base + 20), _f1(t, base + 24), _f2(t, base + 28), _f1(t, base + 32), _f1(t, base + 36),
-        _f1(t, base + 40), _f1(t, base + 44), _f1(t, base + 48), _f1(t, base + 52), _f1(t, base + 56),
-        _f2(t, base + 60), _f2(t, base + 64),
-    )
+if AVAILABLE:
+    _f1, _f2, _i1, _i2, _b1, _j1, _j2, _f3 = (table.loader([("", k)], one=True)
+                                              for k in ("f1", "f2", "i1", "i2", "b1", "j1", "j2", "f3"))
+    _md = table.viewer(ev.MJDATA_FIELDS)
+    """The ``md`` arguments (:data:`~rft_mujoco.compiled.evaluate.MJDATA_FIELDS`) at ``base``, a view."""
+    _hc = table.viewer(ev.HANDLE_FIELDS)
+    """The ``hc`` arguments at ``base``, a view."""
+    _ws = table.viewer(ev.WORK_FIELDS)
+    """The ``ws`` arguments at ``base``, a view."""
+    _book = table.loader(BOOK_FIELDS)
+    """The book's arrays (:data:`BOOK_FIELDS`), a tuple."""
+else:  # pragma: no cover - without numba the route is never built
+    _f1 = _f2 = _i1 = _i2 = _b1 = _j1 = _j2 = _f3 = _md = _hc = _ws = _book = None
 
 
 @njit(**INLINE)
@@ -182,50 +164,6 @@ def _fr(t, base, nv):
     efc_floss = carray(_as_f8(p), (nefc,))
     p = carray(_as_i8(d + t[base + 7]), (1,))[0]
     return efc_type, efc_id, efc_d, efc_aref, efc_floss, carray(_as_f8(p), (nv,))
-
-
-@njit(**INLINE)
-def _hc(t, base):
-    """The ``hc`` tuple from the table entries at ``base`` (schema order)."""
-    return (
-        _i1(t, base + 0), _i1(t, base + 4), _i1(t, base + 8), _i1(t, base + 12), _i1(t, base + 16),
-        _i1(t, base + 20), _i1(t, base + 24), _i1(t, base + 28), _i1(t, base + 32), _i1(t, base + 36),
-        _i1(t, base + 40), _i1(t, base + 44), _i1(t, base + 48), _i1(t, base + 52), _i1(t, base + 56),
-        _i1(t, base + 60), _i1(t, base + 64), _i1(t, base + 68), _f2(t, base + 72), _f1(t, base + 76),
-        _f1(t, base + 80), _f2(t, base + 84), _f2(t, base + 88), _f1(t, base + 92), _f2(t, base + 96),
-        _f1(t, base + 100), _f1(t, base + 104), _f2(t, base + 108), _f2(t, base + 112), _f1(t, base + 116),
-        _f1(t, base + 120), _f2(t, base + 124), _f1(t, base + 128), _f2(t, base + 132), _f1(t, base + 136),
-        _f1(t, base + 140),
-    )
-
-
-@njit(**INLINE)
-def _ws(t, base):
-    """The ``ws`` tuple from the table entries at ``base`` (schema order)."""
-    return (
-        _i1(t, base + 0), _f2(t, base + 4), _f2(t, base + 8), _f2(t, base + 12), _f2(t, base + 16),
-        _f2(t, base + 20), _f2(t, base + 24), _f2(t, base + 28), _i1(t, base + 32), _f1(t, base + 36),
-        _f1(t, base + 40), _i1(t, base + 44), _i1(t, base + 48), _i1(t, base + 52), _b1(t, base + 56),
-        _b1(t, base + 60), _f2(t, base + 64), _f2(t, base + 68), _f2(t, base + 72), _f2(t, base + 76),
-        _f2(t, base + 80), _f1(t, base + 84), _f1(t, base + 88), _f1(t, base + 92), _f1(t, base + 96),
-        _f2(t, base + 100), _f2(t, base + 104), _f2(t, base + 108), _f2(t, base + 112), _f2(t, base + 116),
-        _f2(t, base + 120), _f2(t, base + 124), _f2(t, base + 128), _f2(t, base + 132), _f2(t, base + 136),
-        _f1(t, base + 140), _f1(t, base + 144), _f2(t, base + 148), _f2(t, base + 152), _i1(t, base + 156),
-        _f1(t, base + 160), _f1(t, base + 164), _f2(t, base + 168), _b1(t, base + 172), _f1(t, base + 176),
-        _f1(t, base + 180), _f2(t, base + 184), _i1(t, base + 188), _f1(t, base + 192), _i2(t, base + 196),
-        _i2(t, base + 200), _i1(t, base + 204), _b1(t, base + 208), _i2(t, base + 212), _f2(t, base + 216),
-        _f2(t, base + 220), _i2(t, base + 224), _f2(t, base + 228), _f2(t, base + 232), _f2(t, base + 236),
-        _f2(t, base + 240), _f2(t, base + 244), _f2(t, base + 248), _f2(t, base + 252), _b1(t, base + 256),
-        _i1(t, base + 260), _b1(t, base + 264),
-    )
-
-
-@njit(**INLINE)
-def _book(t, base):
-    """The book's arrays (:data:`BOOK_FIELDS`)."""
-    return (_f2(t, base), _f2(t, base + SLOT), _f2(t, base + 2 * SLOT), _i1(t, base + 3 * SLOT),
-            _f2(t, base + 4 * SLOT), _f2(t, base + 5 * SLOT), _f1(t, base + 6 * SLOT), _f1(t, base + 7 * SLOT),
-            _f1(t, base + 8 * SLOT), _f2(t, base + 9 * SLOT))
 
 
 _HC_SLOTS = len(ev.HANDLE_FIELDS) * SLOT
