@@ -33,7 +33,7 @@ def test_scaling_the_density_keeps_the_subtree_com_the_mass_weighted_mean():
 @pytest.mark.slow
 def test_the_animal_swims_at_the_quasi_static_limit_with_the_implicit_solve():
     """2 Hz and 3 cycles (the law is rate-independent: the limit does not depend on the frequency), 10 mm
-    elements for the limit and the runs alike: the implicit solve (compiled; tests/test_fastimplicit.py holds it to the
+    elements for the limit and the runs alike: the implicit solve (compiled; tests/test_compiled_implicit.py holds it to the
     numpy oracle) within 5%, the explicit one far off (the
     test tells the two apart)."""
     amplitude, f, cycles, size = 0.7, 2.0, 3, 0.01

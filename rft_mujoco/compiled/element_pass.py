@@ -1,6 +1,6 @@
 """The compiled element pass: body poses and twists -> per-body RFT wrenches.
 
-The same numbers as :func:`rft_mujoco.physics.elements.body_wrenches` (to round-off, tests/test_fastkernel.py),
+The same numbers as :func:`rft_mujoco.physics.elements.body_wrenches` (to round-off, tests/test_compiled_element_pass.py),
 into buffers the caller owns, on the packed layout of :mod:`rft_mujoco.compiled.elements`. How it is fast:
 
 * It works in each body's own frame. The law is invariant under rotation (every quantity it uses is a dot

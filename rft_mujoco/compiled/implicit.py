@@ -1,7 +1,7 @@
 """The implicit sand solve compiled: this step's constraints linearized, backward Euler on the regularized law.
 
 Pure array functions (nothing here calls MuJoCo), the same algorithms as the numpy reference
-(tests/test_fastimplicit.py compares them):
+(tests/test_compiled_implicit.py compares them):
 
 * the system of this step's constraints, linearized, and the groups' free motion through it:
   :mod:`rft_mujoco.compiled.system`;

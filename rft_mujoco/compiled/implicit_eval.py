@@ -1,5 +1,5 @@
 """The implicit solve's evaluation of one handle on one MjData, compiled: what
-:func:`rft_mujoco.coupling.reference.evaluate_implicit` computes (tests/test_fastimplicit.py compares them).
+:func:`rft_mujoco.coupling.reference.evaluate_implicit` computes (tests/test_compiled_implicit.py compares them).
 
 Run after :func:`rft_mujoco.compiled.evaluate.broadphase` and ``mj_fwdActuation``, as the explicit
 treatment's :func:`~rft_mujoco.compiled.evaluate.evaluate`: from Python

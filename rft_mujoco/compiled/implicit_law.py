@@ -1,6 +1,6 @@
 """The implicit solve's law, compiled: the regularized 3D-RFT wrench of each group and its derivative.
 
-:func:`rft_mujoco.physics.elements.body_wrench_jacobians` (the reference, tests/test_fastimplicit.py) split in
+:func:`rft_mujoco.physics.elements.body_wrench_jacobians` (the reference, tests/test_compiled_implicit.py) split in
 two, because the implicit solve (:mod:`rft_mujoco.compiled.implicit`) evaluates the law again and again at one
 pose within a step (its Newton iterations):
 

@@ -1,6 +1,6 @@
 """The 3D-RFT law compiled: per-element stress (inlined into the element loops) and ``element_forces``.
 
-The same numbers as :func:`rft_mujoco.physics.law.element_forces` (to round-off, tests/test_fastkernel.py)
+The same numbers as :func:`rft_mujoco.physics.law.element_forces` (to round-off, tests/test_compiled_element_pass.py)
 without numpy temporaries. Tolerances and coefficients are passed at run time: numba would freeze module
 globals into its on-disk cache, which does not see edits of physics/law.py.
 """

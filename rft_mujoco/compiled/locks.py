@@ -17,7 +17,7 @@ from rft_mujoco.compiled.rest import _chain_dof, _cholesky, _cholesky_solve, res
 from rft_mujoco.physics import rest as _rest
 
 FRICTION_DOF = 1
-"""MuJoCo's ``mjCNSTR_FRICTION_DOF`` (checked against the bindings by tests/test_fastrest.py)."""
+"""MuJoCo's ``mjCNSTR_FRICTION_DOF`` (checked against the bindings by tests/test_compiled_rest.py)."""
 LOCK_TOL = _rest.LOCK_TOL
 """:data:`rft_mujoco.physics.rest.LOCK_TOL` (frozen into the compiled code)."""
 

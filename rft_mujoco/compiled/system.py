@@ -1,7 +1,7 @@
 """This step's constraints linearized, and the free motion of the sand groups through them, compiled.
 
 Pure array functions (nothing here calls MuJoCo), the same algorithms as the numpy reference
-(tests/test_fastimplicit.py compares them):
+(tests/test_compiled_implicit.py compares them):
 
 * :func:`constrained_system` (zones by :func:`row_zones`): :func:`rft_mujoco.coupling.reference.
   constrained_free_motion` (and :func:`velocity_damping`'s term) on MuJoCo's sparse mass matrix and this
@@ -19,11 +19,11 @@ import math
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled.rest import jacobian
 
-# MuJoCo's mjtConstraint (checked against the bindings by tests/test_fastimplicit.py)
+# MuJoCo's mjtConstraint (checked against the bindings by tests/test_compiled_implicit.py)
 EQUALITY, FRICTION_DOF, FRICTION_TENDON, LIMIT_JOINT, LIMIT_TENDON = 0, 1, 2, 3, 4
 CONTACT_FRICTIONLESS, CONTACT_PYRAMIDAL, CONTACT_ELLIPTIC = 5, 6, 7
 TRN_JOINT, BIAS_AFFINE = 0, 1
-"""MuJoCo's ``mjTRN_JOINT`` and ``mjBIAS_AFFINE`` (checked against the bindings by tests/test_fastimplicit.py)."""
+"""MuJoCo's ``mjTRN_JOINT`` and ``mjBIAS_AFFINE`` (checked against the bindings by tests/test_compiled_implicit.py)."""
 
 
 # --- this step's constraints, linearized ---------------------------------------------------------------

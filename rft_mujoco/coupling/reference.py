@@ -1,7 +1,7 @@
 """The numpy reference of one evaluation (``backend="numpy"``): what the compiled path must compute.
 
 Plain, readable numpy on the handle's arrays and MuJoCo's functions (``mj_jacBodyCom``, ``mj_solveM``,
-``mj_applyFT``); tests/test_fastrest.py compares the compiled evaluation with it. The steps are those
+``mj_applyFT``); tests/test_compiled_rest.py compares the compiled evaluation with it. The steps are those
 of :mod:`rft_mujoco.compiled.evaluate`: broadphase, run-time culling, the rest treatment
 (:mod:`rft_mujoco.physics.rest`) or the naive published force, diagnostics and the wrenches into the sum.
 """

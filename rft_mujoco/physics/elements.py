@@ -1,7 +1,7 @@
 """Surface elements of rigid bodies in motion -> per-body 3D-RFT wrenches (pure numpy, no MuJoCo).
 
 The readable reference of the coupling's element pass; the compiled one
-(:func:`rft_mujoco.compiled.elements.wrenches`) must agree with it (tests/test_fastkernel.py).
+(:func:`rft_mujoco.compiled.elements.wrenches`) must agree with it (tests/test_compiled_element_pass.py).
 """
 
 from __future__ import annotations

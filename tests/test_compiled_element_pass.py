@@ -260,7 +260,7 @@ def evaluate_states(model, states, backend, terrain, stabilize, guards):
     ("Euler", True, 0), ("RK4", True, 2), ("implicitfast", False, 4), ("Euler", False, 5), ("Euler", True, 3)])
 def test_attach_numba_equals_numpy(integrator, stabilize, terrain_i):
     """Both backends at the same states (along a rollout) write the same xfrc_applied and diagnostics, the
-    rest treatment included (tests/test_fastrest.py compares its pieces)."""
+    rest treatment included (tests/test_compiled_rest.py compares its pieces)."""
     terrain = terrains(np.random.default_rng(11))[terrain_i]
     guards = law.Guards.all() if terrain_i % 2 else law.PUBLISHED
     model, states = trajectory(integrator, terrain, stabilize, guards)
