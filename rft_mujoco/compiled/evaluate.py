@@ -32,7 +32,7 @@ from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, wrenches
 from rft_mujoco.compiled.elements import finish_naive, touching
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled.locks import lock_matrices, locked_rest, stuck_dofs
-from rft_mujoco.compiled.rest import KEPT_GROUPS, KEPT_RANK, _chain_dof, jacobian, rest_wrenches, solve_m
+from rft_mujoco.compiled.rest import KEPT_GROUPS, KEPT_RANK, _chain_dof, add_user_wrenches, rest_wrenches, solve_m
 from rft_mujoco.compiled.share import (BAD_ACCELERATION, NOT_FINITE, NOT_FINITE_STATE,  # noqa: F401
                                        _clear, _share_and_commit, touching_groups)
 
@@ -324,20 +324,8 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     for i in range(nv):
         f = qfrc_passive[i] - qfrc_bias[i] + qfrc_actuator[i] + qfrc_applied[i]
         qacc[i] = f + qfrc_constraint[i] if lagged else f
-    for b in range(1, user_xfrc.shape[0]):
-        nonzero = False
-        for c in range(6):
-            if user_xfrc[b, c] != 0.0:
-                nonzero = True
-        if not nonzero:
-            continue
-        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
-                 body_dofadr, body_parentid, dof_parentid, minv_jt, 0)
-        for i in range(nv):
-            s = 0.0
-            for c in range(6):
-                s += minv_jt[c, i] * user_xfrc[b, c]
-            qacc[i] += s
+    add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
+                      dof_parentid, minv_jt, qacc)
     solve_m(rownnz, rowadr, colind, qld, qld_diag_inv, qacc)
     for i in range(nv):
         if not math.isfinite(qacc[i]):

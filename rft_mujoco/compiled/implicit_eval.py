@@ -23,7 +23,7 @@ from rft_mujoco.compiled.element_pass import wrenches
 from rft_mujoco.compiled.implicit import NEED_ELEMENTS, _blend, solve_from_probe
 from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
-from rft_mujoco.compiled.rest import jacobian
+from rft_mujoco.compiled.rest import add_user_wrenches
 from rft_mujoco.compiled.system import cholesky, constrained_system, end_acceleration, free_motion, row_zones
 
 IMPLICIT_FIELDS = (("e_slot", "i1"), ("e_arm", "f2"), ("e_nrm", "f2"), ("e_depth", "f1"), ("e_area", "f1"),
@@ -117,20 +117,8 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
             f[i] = md[8][i] - md[9][i] + md[10][i] + md[11][i]
             if not linearized and state[3] != 0.0:
                 f[i] += md[12][i]
-        for b in range(1, user_xfrc.shape[0]):
-            nonzero = False
-            for c in range(6):
-                if user_xfrc[b, c] != 0.0:
-                    nonzero = True
-            if not nonzero:
-                continue
-            jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
-                     body_dofadr, body_parentid, dof_parentid, jrows, 0)
-            for i in range(nv):
-                s = 0.0
-                for c in range(6):
-                    s += jrows[c, i] * user_xfrc[b, c]
-                f[i] += s
+        add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
+                          dof_parentid, jrows, f)
         # 3. H (this step's constraints linearized), its factor, the free motion and mobility of the groups
         constrained_system(nv, rowadr, rownnz, colind, m_val, nefc, sparse, efc[0], efc[1], efc[2], efc[3],
                            efc[6], efc[7], efc[8], zones, linearized, damping, dt, h, f)

@@ -94,6 +94,28 @@ def jacobian(b, px, py, pz, cdof, subtree_com, body_rootid, body_dofnum, body_do
         j = dof_parentid[j]
 
 
+@njit(**JIT)
+def add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
+                      dof_parentid, rows, out):
+    """``out`` (nv,) += the generalized force of the user's wrenches ``user_xfrc`` (nbody, 6) [N, N m] at the
+    bodies' COMs (``mj_applyFT``), through the scratch rows ``rows[:6]`` (.., nv)."""
+    nv = out.shape[0]
+    for b in range(1, user_xfrc.shape[0]):
+        nonzero = False
+        for c in range(6):
+            if user_xfrc[b, c] != 0.0:
+                nonzero = True
+        if not nonzero:
+            continue
+        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
+                 body_dofadr, body_parentid, dof_parentid, rows, 0)
+        for i in range(nv):
+            s = 0.0
+            for c in range(6):
+                s += rows[c, i] * user_xfrc[b, c]
+            out[i] += s
+
+
 KEPT_GROUPS, KEPT_RANK = 6, 7
 """Entries of the evaluation's ``state`` (:data:`rft_mujoco.compiled.evaluate.STATE`) that the rest solve
 reads and writes: the groups whose mobility is kept for this RK4 step (0: none), the kept factor's rank."""

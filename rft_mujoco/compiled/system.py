@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 
 from rft_mujoco.compiled.jit import JIT, njit
-from rft_mujoco.compiled.rest import jacobian
+from rft_mujoco.compiled.rest import _cholesky_solve, jacobian
 
 # MuJoCo's mjtConstraint (checked against the bindings by tests/test_compiled_implicit.py)
 EQUALITY, FRICTION_DOF, FRICTION_TENDON, LIMIT_JOINT, LIMIT_TENDON = 0, 1, 2, 3, 4
@@ -117,16 +117,7 @@ def end_acceleration(nv, low, jrows, ng, w, qacc0, out):
             for c in range(6):
                 s += jrows[6 * r + c, i] * w[r, c]
         out[i] = s
-    for i in range(nv):
-        t = out[i]
-        for c in range(i):
-            t -= low[i, c] * out[c]
-        out[i] = t / low[i, i]
-    for i in range(nv - 1, -1, -1):
-        t = out[i]
-        for c in range(i + 1, nv):
-            t -= low[c, i] * out[c]
-        out[i] = t / low[i, i]
+    _cholesky_solve(nv, low, out)
     for i in range(nv):
         out[i] += qacc0[i]
 
@@ -174,16 +165,7 @@ def free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rooti
         b = ids[group_ref[active[r]]]
         jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
                  body_parentid, dof_parentid, jrows, 6 * r)
-    for i in range(nv):                       # f <- H^-1 f
-        t = f[i]
-        for c in range(i):
-            t -= low[i, c] * f[c]
-        f[i] = t / low[i, i]
-    for i in range(nv - 1, -1, -1):
-        t = f[i]
-        for c in range(i + 1, nv):
-            t -= low[c, i] * f[c]
-        f[i] = t / low[i, i]
+    _cholesky_solve(nv, low, f)               # f <- H^-1 f
     for r in range(ng):
         for c in range(6):
             row = 6 * r + c

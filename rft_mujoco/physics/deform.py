@@ -530,18 +530,11 @@ def berm_nodes(grid: DeformableSurface, covered: np.ndarray) -> np.ndarray:
     ci, cj = np.divmod(covered, nx)
     i0, i1 = max(int(ci.min()) - r, 0), min(int(ci.max()) + r, ny - 1)
     j0, j1 = max(int(cj.min()) - r, 0), min(int(cj.max()) + r, nx - 1)
-    win = np.zeros((i1 - i0 + 1 + 2 * r, j1 - j0 + 1 + 2 * r), dtype=bool)
+    shape = (i1 - i0 + 1 + 2 * r, j1 - j0 + 1 + 2 * r)
+    rows, cols = shape
+    win = np.zeros(shape, dtype=bool)
     win[ci - i0 + r, cj - j0 + r] = True
-    rows, cols = win.shape
-    wide = win.copy()                                # dilation by the (2r+1)^2 square: along x, then along y
-    for b in range(1, r + 1):
-        wide[:, b:] |= win[:, :cols - b]
-        wide[:, :cols - b] |= win[:, b:]
-    grown = wide.copy()
-    for a in range(1, r + 1):
-        grown[a:, :] |= wide[:rows - a, :]
-        grown[:rows - a, :] |= wide[a:, :]
-    ring = grown & ~win
+    ring = _dilated(ci - i0 + r, cj - j0 + r, shape, r) & ~win
     wi, wj = np.nonzero(ring[r:rows - r, r:cols - r])
     return (wi + i0) * nx + (wj + j0)
 
