@@ -56,7 +56,7 @@ def assert_same(surface, state, result, stats, top):
 
 
 def test_the_constants_are_the_reference_s():
-    assert cdeform._FACING == deform.FACING_DOWN
+    assert cdeform._FACING == deform.FACING_DOWN and cdeform._YIELD == deform.YIELD_TOL
     assert cdeform._RELAX_ITERATIONS == deform.RELAX_ITERATIONS and cdeform._RELAX_SHARE == deform.RELAX_SHARE
 
 
@@ -156,29 +156,58 @@ BOX = """<mujoco><option timestep="0.001"/><worldbody>
 </worldbody></mujoco>"""
 
 
-def test_a_box_pushed_about_is_the_same_on_both_backends():
-    """The footprint study's box (5 kg, 10 x 10 x 4 cm, loose glass beads, 5 mm cells, dt 1 ms), dropped and pushed
-    sideways and back for 400 steps: the trajectory and the surface of the compiled run follow the numpy run's
-    to 1e-9 m (the kernels and the press agree with numpy to round-off; the simulation compounds it over 400
-    steps, measured 2e-17 m on this machine, and the bound leaves room for another CPU's round-off)."""
-    out = {}
-    for backend in ("numpy", "numba"):
-        model = mujoco.MjModel.from_xml_string(BOX)
-        handle = rft_mujoco.attach(model, rft_mujoco.LI_LOOSE_GLASS_BEADS, backend=backend, monitor=False,
-                                   surface_height=rft_mujoco.DeformableSurface(size=(0.3, 0.3), cell=0.005))
-        assert handle.backend == backend
-        data = mujoco.MjData(model)
-        for i in range(400):
-            data.xfrc_applied[1, 0] = 5.0 * np.sin(i * 0.01)
-            mujoco.mj_step(model, data)
-        out[backend] = (data.qpos.copy(), handle.surface(data))
-        handle.detach()
-    (q_np, s_np), (q_nb, s_nb) = out["numpy"], out["numba"]
-    assert s_np.heights.min() < -0.01 and s_np.heights.max() > 0.001      # a footprint and its berm
-    np.testing.assert_allclose(q_nb, q_np, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(s_nb.heights, s_np.heights, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(s_nb.preload, s_np.preload, rtol=0, atol=1e-9)
-    np.testing.assert_array_equal(s_nb.cycles, s_np.cycles)
+def _pushed_box(backend: str, interval: float, observed: bool = False):
+    """The footprint study's box (5 kg, 10 x 10 x 4 cm, loose glass beads, 5 mm cells, dt 1 ms) dropped and pushed
+    sideways and back for 400 steps; (qpos, surface, evaluation path, grid updates)."""
+    model = mujoco.MjModel.from_xml_string(BOX)
+    handle = rft_mujoco.attach(model, rft_mujoco.LI_LOOSE_GLASS_BEADS, backend=backend, monitor=False,
+                               surface_height=rft_mujoco.DeformableSurface(size=(0.3, 0.3), cell=0.005,
+                                                                          update_interval=interval))
+    assert handle.backend == backend
+    if observed:
+        handle.observe(lambda data, wrenches, stage: None)      # an observer keeps the Python path
+    data = mujoco.MjData(model)
+    clocks = set()
+    for i in range(400):
+        data.xfrc_applied[1, 0] = 5.0 * np.sin(i * 0.01)
+        mujoco.mj_step(model, data)
+        clocks.add(float(handle._work[data].arrays["surface_clock"][0]))
+    out = (data.qpos.copy(), handle.surface(data), handle.evaluation_path(data), len(clocks - {-np.inf}))
+    handle.detach()
+    return out
+
+
+@pytest.mark.parametrize("interval", [0.0, 0.01])
+def test_a_box_pushed_about_is_the_same_on_both_backends_and_paths(interval):
+    """The box pushed about: the trajectory and the surface of the compiled runs, on the native route and on the
+    Python path, follow the numpy run's to 1e-9 m (the kernels and the press agree with numpy to round-off; the
+    simulation compounds it over 400 steps, measured 2e-17 m on this machine, and the bound leaves room for
+    another CPU's round-off), with the grid updated at every step and every 10 ms (10 steps)."""
+    q_np, s_np, path, updates = _pushed_box("numpy", interval)
+    assert path == "python" and s_np.heights.min() < -0.01 and s_np.heights.max() > 0.001   # a print, a berm
+    assert updates > 390 if interval == 0.0 else 35 <= updates <= 40      # (the box touches after a few steps)
+    for observed, want in ((False, "native"), (True, "python")):
+        q_nb, s_nb, path, n = _pushed_box("numba", interval, observed)
+        assert path == want and n == updates
+        np.testing.assert_allclose(q_nb, q_np, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(s_nb.heights, s_np.heights, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(s_nb.preload, s_np.preload, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(s_nb.cycles, s_np.cycles)
+
+
+def test_the_update_schedule():
+    """:func:`rft_mujoco.physics.deform.schedule`: due at the first step at least the interval after the last update,
+    the loading restarted when the time does not follow on (a reset, a skipped update, the first one)."""
+    dt = 0.002
+    assert deform.schedule(np.inf, 0.01, dt) == deform.RESTART
+    assert deform.schedule(-dt, 0.01, dt) == deform.RESTART
+    assert deform.schedule(0.008, 0.01, dt) == deform.SKIP
+    assert deform.schedule(0.01 * (1 - 1e-12), 0.01, dt) == deform.PRESS
+    assert deform.schedule(0.011, 0.01, dt) == deform.PRESS                 # (an interval not a multiple of dt)
+    assert deform.schedule(0.012 + 1e-6, 0.01, dt) == deform.RESTART        # an update skipped: nothing touched
+    assert [deform.schedule(e, 0.0, dt) for e in (0.0, dt, 2 * dt)] == [deform.PRESS, deform.PRESS, deform.RESTART]
+    with pytest.raises(ValueError, match="update_interval"):
+        deform.DeformableSurface(update_interval=-0.01)
 
 
 def test_the_cost_benchmark_times_both_surfaces():

@@ -33,8 +33,7 @@ def test_footprint_of_a_resting_box_and_its_backend():
     assert handle.backend == "numba"                   # compiled by default (rft_mujoco.compiled.deform)
     data = mujoco.MjData(model)
     run(model, data)
-    from rft_mujoco.coupling.dispatch import DISPATCHER
-    assert DISPATCHER._books[data].native is None      # the Python path: the press runs after each evaluation
+    assert handle.evaluation_path(data) == "native"   # the grid update runs in the native route's phase 2
     sinkage = 0.02 - data.qpos[2]
     s = handle.surface(data)
     assert s.heights.shape == (61, 61) and s.x.shape == (61,) and s.y.shape == (61,)

@@ -12,7 +12,7 @@ nodes the last press left it on (``live``: count, then the nodes). :func:`press_
 elements of the touching bodies that the compiled broadphase found (the coupling's
 :func:`rft_mujoco.coupling.deformable.press_touching` in numpy) and presses with them.
 
-``tp`` (:func:`rft_mujoco.compiled.terrain.terrain_spec` of a :class:`~rft_mujoco.DeformableSurface`, 20
+``tp`` (:func:`rft_mujoco.compiled.terrain.terrain_spec` of a :class:`~rft_mujoco.DeformableSurface`, 21
 entries) carries the grid and its rules: see :data:`TP`.
 """
 
@@ -25,15 +25,17 @@ import numpy as np
 from rft_mujoco.compiled.jit import JIT, njit
 
 TP = ("height", "x_origin", "x_spacing", "y_origin", "y_spacing", "", "", "", "", "", "", "reload_ratio",
-      "reload_sinkage", "reload_decay", "compaction", "berm_cells", "relax_cells", "relax", "slope", "cover_grow")
+      "reload_sinkage", "reload_decay", "compaction", "berm_cells", "relax_cells", "relax", "slope", "cover_grow",
+      "update_interval")
 """Entries of a deformable terrain's ``tp``: initial height (m); grid origin and spacing along x and y (m);
 (5-10 unused: the heightfield's); ``reload_ratio``, ``reload_sinkage``, ``reload_decay``, ``compaction``; the berm's
 half-width in nodes (``berm_nodes``'s r), the slope flow's margin in nodes (``relax``'s r); 1 when the slope flow
-is on; ``tan(repose_angle)``; :data:`rft_mujoco.physics.deform.COVER_GROW`."""
+is on; ``tan(repose_angle)``; :data:`rft_mujoco.physics.deform.COVER_GROW`; ``update_interval`` (s)."""
 STATS = ("covered", "yielded", "displaced", "deposited", "lost", "settled")
 """Entries of :func:`press`'s ``stats`` (6,): those of :class:`rft_mujoco.physics.deform.PressResult`."""
 
 _FACING = 1e-6              # rft_mujoco.physics.deform.FACING_DOWN (tests check they are equal)
+_YIELD = 1e-12              # rft_mujoco.physics.deform.YIELD_TOL (likewise)
 _RELAX_ITERATIONS = 10      # rft_mujoco.physics.deform.RELAX_ITERATIONS
 _RELAX_SHARE = 0.125        # rft_mujoco.physics.deform.RELAX_SHARE
 
@@ -316,10 +318,10 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
         along = max(min(push, (1.0 - w0[t]) * rate), 0.0)
         w1 = w0[t] + along / rate if rate > 0.0 else 1.0
         beyond = push - along
-        yielded = beyond > 0.0
+        yielded = beyond > _YIELD
         settle = settle_rate * (w1 - w0[t])
         rch[node] = 1.0 if yielded else w1
-        q_new = qn + max(beyond, 0.0)
+        q_new = qn + beyond if yielded else qn
         q[node] = q_new
         new_h = low[t] + q_new / ratio if yielded else h[node] - settle
         if yielded or settle > 0.0:
@@ -375,16 +377,21 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
 def press_touching(tp, grid, cycles, reach, live, clock, time, dt, slack, k, touch, body_pos, body_mat, centroids,
                    normals, areas, cluster_start, body_clusters, max_height, pts, nrm, ar, mark, val, nodes, low,
                    rim, stats):
-    """:func:`rft_mujoco.coupling.deformable.press_touching`, compiled: unload every node when the last press
-    (``clock[0]``, s) was not the previous step's (``time - clock[0]`` in ``[0, dt slack]``), then press the grid
+    """:func:`rft_mujoco.coupling.deformable.press_touching`, compiled: when an update is due at ``time`` (s) after
+    the last one (``clock[0]``, s; :func:`rft_mujoco.physics.deform.schedule`, ``slack`` = 1 + its tolerance),
+    unload every node if the time did not follow on, then press the grid
     with the elements of the ``k`` touching bodies (``touch``, their poses ``body_pos`` (k, 3) m and
     ``body_mat`` (k, 9): the broadphase's rows) that are below ``max_height`` (m), from the handle's packed
     elements (padding slots are NaN: never below); ``max_height``: the surface's highest point now (m). ``pts``,
-    ``nrm`` (E, 3), ``ar`` (E,): gather buffers; the rest as :func:`press`. Returns what :func:`press` returns."""
-    if not (0.0 <= time - clock[0] <= dt * slack):
+    ``nrm`` (E, 3), ``ar`` (E,): gather buffers; the rest as :func:`press`. Returns what :func:`press` returns
+    (NaN, the heights unchanged, when no update is due)."""
+    elapsed, interval = time - clock[0], tp[20]
+    if not (0.0 <= elapsed <= (interval + dt) * slack):
         for t in range(int(live[0])):
             reach.reshape(-1)[live[1 + t]] = 0.0
         live[0] = 0
+    elif elapsed < interval * (2.0 - slack):
+        return np.nan
     clock[0] = time
     n = 0
     for j in range(k):

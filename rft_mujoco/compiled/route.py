@@ -42,11 +42,13 @@ BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"
 (nonzero, sand_dirty, rk4 stage (1-4; 0: another integrator), rk4 stage time, TIME_RTOL, what the native
 callback left to Python); ``snapshot``: the model's timestep, gravity and ``geom_size`` the dispatcher last
 checked (:func:`model_changed`), ``gravity`` and ``geom_size`` live views of the model's."""
-_HEADER = 7
+_HEADER = 8
 """Table header: number of handles, base of the book, base of md, base of the constraint rows, the address of
 :func:`rest_phase`'s C function, that of the implicit solve's (:func:`rft_mujoco.compiled.implicit_route.
-implicit_phase`; 0 when no handle has ``solve="implicit"``), the table's length; then one base per handle,
-then one base per handle of its implicit part (0: an explicit handle)."""
+implicit_phase`; 0 when no handle has ``solve="implicit"``), the table's length, the address of the deformable
+surface's grid update (:func:`rft_mujoco.compiled.deform_route.press_phase`; 0 when no handle's terrain is
+deformable); then one base per handle, one base per handle of its implicit part (0: an explicit handle), one
+base per handle of its press part (0: a terrain that is not deformable)."""
 EFC_POINTERS = ("efc_type", "efc_id", "efc_D", "efc_aref", "efc_frictionloss", "qacc")
 """The ``mjData`` pointers of the ``fr`` tuple (:data:`rft_mujoco.compiled.evaluate.FRICTION_FIELDS`)."""
 JAC_POINTERS = ("efc_J", "efc_J_rowadr", "efc_J_rownnz", "efc_J_colind")
@@ -250,6 +252,8 @@ def phase2(ptr, time, dt):
         if status < 0:
             return PYTHON
         nonzero = nonzero or status == 1
+        if t[_HEADER + 2 * n + h] != 0 and ws[45][5] < 2.0:
+            _call_rest(t[7], ptr, h, time)                    # deform_route.press_phase: the grid update
     commit(xfrc, user, sand, rows, added, written)
     state[0] = 1.0 if nonzero else 0.0
     for h in range(n):
@@ -390,16 +394,19 @@ class Route:
 
     Args:
         book: (name -> array) of :data:`BOOK_FIELDS`.
-        md: the ``md`` tuple; handles: [(hc tuple, ws tuple, implicit part)] in the dispatcher's order, the
-            implicit part None or [(name, kind, array)] (:func:`rft_mujoco.compiled.implicit_route.table_part`).
+        md: the ``md`` tuple; handles: [(hc tuple, ws tuple, implicit part, press part)] in the dispatcher's
+            order, the implicit part None or [(name, kind, array)] (:func:`rft_mujoco.compiled.implicit_route.
+            table_part`), the press part None or the same (:func:`rft_mujoco.compiled.deform_route.table_part`).
         data: the MjData (its constraint rows are read through its pointers, :func:`efc_layout`).
         implicit_address: the implicit solve's C function (needed when a handle has an implicit part).
+        press_address: the grid update's C function (needed when a handle has a press part).
     Raises:
         TypeError: an array is not C-contiguous or not of its schema's dtype and rank (say which).
         RuntimeError: the constraint rows cannot be located in this MuJoCo build (:func:`efc_layout`).
     """
 
-    def __init__(self, book: dict, md: tuple, handles: list, data, implicit_address: int = 0) -> None:
+    def __init__(self, book: dict, md: tuple, handles: list, data, implicit_address: int = 0,
+                 press_address: int = 0) -> None:
         layout = efc_layout()
         entries_ = []
         self._keep = []
@@ -417,7 +424,7 @@ class Route:
             entries_.extend([a.ctypes.data, *shape])
 
         n = len(handles)
-        book_base = _HEADER + 2 * n
+        book_base = _HEADER + 3 * n
         for name, kind in BOOK_FIELDS:
             add(book[name], name, kind)
         md_base = book_base + len(BOOK_FIELDS) * SLOT
@@ -425,21 +432,24 @@ class Route:
             add(a, name, kind)
         efc_base = book_base + len(entries_)
         entries_.extend([data._address, layout["nefc"], *(layout[name] for name in _POINTERS)])
-        bases, implicit_bases = [], []
-        for hc, ws, implicit in handles:
+        bases, implicit_bases, press_bases = [], [], []
+        for hc, ws, implicit, press in handles:
             bases.append(book_base + len(entries_))
             for (name, kind), a in zip(ev.HANDLE_FIELDS, hc):
                 add(a, name, kind)
             for (name, kind), a in zip(ev.WORK_FIELDS, ws):
                 add(a, name, kind)
-            implicit_bases.append(0 if implicit is None else book_base + len(entries_))
-            for name, kind, a in implicit or ():
-                add(a, name, kind)
+            for part, part_bases in ((implicit, implicit_bases), (press, press_bases)):
+                part_bases.append(0 if part is None else book_base + len(entries_))
+                for name, kind, a in part or ():
+                    add(a, name, kind)
         if any(implicit_bases) and not implicit_address:
             raise ValueError("a handle with an implicit part needs the implicit solve's C function")
+        if any(press_bases) and not press_address:
+            raise ValueError("a handle with a press part needs the grid update's C function")
         rest = cfuncs()[2].address
-        head = [n, book_base, md_base, efc_base, rest, implicit_address, book_base + len(entries_)]
-        self.table = np.array([*head, *bases, *implicit_bases, *entries_], dtype=np.int64)
+        head = [n, book_base, md_base, efc_base, rest, implicit_address, book_base + len(entries_), press_address]
+        self.table = np.array([*head, *bases, *implicit_bases, *press_bases, *entries_], dtype=np.int64)
         self.address = self.table.ctypes.data
         self.phase1, self.phase2 = entries()
 

@@ -112,14 +112,14 @@ def terrain_spec(terrain) -> tuple[int, np.ndarray, np.ndarray] | None:
     state's heights (each MjData has its own).
     """
     if type(terrain) is DeformableSurface:
-        tp = np.zeros(20)                            # (rft_mujoco.compiled.deform.TP)
+        tp = np.zeros(21)                            # (rft_mujoco.compiled.deform.TP)
         tp[0] = terrain.height
         tp[1:5] = (terrain.origin[0], terrain.spacing[0], terrain.origin[1], terrain.spacing[1])
         tp[11:15] = (terrain.reload_ratio, terrain.reload_sinkage, terrain.reload_decay, terrain.compaction)
         berm = max(1, int(math.floor(terrain.berm_width / min(terrain.spacing) + tol.ROUND_RTOL)))
         tp[15:18] = (berm, berm + 2, terrain.repose_angle is not None)
         tp[18] = math.tan(math.radians(terrain.repose_angle)) if terrain.repose_angle is not None else 0.0
-        tp[19] = COVER_GROW
+        tp[19:21] = (COVER_GROW, terrain.update_interval)
         return DEFORMABLE, tp, deformable_heights(terrain)
     tp = np.zeros(11)
     inner = terrain

@@ -23,14 +23,17 @@ from rft_mujoco import tol
 from rft_mujoco.physics import deform
 
 
-def press_touching(handle, data, work, touch: np.ndarray) -> deform.PressResult:
+def press_touching(handle, data, work, touch: np.ndarray) -> deform.PressResult | None:
     """Press ``work.surface`` with the elements of the touching bodies ``touch`` (indices into
-    ``handle.body_ids``) that are below the surface's highest point, at their poses in ``data``; first unload
-    every node when the last press was not the previous step's (``data.time`` against ``work.arrays
-    ["surface_clock"]``)."""
+    ``handle.body_ids``) that are below the surface's highest point, at their poses in ``data``, when an update
+    is due (:func:`rft_mujoco.physics.deform.schedule` of ``data.time`` against the last update's, ``work.arrays
+    ["surface_clock"]``; first unloading every node when the time did not follow on). None when not due."""
     surface = work.surface
     clock = work.arrays["surface_clock"]
-    if not 0.0 <= data.time - clock[0] <= handle.model.opt.timestep * (1.0 + tol.TIME_RTOL):
+    todo = deform.schedule(data.time - clock[0], surface.grid.update_interval, handle.model.opt.timestep)
+    if todo == deform.SKIP:
+        return None
+    if todo == deform.RESTART:
         deform.unload(surface)
     clock[0] = data.time
     sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in touch])

@@ -42,16 +42,12 @@ import numpy as np
 
 from rft_mujoco import compiled
 from rft_mujoco.coupling import implicit as _IMPLICIT
-from rft_mujoco.compiled import route as _ROUTE
+from rft_mujoco.compiled import deform_route as _DEFORM_ROUTE, route as _ROUTE
 from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_components  # noqa: F401  (their home before)
 
-_COMPILE_ENTRY_POINTS = (
-    (mujoco.MjModel, "from_xml_string", True),
-    (mujoco.MjModel, "from_xml_path", True),
-    (mujoco.MjModel, "from_binary_path", True),
-    (mujoco.MjSpec, "compile", False),
-    (mujoco.MjSpec, "recompile", False),
-)
+_COMPILE_ENTRY_POINTS = ((mujoco.MjModel, "from_xml_string", True), (mujoco.MjModel, "from_xml_path", True),
+                         (mujoco.MjModel, "from_binary_path", True), (mujoco.MjSpec, "compile", False),
+                         (mujoco.MjSpec, "recompile", False))
 
 
 _DATA_COPIES = ((mujoco.MjData, "__copy__"), (mujoco, "mj_copyData"))
@@ -502,19 +498,21 @@ class Dispatcher:
                 h._check_validity(data, work, work.arrays["touch"][:k], int(work.state[4]))
 
     def _build_route(self, data, book, handles, rows):
-        """The native route of (model, data) (:class:`rft_mujoco.compiled.route.Route`; a handle with
-        ``solve="implicit"`` adds its part: :func:`rft_mujoco.coupling.implicit.table_part`)."""
+        """The native route of (model, data) (:class:`rft_mujoco.compiled.route.Route`), with the parts of the
+        implicit solve and of the grid update of a deformable surface (``table_part`` of each)."""
         parts = []
         for h in handles:
             h._refresh()
             work = h._workspace(data)
             implicit = _IMPLICIT.table_part(h, work, data) if h.stabilize and h.solve == "implicit" else None
-            parts.append((h._hc, work.tuple, implicit))
+            press = _DEFORM_ROUTE.table_part(work) if work.press is not None else None
+            parts.append((work.hc, work.tuple, implicit, press))
         m = handles[0].model
         route = _ROUTE.Route(dict(xfrc=data.xfrc_applied, written=book.written, added=book.added, rows=rows,
                                   user=book.user, sand=book.sand, state=book.state, snapshot=book.snapshot,
                                   gravity=m.opt.gravity, geom_size=m.geom_size), work.md, parts, data,
-                             _IMPLICIT.cfunc_address() if any(p[2] is not None for p in parts) else 0)
+                             _IMPLICIT.cfunc_address() if any(p[2] is not None for p in parts) else 0,
+                             _DEFORM_ROUTE.cfunc_address() if any(p[3] is not None for p in parts) else 0)
         route.handles = handles
         return route
 

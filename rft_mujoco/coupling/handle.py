@@ -265,7 +265,7 @@ class SandHandle:
     def evaluation_path(self, data) -> str:
         """The path that evaluates this handle's sand on ``data`` now: "native" (the compiled route that MuJoCo's
         callbacks call directly: the fast path), "python" (the dispatcher's Python callback: the numpy backend,
-        an observer, a deformable surface, the first evaluations of a model) or "none" (not evaluated on
+        an observer, the first evaluations of a model) or "none" (not evaluated on
         ``data`` yet)."""
         if not isinstance(data, mujoco.MjData):
             raise TypeError(f"data must be a mujoco.MjData, got {type(data).__name__}")
@@ -276,9 +276,8 @@ class SandHandle:
 
     @property
     def _native_ok(self) -> bool:
-        """Whether the native route may evaluate this handle: compiled, no observer, not deformable."""
-        from rft_mujoco.compiled.terrain import DEFORMABLE
-        return self._fast is not None and not self._observers and self._fast[0] != DEFORMABLE
+        """Whether the native route may evaluate this handle: compiled, no observer."""
+        return self._fast is not None and not self._observers
 
     def _select_backend(self, terrain) -> None:
         from rft_mujoco.compiled.jit import AVAILABLE, IMPORT_ERROR

@@ -77,6 +77,9 @@ from rft_mujoco import tol
 
 FACING_DOWN = 1e-6
 """An element presses the sand below it when its world normal has ``n_z < -FACING_DOWN``."""
+YIELD_TOL = 1e-12
+"""m: a node yields when pressed beyond its elastic depth by more than this, so that round-off (1e-18 m) never
+starts the berm and the slope flow at a node that is only held."""
 COVER_GROW = 0.5 - 1e-6
 """Cells by which an element's projected rectangle is grown to find the nodes it covers (:func:`covering`):
 just under half a cell, so that a node half a cell beyond a body's outline is not covered."""
@@ -106,6 +109,11 @@ class DeformableSurface:
         repose_angle: degrees, around a pressing body slopes steeper than this flow until they are not
             (:func:`relax`: berms become piles, trench walls slump); None: no flow. Default 30 (dry sands and
             glass beads rest at roughly 20-35 degrees; a modelling parameter here, not measured).
+        update_interval: s, the grid is updated (footprints, berms, memory, slope flow) at the first step at
+            least this long after its last update (:func:`schedule`); 0: at every step. Between updates the
+            sand's force is unchanged by the interval on virgin sand (an update keeps the pressing point's
+            effective depth), the footprint lags the body by at most this long, and the slope flow runs its
+            sweeps once per update. Default 0.01 (the cost: docs/deformable.md, "The cost").
     """
 
     height: float = 0.0
@@ -118,6 +126,7 @@ class DeformableSurface:
     compaction: float = 0.0
     berm_width: float = 0.05
     repose_angle: float | None = 30.0
+    update_interval: float = 0.01
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.height):
@@ -151,6 +160,9 @@ class DeformableSurface:
             raise ValueError(f"compaction must be a fraction in [0, 1], got {self.compaction!r}")
         if not (math.isfinite(self.berm_width) and self.berm_width >= 0.0):
             raise ValueError(f"berm_width must be >= 0 m, got {self.berm_width!r}")
+        if not (math.isfinite(self.update_interval) and self.update_interval >= 0.0):
+            raise ValueError(f"update_interval must be >= 0 s (0: update the grid at every step), e.g. 0.01, got "
+                             f"{self.update_interval!r}")
         if self.repose_angle is not None and not (0.0 < self.repose_angle < 90.0):
             raise ValueError(f"repose_angle must be None or degrees in (0, 90), e.g. 30, got {self.repose_angle!r}")
         object.__setattr__(self, "size", (lx, ly))
@@ -189,6 +201,22 @@ def _check_gravity(g_hat: np.ndarray) -> None:
     if g_hat[2] > -1.0 + tol.VERTICAL_GRAVITY_TOL:
         raise ValueError(f"a deformable surface needs gravity along -z (heights are world z), got gravity "
                          f"direction {np.round(g_hat, 6).tolist()}")
+
+
+SKIP, PRESS, RESTART = 0, 1, 2
+"""What the grid update does at an evaluation (:func:`schedule`): nothing (not due), press (the loading goes
+on), or unload every node and press (the time did not follow on from the last update)."""
+
+
+def schedule(elapsed: float, interval: float, dt: float) -> int:
+    """:data:`SKIP`, :data:`PRESS` or :data:`RESTART` for an evaluation ``elapsed`` s after the grid's last update
+    (inf: none yet), with updates every ``interval`` s (``update_interval``) and steps of ``dt`` s. The loading
+    goes on when the evaluation follows the last update within ``interval + dt`` (a step with nothing
+    touching skips the update, so a body that lifts and lands again starts a new loading cycle); otherwise
+    (a reset, a jump in time, the first update) every node is unloaded first (:func:`unload`)."""
+    if not 0.0 <= elapsed <= (interval + dt) * (1.0 + tol.TIME_RTOL):
+        return RESTART
+    return PRESS if elapsed >= interval * (1.0 - tol.TIME_RTOL) else SKIP
 
 
 def effective_depth(d: np.ndarray, q: np.ndarray, reload_ratio: float) -> np.ndarray:
@@ -422,10 +450,10 @@ def press(surface: DeformedSurface, points: np.ndarray, normals: np.ndarray, are
     along = np.clip(np.minimum(push, (1.0 - w0) * rate), 0.0, None)       # reloading, up to the preload
     w1 = np.where(rate > 0.0, w0 + along / np.where(rate > 0.0, rate, 1.0), 1.0)   # virgin node: reach 1
     beyond = push - along                            # > 0 past the preload: the virgin line
-    yielded = beyond > 0.0
+    yielded = beyond > YIELD_TOL
     settle = settle_rate * (w1 - w0)
     reach[nodes] = np.where(yielded, 1.0, w1)
-    q_new = qn + np.maximum(beyond, 0.0)
+    q_new = np.where(yielded, qn + beyond, qn)
     new_h = np.where(yielded, low + q_new / ratio, h[nodes] - settle)
     lowered = yielded | (settle > 0.0)
     n_yield, n_settle = int(np.count_nonzero(yielded)), int(np.count_nonzero(lowered & ~yielded))
