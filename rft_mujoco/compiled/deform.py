@@ -40,22 +40,61 @@ _RELAX_ITERATIONS = 10      # rft_mujoco.physics.deform.RELAX_ITERATIONS
 _RELAX_SHARE = 0.125        # rft_mujoco.physics.deform.RELAX_SHARE
 
 
+_TILE = 4
+"""Nodes per side of the tiles over which :func:`_cover` skips the elements that cannot meet a node."""
+
+
+@njit(**JIT)
+def _tiles(h, nx, ny, i0, i1, j0, j1, facing, mark, want):
+    """(rows, cols) tile maxima over the nodes ``[i0, i1] x [j0, j1]`` (clipped to the grid), tiles of
+    :data:`_TILE` nodes from ``(i0, j0)``: of the heights ``h`` (``facing=-1``), or 1 where a node is marked
+    ``want`` in ``mark`` and -1 elsewhere (``facing=+1``)."""
+    i0, j0 = max(i0, 0), max(j0, 0)
+    i1, j1 = min(i1, ny - 1), min(j1, nx - 1)
+    out = np.full(((max(i1 - i0, -1) + _TILE) // _TILE, (max(j1 - j0, -1) + _TILE) // _TILE), -np.inf)
+    for i in range(i0, i1 + 1):
+        ti = (i - i0) // _TILE
+        for j in range(j0, j1 + 1):
+            node = i * nx + j
+            v = h[node] if facing < 0 else (1.0 if mark[node] == want else -1.0)
+            tj = (j - j0) // _TILE
+            if v > out[ti, tj]:
+                out[ti, tj] = v
+    return out, i0, j0
+
+
 @njit(**JIT)
 def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox, top):
     """One ``covering`` pass: every element facing ``facing`` (-1: down, +1: up) over the nodes of its grown
     projected rectangle, at its plane's height there. ``facing=-1``: only where below ``h`` (the surface), the
     highest such height kept in ``val`` and the node marked 1 in ``mark`` (a node met first sets ``bbox``);
     ``facing=+1``: only nodes marked ``want`` (1) or 2 (inside ``bbox``), the highest height in ``val`` and the mark
-    set to 2. ``top``: m, no node is higher (elements wholly above it are skipped; NaN: none is)."""
+    set to 2. ``top``: m, no node is higher (elements wholly above it are skipped; NaN: none is). An element
+    whose nodes are all above its lowest point (down) or none of them marked (up) is skipped by the maxima of
+    :func:`_tiles` over the tiles its nodes are in: what it would have done is nothing, so the numbers are
+    those of testing every node."""
     sx, sy, ox, oy = tp[2], tp[4], tp[1], tp[3]
     smin = min(sx, sy)
     grow = tp[19] * smin
     half_max = 0.0
+    xlo = ylo = np.inf
+    xhi = yhi = -np.inf
     for e in range(n):
         if nrm[e, 2] * -facing < -_FACING:
             half_max = max(half_max, 0.5 * math.sqrt(areas[e]))
+            xlo, xhi = min(xlo, pts[e, 0]), max(xhi, pts[e, 0])
+            ylo, yhi = min(ylo, pts[e, 1]), max(yhi, pts[e, 1])
     k = int(math.ceil(half_max / smin)) + 2
     isx, isy = 1.0 / sx, 1.0 / sy
+    if not xlo <= xhi:
+        return
+    if facing < 0:                                # the heights' maxima where the elements' nodes can be
+        reach = (half_max + grow) * 1.5 + smin
+        tiles, ti0, tj0 = _tiles(h, nx, ny, max(int(math.floor((ylo - reach - oy) * isy)), -1),
+                                 int(math.ceil((yhi + reach - oy) * isy)), max(int(math.floor((xlo - reach - ox)
+                                 * isx)), -1), int(math.ceil((xhi + reach - ox) * isx)), facing, mark, want)
+    else:                                         # the marked nodes' tiles
+        tiles, ti0, tj0 = _tiles(h, nx, ny, bbox[0], bbox[1], bbox[2], bbox[3], facing, mark, want)
     for e in range(n):
         n0, n1, n2 = nrm[e, 0], nrm[e, 1], nrm[e, 2]
         if not n2 * -facing < -_FACING:
@@ -87,6 +126,14 @@ def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox, top
                 continue
         elif a1 < bbox[0] or a0 > bbox[1] or b1 < bbox[2] or b0 > bbox[3]:
             continue                      # no node under a downward surface in its window
+        t0, t1 = max(a0 - ti0, 0) // _TILE, min((a1 - ti0) // _TILE, tiles.shape[0] - 1)
+        u0, u1 = max(b0 - tj0, 0) // _TILE, min((b1 - tj0) // _TILE, tiles.shape[1] - 1)
+        most = -np.inf
+        for ti in range(t0, t1 + 1):
+            for tj in range(u0, u1 + 1):
+                most = max(most, tiles[ti, tj])
+        if facing < 0 and not p2 - abs(slope) * along < most or facing > 0 and most < 0.0:
+            continue                      # (the window's nodes are within the tiles: see the region above)
         for ii in range(a0, a1 + 1):
             dy = (oy + sy * ii) - p1
             for jj in range(b0, b1 + 1):
@@ -116,12 +163,6 @@ def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox, top
                         val[node] = z
                     elif m == 2 and z > val[node]:
                         val[node] = z
-
-
-@njit(**JIT)
-def _sign(d):
-    """``np.sign`` of a float (NaN: 0), written out: numba's ``np.sign`` costs 3x the whole flux (measured)."""
-    return 1.0 if d > 0.0 else (-1.0 if d < 0.0 else 0.0)
 
 
 @njit(**JIT)
@@ -186,6 +227,15 @@ def _relax(tp, nx, ny, h, q, bbox, mark):
                 span_hi[i] = j
     before = w.copy()
     lim_x, lim_y = tp[18] * tp[2], tp[18] * tp[4]
+    pair_x = np.zeros((rows, cols))                 # 1 where both nodes of a pair are free (floats: the loops
+    pair_y = np.zeros((rows, cols))                 # below then have no branch, and vectorize)
+    for i in range(rows):
+        for j in range(cols - 1):
+            pair_x[i, j] = 1.0 if free[i, j] and free[i, j + 1] else 0.0
+            if i + 1 < rows:
+                pair_y[i, j] = 1.0 if free[i, j] and free[i + 1, j] else 0.0
+        if i + 1 < rows and cols > 0:
+            pair_y[i, cols - 1] = 1.0 if free[i, cols - 1] and free[i + 1, cols - 1] else 0.0
     f = np.empty(max(cols - 1, 0))
     fy = np.empty((max(rows - 1, 0), cols))
     dirty_x = np.ones(rows, dtype=np.bool_)         # rows changed since the last x sweep began
@@ -197,15 +247,15 @@ def _relax(tp, nx, ny, h, q, bbox, mark):
             if not dirty_x[i]:
                 continue
             dirty_x[i] = False
-            row, fr = w[i], free[i]
-            moved = False
+            row, px = w[i], pair_x[i]
             t0, t1 = span_lo[i], span_hi[i]         # (outside the row's free span every pair's flux is 0)
-            for j in range(t0, t1):
+            nz = 0
+            for j in range(t0, t1):                 # numpy's RELAX_SHARE * sign(d) * max(|d| - lim, 0), 0 off pairs
                 d = row[j + 1] - row[j]
-                v = _RELAX_SHARE * _sign(d) * max(abs(d) - lim_x, 0.0)
-                f[j] = v if fr[j] and fr[j + 1] else 0.0
-                moved = moved or f[j] != 0.0
-            if moved:
+                v = _RELAX_SHARE * math.copysign(max(abs(d) - lim_x, 0.0), d) * px[j]
+                f[j] = v
+                nz |= v != 0.0
+            if nz:
                 for j in range(t0, t1):
                     row[j + 1] -= f[j]
                 for j in range(t0, t1):
@@ -216,18 +266,18 @@ def _relax(tp, nx, ny, h, q, bbox, mark):
             moved_y[i] = False
             if not (dirty_y[i] or dirty_y[i + 1]):
                 continue
-            lo, hi, flo, fhi = w[i], w[i + 1], free[i], free[i + 1]
+            lo, hi, py = w[i], w[i + 1], pair_y[i]
             fi = fy[i]
-            moved = False
             t0, t1 = max(span_lo[i], span_lo[i + 1]), min(span_hi[i], span_hi[i + 1])
             for j in range(min(span_lo[i], span_lo[i + 1]), max(span_hi[i], span_hi[i + 1]) + 1):
                 fi[j] = 0.0
+            nz = 0
             for j in range(t0, t1 + 1):
                 d = hi[j] - lo[j]
-                v = _RELAX_SHARE * _sign(d) * max(abs(d) - lim_y, 0.0)
-                fi[j] = v if flo[j] and fhi[j] else 0.0
-                moved = moved or fi[j] != 0.0
-            moved_y[i] = moved
+                v = _RELAX_SHARE * math.copysign(max(abs(d) - lim_y, 0.0), d) * py[j]
+                fi[j] = v
+                nz |= v != 0.0
+            moved_y[i] = nz != 0
         for i in range(rows):
             dirty_y[i] = False
         for i in range(rows - 1):
@@ -249,6 +299,50 @@ def _relax(tp, nx, ny, h, q, bbox, mark):
             node = (i + i0) * nx + j + j0
             h[node] = w[i, j]
             q[node] = max(q[node] - max(w[i, j] - before[i, j], 0.0), 0.0)
+
+
+@njit(**JIT)
+def _flow_windows(tp, nx, nodes, m):
+    """The slope flow's windows: (g, 4) int, the bounding boxes (rows i0, i1, columns j0, j1) of groups of the
+    ``m`` covered ``nodes``, and g. Groups are merged until every two are more than ``2 r + 1`` nodes apart
+    (``r = tp[16]``, the flow's margin), so that no flowing pair joins two of them: the flow of each group's
+    window (its box and ``r`` nodes around) is then the flow of the window around all of them, number for
+    number (:func:`_relax`), at the cost of the nodes near the bodies instead of the box that holds them all
+    (four feet far apart). Starts from the nodes' boxes per tile of ``2 r + 2`` nodes."""
+    r = int(tp[16])
+    tile = 2 * r + 2
+    boxes = np.empty((m, 4), dtype=np.int64)
+    g = 0
+    for t in range(m):                          # one box per occupied tile, found by a scan of the few boxes
+        i, j = nodes[t] // nx, nodes[t] % nx
+        ti, tj = i // tile, j // tile
+        b = 0
+        while b < g and not (boxes[b, 0] // tile == ti and boxes[b, 2] // tile == tj
+                             and boxes[b, 1] // tile == ti and boxes[b, 3] // tile == tj):
+            b += 1
+        if b == g:
+            boxes[g, 0], boxes[g, 1], boxes[g, 2], boxes[g, 3] = i, i, j, j
+            g += 1
+        else:
+            boxes[b, 0], boxes[b, 1] = min(boxes[b, 0], i), max(boxes[b, 1], i)
+            boxes[b, 2], boxes[b, 3] = min(boxes[b, 2], j), max(boxes[b, 3], j)
+    merged = True
+    while merged:                               # merge any two boxes within 2 r + 1 nodes of each other
+        merged = False
+        for a in range(g):
+            for b in range(a + 1, g):
+                if (boxes[b, 0] - boxes[a, 1] <= 2 * r + 1 and boxes[a, 0] - boxes[b, 1] <= 2 * r + 1
+                        and boxes[b, 2] - boxes[a, 3] <= 2 * r + 1 and boxes[a, 2] - boxes[b, 3] <= 2 * r + 1):
+                    for c in (0, 2):
+                        boxes[a, c] = min(boxes[a, c], boxes[b, c])
+                        boxes[a, c + 1] = max(boxes[a, c + 1], boxes[b, c + 1])
+                    g -= 1
+                    boxes[b] = boxes[g]
+                    merged = True
+                    break
+            if merged:
+                break
+    return boxes, g
 
 
 @njit(**JIT)
@@ -356,7 +450,9 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
             q[node] = max(q[node] - add, 0.0)
         stats[3] = volume
         if tp[17] != 0.0:
-            _relax(tp, nx, ny, h, q, kept, mark)
+            boxes, g = _flow_windows(tp, nx, nodes, m)
+            for b in range(g):
+                _relax(tp, nx, ny, h, q, boxes[b], mark)
     for t in range(m):
         mark[nodes[t]] = 0
     # the highest point now (DeformedSurface.max_height): every node that changed is within the slope flow's

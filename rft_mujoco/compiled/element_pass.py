@@ -28,7 +28,7 @@ import numpy as np
 from rft_mujoco.compiled.elements import CLUSTER_SIZE, LANES, _inside, _nearest_face, _outside_ball, pack
 from rft_mujoco.compiled.jit import INLINE, JIT_LAW, njit
 from rft_mujoco.compiled.law import _coef, _stress
-from rft_mujoco.compiled.terrain import FLAT, _depth
+from rft_mujoco.compiled.terrain import ABOVE, DEFORMABLE, FLAT, _depth, deformed_range
 from rft_mujoco.geometry.occlusion import Occluders
 
 # Scratch rows: per element of the cluster (depth, loaded flag), then per packed (loaded) element: lever
@@ -97,6 +97,7 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
     lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
     zs2, lt2 = zero_speed * zero_speed, lead_tol * lead_tol
     flat = kind == FLAT and tp[6] == 0.0
+    deformed = kind == DEFORMABLE and g2 < 0.0
     h0 = tp[0]
     lanes = np.empty(LANES)
     dep, keep = scratch[_DEPTH], scratch[_KEEP]
@@ -132,6 +133,9 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
             low = -(qx * g0 + qy * g1 + qz * g2) - cluster_radius[q]
             if low > max_height:                             # the whole cluster is above the sand
                 continue
+            top = deformed_range(qx, qy, cluster_radius[q], tp, heights)[1] + ABOVE if deformed else 0.0
+            if deformed and low > top:
+                continue                                     # ... above the deformed sand around it
             s = cluster_start[q]
             n = cluster_start[q + 1] - s
             cl0, cl1, cl2 = centroids[0, s:s + n], centroids[1, s:s + n], centroids[2, s:s + n]
@@ -140,6 +144,14 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
             if flat:
                 for i in range(n):
                     dep[i] = c0 + (gb0 * cl0[i] + gb1 * cl1[i] + gb2 * cl2[i])
+            elif deformed:                                   # the surface around is nowhere above ``top``: the
+                for i in range(n):                           # depth where an element is below it, else <= 0
+                    dep[i] = top - (pz + (r6 * cl0[i] + r7 * cl1[i] + r8 * cl2[i]))
+                for i in range(n):
+                    if dep[i] > 0.0:
+                        l0, l1, l2 = cl0[i], cl1[i], cl2[i]
+                        dep[i] = _depth(px + (r0 * l0 + r1 * l1 + r2 * l2), py + (r3 * l0 + r4 * l1 + r5 * l2),
+                                        pz + (r6 * l0 + r7 * l1 + r8 * l2), g0, g1, g2, kind, tp, heights)
             else:
                 for i in range(n):
                     l0, l1, l2 = cl0[i], cl1[i], cl2[i]

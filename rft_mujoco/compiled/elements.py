@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
-from rft_mujoco.compiled.terrain import FLAT, _depth
+from rft_mujoco.compiled.terrain import ABOVE, DEFORMABLE, FLAT, _depth, deformed_range
 from rft_mujoco.geometry import occlusion
 
 CLUSTER_SIZE = 128
@@ -202,6 +202,7 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
     """
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     flat = kind == FLAT and tp[6] == 0.0
+    deformed = kind == DEFORMABLE and g2 < 0.0
     n_touch = 0
     checked = False
     for i in range(ids.shape[0]):
@@ -232,6 +233,14 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
                     * g1 + (pz + (r[6] * q0 + r[7] * q1 + r[8] * q2)) * g2) - cluster_radius[q]
             if low > max_height:
                 continue
+            if deformed:                                  # the deformed surface around the cluster
+                lo, hi = deformed_range(px + (r[0] * q0 + r[1] * q1 + r[2] * q2), py + (r[3] * q0 + r[4] * q1
+                                        + r[5] * q2), cluster_radius[q], tp, heights)
+                if low > hi + ABOVE:
+                    continue                              # wholly above it
+                if low + 2.0 * cluster_radius[q] < lo - ABOVE:
+                    hit = True                            # wholly below it
+                    break
             if flat:
                 if tp[0] - (low + 2.0 * cluster_radius[q]) > 0.0:     # wholly below flat sand
                     hit = True

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from rft_mujoco import tol
-from rft_mujoco.compiled.jit import JIT, njit
+from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.physics.deform import COVER_GROW, DeformableSurface
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
 
@@ -25,7 +25,7 @@ DEFORMABLE = 2
 """Terrain kind of :func:`terrain_spec`: a deformable surface's grid with its loading memory (gravity along -z)."""
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _depth(px, py, pz, g0, g1, g2, kind, tp, heights):
     """Depth (m) of a world point below the terrain: :meth:`FlatSurface.depth`,
     :meth:`HeightfieldSurface.depth`, :meth:`SandRegion.depth`, with ``tp`` from :func:`terrain_spec`."""
@@ -56,7 +56,7 @@ def _depth(px, py, pz, g0, g1, g2, kind, tp, heights):
     return z - pz
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _deformed_depth(px, py, pz, tp, grid):
     """Effective depth (m) of a world point below a deformed surface: the numbers of
     :meth:`rft_mujoco.physics.deform.DeformedSurface.depth` (bilinear height and preload, in the same order
@@ -77,6 +77,9 @@ def _deformed_depth(px, py, pz, tp, grid):
     fw = w - i0
     h = ((1 - fw) * ((1 - fu) * grid[i0, j0] + fu * grid[i0, j1])
          + fw * ((1 - fu) * grid[i1, j0] + fu * grid[i1, j1]))
+    q00, q01, q10, q11 = grid[ny + i0, j0], grid[ny + i0, j1], grid[ny + i1, j0], grid[ny + i1, j1]
+    if q00 == 0.0 and q01 == 0.0 and q10 == 0.0 and q11 == 0.0:
+        return h - pz                                # virgin sand (no preload): the depth itself, as below
     q = ((1 - fw) * ((1 - fu) * grid[ny + i0, j0] + fu * grid[ny + i0, j1])
          + fw * ((1 - fu) * grid[ny + i1, j0] + fu * grid[ny + i1, j1]))
     d = h - pz
@@ -87,6 +90,35 @@ def _deformed_depth(px, py, pz, tp, grid):
     if d <= e:
         return ratio * d
     return q + d - e
+
+
+ABOVE = 1e-12
+"""m: a cluster whose lowest point is this much above the deformed surface's highest node around it is above
+the sand, and one whose highest point is this much below the lowest node under it is under it (bilinear
+heights may leave their nodes' range by round-off)."""
+
+
+@njit(**JIT)
+def deformed_range(px, py, radius, tp, grid):
+    """(lowest, highest) m of the nodes of a deformed surface (``grid`` of :func:`_deformed_depth`) within
+    ``radius`` m of (``px``, ``py``) in x and y, one node around included, and of the initial height ``tp[0]``
+    where that square leaves the grid: the surface under a sphere of that radius is within this range
+    (bilinear heights are within their nodes' range, to round-off), so an element of the sphere above the
+    highest is above the sand, and one below the lowest under it."""
+    ny = grid.shape[0] // 2
+    nx = grid.shape[1]
+    u0 = math.floor((px - radius - tp[1]) / tp[2])
+    u1 = math.ceil((px + radius - tp[1]) / tp[2])
+    w0 = math.floor((py - radius - tp[3]) / tp[4])
+    w1 = math.ceil((py + radius - tp[3]) / tp[4])
+    lo, hi = np.inf, -np.inf
+    if not (u0 >= 0 and w0 >= 0 and u1 <= nx - 1 and w1 <= ny - 1):
+        lo = hi = tp[0]                              # (outside the grid: the initial surface)
+    for i in range(max(int(w0), 0), min(int(w1), ny - 1) + 1):
+        for j in range(max(int(u0), 0), min(int(u1), nx - 1) + 1):
+            lo = min(lo, grid[i, j])
+            hi = max(hi, grid[i, j])
+    return lo, hi
 
 
 _NO_HEIGHTS = np.zeros((2, 2))

@@ -113,7 +113,7 @@ class DeformableSurface:
             least this long after its last update (:func:`schedule`); 0: at every step. Between updates the
             sand's force is unchanged by the interval on virgin sand (an update keeps the pressing point's
             effective depth), the footprint lags the body by at most this long, and the slope flow runs its
-            sweeps once per update. Default 0.01 (the cost: docs/deformable.md, "The cost").
+            sweeps once per update. Default 0.02 (the cost and what it changes: docs/deformable.md, "The cost").
     """
 
     height: float = 0.0
@@ -126,7 +126,7 @@ class DeformableSurface:
     compaction: float = 0.0
     berm_width: float = 0.05
     repose_angle: float | None = 30.0
-    update_interval: float = 0.01
+    update_interval: float = 0.02
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.height):
@@ -161,7 +161,7 @@ class DeformableSurface:
         if not (math.isfinite(self.berm_width) and self.berm_width >= 0.0):
             raise ValueError(f"berm_width must be >= 0 m, got {self.berm_width!r}")
         if not (math.isfinite(self.update_interval) and self.update_interval >= 0.0):
-            raise ValueError(f"update_interval must be >= 0 s (0: update the grid at every step), e.g. 0.01, got "
+            raise ValueError(f"update_interval must be >= 0 s (0: update the grid at every step), e.g. 0.02, got "
                              f"{self.update_interval!r}")
         if self.repose_angle is not None and not (0.0 < self.repose_angle < 90.0):
             raise ValueError(f"repose_angle must be None or degrees in (0, 90), e.g. 30, got {self.repose_angle!r}")

@@ -329,9 +329,9 @@ DEFORMABLE_RUNS = ("flat", "deformable", "deformable_numpy")
 deformable surface compiled (the default backend), and the same deformable surface on the numpy reference."""
 
 
-def _trot_cpu(run: str, seconds: float) -> float:
-    """CPU s per simulated s of the demo quadruped trotting for ``seconds`` s after its stand (untimed) on the
-    surface of ``run`` (:data:`DEFORMABLE_RUNS`), a fresh demo."""
+def _trot_demo(run: str):
+    """A fresh demo (the prints study's scene and gait) on the surface of ``run`` (:data:`DEFORMABLE_RUNS`), stood
+    for its 0.5 s (untimed)."""
     from rft_mujoco.physics.deform import DeformableSurface
     from rft_mujoco.studies.demo import Demo
     from rft_mujoco.studies.prints import GRID, STAND_S
@@ -345,23 +345,38 @@ def _trot_cpu(run: str, seconds: float) -> float:
     want = "numpy" if run == "deformable_numpy" else "numba"
     if demo.sand.backend != want:
         raise RuntimeError(f"the {run} run needs the {want} backend, got {demo.sand.backend}")
-    dt = demo.model.opt.timestep
-    for _ in range(int(round(STAND_S / dt))):
+    for _ in range(int(round(STAND_S / demo.model.opt.timestep))):
         demo.step()
+    return demo
+
+
+def _trot_cpu(runs: tuple, seconds: float, chunk: int = 25) -> list[float]:
+    """CPU s per simulated s of the demo quadruped trotting for ``seconds`` s after its stand (untimed), one fresh
+    demo per run of ``runs``, their steps timed in alternating chunks of ``chunk`` steps (so that a machine whose
+    speed drifts, as a shared one does, slows every run alike)."""
+    demos = [_trot_demo(run) for run in runs]
+    dt = demos[0].model.opt.timestep
     n = int(round(seconds / dt))
-    cpu = time.process_time()
-    for _ in range(n):
-        demo.step()
-    cpu = time.process_time() - cpu
-    demo.close()
-    return cpu / (n * dt)
+    cpu = [0.0] * len(demos)
+    for start in range(0, n, chunk):
+        for k, demo in enumerate(demos):
+            t = time.process_time()
+            for _ in range(min(chunk, n - start)):
+                demo.step()
+            cpu[k] += time.process_time() - t
+    for run, demo in zip(runs, demos):
+        if run != "flat" and np.ptp(demo.sand.surface(demo.data).heights) == 0.0:
+            raise RuntimeError(f"the {run} run left its surface flat: it measured no grid update")
+        demo.close()
+    return [c / (n * dt) for c in cpu]
 
 
 def deformable_trot(seconds: float = 1.0, reps: int = 3, numpy_seconds: float = 0.2) -> dict:
     """Issue 31's cost target: CPU s (``time.process_time``) per simulated s of the demo quadruped trotting (the
     prints study's scene and gait, :mod:`rft_mujoco.studies.prints`) on its flat surface and on a deformable one,
-    compiled, alternated ``reps`` times in this process (each run a fresh demo, timed over ``seconds`` s of trot
-    after its untimed stand), and once on the deformable surface with numpy (``numpy_seconds`` s of trot).
+    compiled, ``reps`` times in this process (each time a fresh pair of demos, stood untimed, then ``seconds`` s
+    of trot timed in alternating chunks of 25 steps: :func:`_trot_cpu`), and once on the deformable surface
+    with numpy (``numpy_seconds`` s of trot).
     Returns {run: [CPU s per simulated s, one per repetition]} over :data:`DEFORMABLE_RUNS`."""
     out = {run: [] for run in DEFORMABLE_RUNS}
     with warnings.catch_warnings():
@@ -369,9 +384,10 @@ def deformable_trot(seconds: float = 1.0, reps: int = 3, numpy_seconds: float = 
 
 
 def _alternate(out: dict, seconds: float, reps: int, numpy_seconds: float) -> dict:
+    _trot_cpu(DEFORMABLE_RUNS[:2], min(seconds, 0.2))     # untimed: the first pair of a process runs unevenly
     for _ in range(reps):
-        for run in DEFORMABLE_RUNS[:2]:
-            out[run].append(_trot_cpu(run, seconds))
+        for run, cpu in zip(DEFORMABLE_RUNS[:2], _trot_cpu(DEFORMABLE_RUNS[:2], seconds)):
+            out[run].append(cpu)
     if numpy_seconds > 0:
-        out["deformable_numpy"].append(_trot_cpu("deformable_numpy", numpy_seconds))
+        out["deformable_numpy"].extend(_trot_cpu(DEFORMABLE_RUNS[2:], numpy_seconds))
     return out
