@@ -150,6 +150,15 @@ def _print_deformable(cpu: dict) -> None:
     print(_verdict("deformable / flat (median)", float(np.median(cpu["deformable"])) / flat, 1.3, "<=", "x"), flush=True)
 
 
+def _print_intervals(rows: list[dict]) -> None:
+    """The table of :func:`rft_mujoco.studies.bench.coupling.interval_sweep`."""
+    print("DeformableSurface.update_interval: cost and surface after 2 s of trot (one pair per interval, "
+          "alternating chunks)")
+    print(table(["update_interval s", "x flat", "deepest print mm", "highest berm mm", "trunk x m"],
+                [[f"{r['interval']:g}", f"{r['ratio']:.2f}x", f"{r['deepest'] * 1e3:.1f}", f"{r['berm'] * 1e3:.1f}",
+                  f"{r['trunk_x']:.3f}"] for r in rows]), flush=True)
+
+
 def mesh_robots(quick: bool = False) -> list[dict]:
     """Section 5: the mesh robots at the default resolution (and coarse/fine unless ``quick``); prints a table."""
     from rft_mujoco.studies.bench import robots
@@ -280,6 +289,9 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
                         help="issue 31's cost alone: the demo quadruped trotting on a deformable surface against the "
                              "flat one, CPU s per simulated s, alternated (~1-2 min)")
     parser.add_argument("--reps", type=int, default=3, help="with --deformable: repetitions (default 3)")
+    parser.add_argument("--intervals", type=float, nargs="*", default=[], metavar="S",
+                        help="with --deformable: also the trade of DeformableSurface.update_interval, one 2 s pair "
+                             "per interval (s), e.g. --intervals 0 0.01 0.02 0.05")
     parser.add_argument("--seconds", type=float, default=1.0,
                         help="with --deformable: s of trot timed per run (default 1.0; numpy: a fifth, once)")
     args = parser.parse_args(argv)
@@ -299,6 +311,8 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
         print(machine())
         compiled.ensure_compiled()
         _print_deformable(coupling.deformable_trot(args.seconds, args.reps, args.seconds / 5))
+        if args.intervals:
+            _print_intervals(coupling.interval_sweep(args.intervals))
         return 0
     if args.law:
         print(machine())
