@@ -218,3 +218,13 @@ def test_the_cost_benchmark_times_both_surfaces():
     cpu = deformable_trot(seconds=0.02, reps=1, numpy_seconds=0.0)
     assert len(cpu["flat"]) == len(cpu["deformable"]) == 1 and cpu["deformable_numpy"] == []
     assert all(v > 0.0 for v in cpu["flat"] + cpu["deformable"])
+
+
+def test_the_interval_sweep_measures_each_interval():
+    """``bench --deformable --intervals``: one timed pair per interval, with the surface it left (a print, a berm)."""
+    from rft_mujoco.studies.bench.coupling import interval_sweep
+
+    rows = interval_sweep([0.0, 0.05], seconds=0.1)
+    assert [r["interval"] for r in rows] == [0.0, 0.05]
+    for r in rows:
+        assert r["ratio"] > 0.0 and r["deepest"] > 0.01 and r["berm"] > 0.0 and abs(r["trunk_x"]) < 0.1

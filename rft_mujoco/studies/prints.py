@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import time
+import warnings
 from pathlib import Path
 
 import mujoco
@@ -102,6 +103,54 @@ def trot(seconds: float, terrain: str = "deformable", draw: bool = False) -> dic
     return out
 
 
+def trot_demo(run: str, interval: float | None = None):
+    """A fresh demo (the prints study's scene and gait) on the surface of ``run`` ("flat", "deformable" or "deformable_numpy"; a
+    deformable one updated every ``interval`` s, None: the default), stood for its 0.5 s (untimed)."""
+    from rft_mujoco.studies.demo import Demo
+
+    warnings.simplefilter("ignore")                  # (the validity monitor's warnings of the trot: not timed here)
+    demo = Demo(stand_s=STAND_S)
+    if run != "flat":
+        if run == "deformable_numpy":
+            demo.sand._backend_request = "numpy"
+        grid = GRID if interval is None else dict(GRID, update_interval=interval)
+        demo.sand.terrain = DeformableSurface(height=float(demo.sand.terrain.max_height), **grid)
+    want = "numpy" if run == "deformable_numpy" else "numba"
+    if demo.sand.backend != want:
+        raise RuntimeError(f"the {run} run needs the {want} backend, got {demo.sand.backend}")
+    for _ in range(int(round(STAND_S / demo.model.opt.timestep))):
+        demo.step()
+    return demo
+
+
+def side_by_side(runs: tuple, seconds: float, chunk: int = 25, interval: float | None = None) -> list[dict]:
+    """The demo quadruped trotting for ``seconds`` s after its stand (untimed), one fresh demo per run of
+    ``runs``, their steps timed in alternating chunks of ``chunk`` steps (so that a machine whose speed drifts,
+    as a shared one does, slows every run alike). Per run: ``cpu`` (CPU s per simulated s), ``trunk_x`` (m) and,
+    on a deformable surface, ``deepest`` and ``berm`` (m, below and above the initial surface)."""
+    demos = [trot_demo(run, interval) for run in runs]
+    dt = demos[0].model.opt.timestep
+    n = int(round(seconds / dt))
+    cpu = [0.0] * len(demos)
+    for start in range(0, n, chunk):
+        for k, demo in enumerate(demos):
+            t = time.process_time()
+            for _ in range(min(chunk, n - start)):
+                demo.step()
+            cpu[k] += time.process_time() - t
+    out = []
+    for run, demo, c in zip(runs, demos, cpu):
+        row = dict(cpu=c / (n * dt), trunk_x=float(demo.data.qpos[0]))
+        if run != "flat":
+            s = demo.sand.surface(demo.data)
+            if np.ptp(s.heights) == 0.0:
+                raise RuntimeError(f"the {run} run left its surface flat: it measured no grid update")
+            row.update(deepest=float(s.grid.height - s.heights.min()), berm=float(s.heights.max() - s.grid.height))
+        demo.close()
+        out.append(row)
+    return out
+
+
 def plot_surface(surface, path: Path) -> None:
     """The surface from above (colour: height relative to the initial surface, mm)."""
     import matplotlib
@@ -146,10 +195,9 @@ def main(argv: list[str] | None = None, command: str = "prints") -> int:
         plt.imsave(args.out / "prints_frame.png", r["frame"])
         print(f"frame: {args.out / 'prints_frame.png'}")
     if not args.no_cost:
-        from rft_mujoco.studies.bench.coupling import deformable_trot
-
-        cpu = deformable_trot(args.seconds - STAND_S, reps=1, numpy_seconds=0.0)
-        flat, deformable = cpu["flat"][0], cpu["deformable"][0]
+        with warnings.catch_warnings():
+            side_by_side(("flat", "deformable"), 0.2)                  # untimed: the first pair runs unevenly
+            flat, deformable = (r["cpu"] for r in side_by_side(("flat", "deformable"), args.seconds - STAND_S))
         flat_numpy = trot(args.seconds, "flat_numpy")["cpu_per_sim_s"]
         print(f"CPU s per simulated s of the trot (flat and deformable in alternating chunks, compiled): flat "
               f"{flat:.2f}, deformable {deformable:.2f} ({deformable / flat:.2f}x); the flat surface on numpy "

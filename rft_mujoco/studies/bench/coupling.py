@@ -329,85 +329,39 @@ DEFORMABLE_RUNS = ("flat", "deformable", "deformable_numpy")
 deformable surface compiled (the default backend), and the same deformable surface on the numpy reference."""
 
 
-def _trot_demo(run: str, interval: float | None = None):
-    """A fresh demo (the prints study's scene and gait) on the surface of ``run`` (:data:`DEFORMABLE_RUNS`; a
-    deformable one updated every ``interval`` s, None: the default), stood for its 0.5 s (untimed)."""
-    from rft_mujoco.physics.deform import DeformableSurface
-    from rft_mujoco.studies.demo import Demo
-    from rft_mujoco.studies.prints import GRID, STAND_S
-
-    warnings.simplefilter("ignore")                  # (the validity monitor's warnings of the trot: not timed here)
-    demo = Demo(stand_s=STAND_S)
-    if run != "flat":
-        if run == "deformable_numpy":
-            demo.sand._backend_request = "numpy"
-        grid = GRID if interval is None else dict(GRID, update_interval=interval)
-        demo.sand.terrain = DeformableSurface(height=float(demo.sand.terrain.max_height), **grid)
-    want = "numpy" if run == "deformable_numpy" else "numba"
-    if demo.sand.backend != want:
-        raise RuntimeError(f"the {run} run needs the {want} backend, got {demo.sand.backend}")
-    for _ in range(int(round(STAND_S / demo.model.opt.timestep))):
-        demo.step()
-    return demo
-
-
-def _trot_cpu(runs: tuple, seconds: float, chunk: int = 25, interval: float | None = None) -> list[dict]:
-    """The demo quadruped trotting for ``seconds`` s after its stand (untimed), one fresh demo per run of
-    ``runs``, their steps timed in alternating chunks of ``chunk`` steps (so that a machine whose speed drifts,
-    as a shared one does, slows every run alike). Per run: ``cpu`` (CPU s per simulated s), ``trunk_x`` (m) and,
-    on a deformable surface, ``deepest`` and ``berm`` (m, below and above the initial surface)."""
-    demos = [_trot_demo(run, interval) for run in runs]
-    dt = demos[0].model.opt.timestep
-    n = int(round(seconds / dt))
-    cpu = [0.0] * len(demos)
-    for start in range(0, n, chunk):
-        for k, demo in enumerate(demos):
-            t = time.process_time()
-            for _ in range(min(chunk, n - start)):
-                demo.step()
-            cpu[k] += time.process_time() - t
-    out = []
-    for run, demo, c in zip(runs, demos, cpu):
-        row = dict(cpu=c / (n * dt), trunk_x=float(demo.data.qpos[0]))
-        if run != "flat":
-            s = demo.sand.surface(demo.data)
-            if np.ptp(s.heights) == 0.0:
-                raise RuntimeError(f"the {run} run left its surface flat: it measured no grid update")
-            row.update(deepest=float(s.grid.height - s.heights.min()), berm=float(s.heights.max() - s.grid.height))
-        demo.close()
-        out.append(row)
-    return out
-
-
 def deformable_trot(seconds: float = 1.0, reps: int = 3, numpy_seconds: float = 0.2,
                     interval: float | None = None) -> dict:
     """Issue 31's cost target: CPU s (``time.process_time``) per simulated s of the demo quadruped trotting (the
     prints study's scene and gait, :mod:`rft_mujoco.studies.prints`) on its flat surface and on a deformable one
     (updated every ``interval`` s; None: the default), compiled, ``reps`` times in this process (each time a
     fresh pair of demos, stood untimed, then ``seconds`` s of trot timed in alternating chunks of 25 steps:
-    :func:`_trot_cpu`, after an untimed pair), and once on the deformable surface with numpy
+    :func:`rft_mujoco.studies.prints.side_by_side`, after an untimed pair), and once on the deformable surface with numpy
     (``numpy_seconds`` s of trot). Returns {run: [CPU s per simulated s, one per repetition]} over
     :data:`DEFORMABLE_RUNS`."""
+    from rft_mujoco.studies.prints import side_by_side
+
     out = {run: [] for run in DEFORMABLE_RUNS}
     with warnings.catch_warnings():
-        _trot_cpu(DEFORMABLE_RUNS[:2], min(seconds, 0.2), interval=interval)   # the first pair runs unevenly
+        side_by_side(DEFORMABLE_RUNS[:2], min(seconds, 0.2), interval=interval)   # the first pair runs unevenly
         for _ in range(reps):
-            for run, row in zip(DEFORMABLE_RUNS[:2], _trot_cpu(DEFORMABLE_RUNS[:2], seconds, interval=interval)):
+            for run, row in zip(DEFORMABLE_RUNS[:2], side_by_side(DEFORMABLE_RUNS[:2], seconds, interval=interval)):
                 out[run].append(row["cpu"])
         if numpy_seconds > 0:
-            out["deformable_numpy"].append(_trot_cpu(DEFORMABLE_RUNS[2:], numpy_seconds, interval=interval)[0]["cpu"])
+            out["deformable_numpy"].append(side_by_side(DEFORMABLE_RUNS[2:], numpy_seconds, interval=interval)[0]["cpu"])
     return out
 
 
 def interval_sweep(intervals, seconds: float = 2.0) -> list[dict]:
     """The trade of ``DeformableSurface.update_interval``: for each interval (s), one pair of demos (flat and
-    deformable, compiled) trotting ``seconds`` s in alternating chunks (:func:`_trot_cpu`): ``ratio`` (CPU time,
+    deformable, compiled) trotting ``seconds`` s in alternating chunks (:func:`rft_mujoco.studies.prints.side_by_side`): ``ratio`` (CPU time,
     deformable / flat), ``deepest`` and ``berm`` (m) of the surface after the run, ``trunk_x`` (m)."""
+    from rft_mujoco.studies.prints import side_by_side
+
     rows = []
     with warnings.catch_warnings():
-        _trot_cpu(DEFORMABLE_RUNS[:2], 0.2)                                 # (untimed, as above)
+        side_by_side(DEFORMABLE_RUNS[:2], 0.2)                                 # (untimed, as above)
         for interval in intervals:
-            flat, deformable = _trot_cpu(DEFORMABLE_RUNS[:2], seconds, interval=float(interval))
+            flat, deformable = side_by_side(DEFORMABLE_RUNS[:2], seconds, interval=float(interval))
             rows.append(dict(interval=float(interval), ratio=deformable["cpu"] / flat["cpu"], flat_cpu=flat["cpu"],
                              cpu=deformable["cpu"], deepest=deformable["deepest"], berm=deformable["berm"],
                              trunk_x=deformable["trunk_x"]))
