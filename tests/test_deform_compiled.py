@@ -197,15 +197,16 @@ def test_a_box_pushed_about_is_the_same_on_both_backends_and_paths(interval):
 
 def test_the_update_schedule():
     """:func:`rft_mujoco.physics.deform.schedule`: due at the first step at least the interval after the last update,
-    the loading restarted when the time does not follow on (a reset, a skipped update, the first one)."""
+    the loading restarted when the last step had nothing touching (a lift-off, a reset, the first update)."""
     dt = 0.002
-    assert deform.schedule(np.inf, 0.01, dt) == deform.RESTART
-    assert deform.schedule(-dt, 0.01, dt) == deform.RESTART
-    assert deform.schedule(0.008, 0.01, dt) == deform.SKIP
-    assert deform.schedule(0.01 * (1 - 1e-12), 0.01, dt) == deform.PRESS
-    assert deform.schedule(0.011, 0.01, dt) == deform.PRESS                 # (an interval not a multiple of dt)
-    assert deform.schedule(0.012 + 1e-6, 0.01, dt) == deform.RESTART        # an update skipped: nothing touched
-    assert [deform.schedule(e, 0.0, dt) for e in (0.0, dt, 2 * dt)] == [deform.PRESS, deform.PRESS, deform.RESTART]
+    assert deform.schedule(np.inf, np.inf, 0.03, dt) == deform.RESTART
+    assert deform.schedule(0.01, -dt, 0.03, dt) == deform.RESTART           # time went back
+    assert deform.schedule(0.01, 2 * dt, 0.03, dt) == deform.RESTART         # a step with nothing touching
+    assert deform.schedule(0.028, dt, 0.03, dt) == deform.SKIP
+    assert deform.schedule(0.03 * (1 - 1e-12), dt, 0.03, dt) == deform.PRESS
+    assert deform.schedule(0.031, dt, 0.03, dt) == deform.PRESS              # (an interval not a multiple of dt)
+    assert deform.schedule(0.0, 0.0, 0.03, dt) == deform.SKIP                # evaluated again at the same time
+    assert [deform.schedule(e, e, 0.0, dt) for e in (0.0, dt, 2 * dt)] == [deform.PRESS, deform.PRESS, deform.RESTART]
     with pytest.raises(ValueError, match="update_interval"):
         deform.DeformableSurface(update_interval=-0.01)
 

@@ -473,20 +473,22 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
 def press_touching(tp, grid, cycles, reach, live, clock, time, dt, slack, k, touch, body_pos, body_mat, centroids,
                    normals, areas, cluster_start, body_clusters, max_height, pts, nrm, ar, mark, val, nodes, low,
                    rim, stats):
-    """:func:`rft_mujoco.coupling.deformable.press_touching`, compiled: when an update is due at ``time`` (s) after
-    the last one (``clock[0]``, s; :func:`rft_mujoco.physics.deform.schedule`, ``slack`` = 1 + its tolerance),
-    unload every node if the time did not follow on, then press the grid
+    """:func:`rft_mujoco.coupling.deformable.press_touching`, compiled: at an evaluation at ``time`` (s) with bodies
+    touching, when an update is due (``clock``: the times of the last update and of the last evaluation with
+    bodies touching, s; :func:`rft_mujoco.physics.deform.schedule`, ``slack`` = 1 + its tolerance), unload every
+    node if the last step had nothing touching, then press the grid
     with the elements of the ``k`` touching bodies (``touch``, their poses ``body_pos`` (k, 3) m and
     ``body_mat`` (k, 9): the broadphase's rows) that are below ``max_height`` (m), from the handle's packed
     elements (padding slots are NaN: never below); ``max_height``: the surface's highest point now (m). ``pts``,
     ``nrm`` (E, 3), ``ar`` (E,): gather buffers; the rest as :func:`press`. Returns what :func:`press` returns
     (NaN, the heights unchanged, when no update is due)."""
-    elapsed, interval = time - clock[0], tp[20]
-    if not (0.0 <= elapsed <= (interval + dt) * slack):
+    since_touch, interval = time - clock[1], tp[20]
+    clock[1] = time
+    if not (0.0 <= since_touch <= dt * slack):
         for t in range(int(live[0])):
             reach.reshape(-1)[live[1 + t]] = 0.0
         live[0] = 0
-    elif elapsed < interval * (2.0 - slack):
+    elif time - clock[0] < interval * (2.0 - slack):
         return np.nan
     clock[0] = time
     n = 0

@@ -26,7 +26,7 @@ from rft_mujoco.compiled.jit import cfunc
 
 FIELDS = (("cycles", "f2"), ("reach", "f2"), ("clock", "f1"), ("live", "i1"), ("stats", "f1"), ("pts", "f2"),
           ("nrm", "f2"), ("ar", "f1"), ("mark", "i1"), ("val", "f1"), ("nodes", "i1"), ("low", "f1"), ("rim", "i1"))
-"""(name, kind) of the handle's press part of the table: ``cycles``, ``reach`` (ny, nx) and ``clock`` (1,) s of
+"""(name, kind) of the handle's press part of the table: ``cycles``, ``reach`` (ny, nx) and ``clock`` (2,) s of
 the MjData's surface, then the buffers of :func:`rft_mujoco.compiled.deform.buffers`."""
 _SLACK = 1.0 + tol.TIME_RTOL
 _SNAPSHOT = [name for name, _ in rt.BOOK_FIELDS].index("snapshot") * table.SLOT

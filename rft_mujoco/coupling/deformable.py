@@ -26,11 +26,14 @@ from rft_mujoco.physics import deform
 def press_touching(handle, data, work, touch: np.ndarray) -> deform.PressResult | None:
     """Press ``work.surface`` with the elements of the touching bodies ``touch`` (indices into
     ``handle.body_ids``) that are below the surface's highest point, at their poses in ``data``, when an update
-    is due (:func:`rft_mujoco.physics.deform.schedule` of ``data.time`` against the last update's, ``work.arrays
-    ["surface_clock"]``; first unloading every node when the time did not follow on). None when not due."""
+    is due (:func:`rft_mujoco.physics.deform.schedule` of ``data.time`` against ``work.arrays["surface_clock"]``: the
+    times of the last update and of the last evaluation with bodies touching; first unloading every node when
+    the last step had nothing touching). None when not due."""
     surface = work.surface
     clock = work.arrays["surface_clock"]
-    todo = deform.schedule(data.time - clock[0], surface.grid.update_interval, handle.model.opt.timestep)
+    todo = deform.schedule(data.time - clock[0], data.time - clock[1], surface.grid.update_interval,
+                           handle.model.opt.timestep)
+    clock[1] = data.time
     if todo == deform.SKIP:
         return None
     if todo == deform.RESTART:

@@ -64,7 +64,8 @@ class _Workspace:
     compiled calls, and the tuple of the MjData's arrays. With a
     :class:`~rft_mujoco.physics.deform.DeformableSurface` terrain, ``surface`` is this MjData's deformed surface
     (its arrays are ``arrays["surface_heights"]``, ``["surface_preload"]``, ``["surface_cycles"]`` and
-    ``["surface_reach"]``, with ``["surface_clock"]`` (1,) the time of its last update, s, so that copies of the
+    ``["surface_reach"]``, with ``["surface_clock"]`` (2,) the times of its last update and of the last evaluation
+    with bodies touching, s, so that copies of the
     workspace copy it) and ``terrain`` is that surface; otherwise ``surface`` is None and ``terrain`` the
     handle's. ``hc`` is the handle constants the compiled evaluation of this MjData reads: the handle's, except
     with a deformable terrain, whose heights (``(2 ny, nx)``: this surface's heights over its preload, of which
@@ -103,7 +104,7 @@ class _Workspace:
                                 for (name, _), x in zip(evaluate.HANDLE_FIELDS, self.hc))
             a["surface_heights"], a["surface_preload"] = fresh.heights, fresh.preload
             a["surface_cycles"], a["surface_reach"] = fresh.cycles, fresh.reach
-            a["surface_clock"] = np.full(1, -np.inf)
+            a["surface_clock"] = np.full(2, -np.inf)
             self.surface = self.terrain = fresh
         self.implicit = None                # the compiled implicit solve's buffers (coupling.implicit.ImplicitWork)
 

@@ -113,7 +113,7 @@ class DeformableSurface:
             least this long after its last update (:func:`schedule`); 0: at every step. Between updates the
             sand's force is unchanged by the interval on virgin sand (an update keeps the pressing point's
             effective depth), the footprint lags the body by at most this long, and the slope flow runs its
-            sweeps once per update. Default 0.02 (the cost and what it changes: docs/deformable.md, "The cost").
+            sweeps once per update. Default 0.03 (the cost and what it changes: docs/deformable.md, "The cost").
     """
 
     height: float = 0.0
@@ -126,7 +126,7 @@ class DeformableSurface:
     compaction: float = 0.0
     berm_width: float = 0.05
     repose_angle: float | None = 30.0
-    update_interval: float = 0.02
+    update_interval: float = 0.03
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.height):
@@ -161,7 +161,7 @@ class DeformableSurface:
         if not (math.isfinite(self.berm_width) and self.berm_width >= 0.0):
             raise ValueError(f"berm_width must be >= 0 m, got {self.berm_width!r}")
         if not (math.isfinite(self.update_interval) and self.update_interval >= 0.0):
-            raise ValueError(f"update_interval must be >= 0 s (0: update the grid at every step), e.g. 0.02, got "
+            raise ValueError(f"update_interval must be >= 0 s (0: update the grid at every step), e.g. 0.03, got "
                              f"{self.update_interval!r}")
         if self.repose_angle is not None and not (0.0 < self.repose_angle < 90.0):
             raise ValueError(f"repose_angle must be None or degrees in (0, 90), e.g. 30, got {self.repose_angle!r}")
@@ -208,15 +208,17 @@ SKIP, PRESS, RESTART = 0, 1, 2
 on), or unload every node and press (the time did not follow on from the last update)."""
 
 
-def schedule(elapsed: float, interval: float, dt: float) -> int:
-    """:data:`SKIP`, :data:`PRESS` or :data:`RESTART` for an evaluation ``elapsed`` s after the grid's last update
-    (inf: none yet), with updates every ``interval`` s (``update_interval``) and steps of ``dt`` s. The loading
-    goes on when the evaluation follows the last update within ``interval + dt`` (a step with nothing
-    touching skips the update, so a body that lifts and lands again starts a new loading cycle); otherwise
-    (a reset, a jump in time, the first update) every node is unloaded first (:func:`unload`)."""
-    if not 0.0 <= elapsed <= (interval + dt) * (1.0 + tol.TIME_RTOL):
+def schedule(since_update: float, since_touch: float, interval: float, dt: float) -> int:
+    """:data:`SKIP`, :data:`PRESS` or :data:`RESTART` for an evaluation with bodies touching ``since_update`` s after
+    the grid's last update and ``since_touch`` s after the last evaluation with bodies touching (inf: none yet),
+    with updates every ``interval`` s (``update_interval``) and steps of ``dt`` s. When the last step had nothing
+    touching (or the time did not follow on: a reset, a jump, the first evaluation), every node is unloaded
+    and the grid pressed now (:func:`unload`): a body that lifts off and lands again starts a new loading cycle
+    however short the interval between; otherwise the grid is pressed when ``interval`` has passed since the
+    last update. (A body that lifts and lands again while another one touches is seen only at the updates.)"""
+    if not 0.0 <= since_touch <= dt * (1.0 + tol.TIME_RTOL):
         return RESTART
-    return PRESS if elapsed >= interval * (1.0 - tol.TIME_RTOL) else SKIP
+    return PRESS if since_update >= interval * (1.0 - tol.TIME_RTOL) else SKIP
 
 
 def effective_depth(d: np.ndarray, q: np.ndarray, reload_ratio: float) -> np.ndarray:
