@@ -114,3 +114,66 @@ def test_imports_go_down_the_layers(layer):
     up = [(m, t) for m, targets in EDGES.items() if m.split(".")[1:2] == [layer] for t in sorted(targets)
           if _layer(t) > _layer(m) or (_layer(t) == _layer(m) and t.split(".")[1] != layer)]
     assert up == []
+
+
+MAX_POSITIONAL, MAX_BODY_LINES = 12, 120
+"""Issue 30's limits for the functions of ``rft_mujoco`` outside ``warp/`` (positional parameters, ``self`` and
+``cls`` not counted; lines of body after the docstring)."""
+OVER_THE_LIMITS = {
+    "compiled.deform._cover": (14, 90), "compiled.deform.press": (16, 113),
+    "compiled.deform.press_touching": (28, 30), "compiled.element_pass._loaded": (15, 6),
+    "compiled.element_pass.wrenches": (43, 172), "compiled.element_pass.body_wrenches": (15, 3),
+    "compiled.elements.touching": (27, 82), "compiled.elements.finish_naive": (19, 42),
+    "compiled.evaluate._mobility": (26, 84), "compiled.evaluate._rest": (11, 132),
+    "compiled.evaluate.handle_constants": (13, 17), "compiled.implicit._flow_eval": (13, 15),
+    "compiled.implicit.implicit_wrenches": (16, 5), "compiled.implicit.solve_from_probe": (17, 175),
+    "compiled.implicit_eval.evaluate_implicit": (13, 127), "compiled.implicit_law.loaded_candidates": (33, 67),
+    "compiled.implicit_law.body_law": (27, 96), "compiled.implicit_law.group_law": (34, 35),
+    "compiled.law._stress": (16, 42), "compiled.law._element_forces": (15, 58), "compiled.locks.stuck_dofs": (17, 26),
+    "compiled.locks.lock_matrices": (13, 32), "compiled.locks._lock_needed": (17, 46),
+    "compiled.locks.locked_rest": (41, 57), "compiled.rest.jacobian": (13, 18),
+    "compiled.rest.rest_wrenches": (28, 120),
+    "compiled.share._share_and_commit": (20, 70), "compiled.system.row_zones": (16, 29),
+    "compiled.system.constrained_system": (20, 29), "compiled.system.free_motion": (21, 29),
+    "physics.elements.body_wrenches": (16, 19), "physics.elements.body_wrench_jacobians": (17, 45),
+}
+"""The functions over the limits when the check was written (2026-12-03: numba kernels that take their arrays one
+by one), with their counts: a ratchet. None may grow, none may join, and one brought within the limits leaves the
+list (issue 30: bundles instead of 40-argument calls)."""
+
+
+def _function_sizes() -> dict[str, tuple[int, int]]:
+    """(positional parameters, body lines) of every function of the package outside ``warp/``, by
+    ``module.function`` relative to the package (nested functions by their own name)."""
+    out = {}
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(PACKAGE)
+        if rel.parts[0] == "warp":
+            continue
+        module = ".".join(rel.with_suffix("").parts)
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                args = node.args.posonlyargs + node.args.args
+                positional = sum(a.arg not in ("self", "cls") for a in args)
+                body = node.body
+                docstring = isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
+                    and isinstance(body[0].value.value, str)
+                start = (body[1].lineno if len(body) > 1 else body[0].end_lineno) if docstring else body[0].lineno
+                size = (positional, node.end_lineno - start + 1)
+                key = f"{module}.{node.name}"
+                out[key] = max(out.get(key, size), size)
+    return out
+
+
+def test_functions_keep_within_the_limits_or_shrink():
+    sizes = _function_sizes()
+    assert len(sizes) > 500 and sizes["compiled.element_pass.wrenches"][0] > 12    # the scan measured
+    over = {k: v for k, v in sizes.items() if v[0] > MAX_POSITIONAL or v[1] > MAX_BODY_LINES}
+    new = sorted(k for k in over if k not in OVER_THE_LIMITS)
+    assert not new, f"over {MAX_POSITIONAL} positional parameters or {MAX_BODY_LINES} lines: {new}; bundle them"
+    limit = {k: (max(v[0], MAX_POSITIONAL), max(v[1], MAX_BODY_LINES)) for k, v in OVER_THE_LIMITS.items()}
+    grown = {k: (over[k], OVER_THE_LIMITS[k]) for k in over
+             if k in limit and (over[k][0] > limit[k][0] or over[k][1] > limit[k][1])}
+    assert not grown, f"grew past the recorded counts (now, recorded): {grown}"
+    fixed = sorted(k for k in OVER_THE_LIMITS if k not in over)
+    assert not fixed, f"within the limits now: take {fixed} out of OVER_THE_LIMITS"

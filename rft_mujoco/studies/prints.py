@@ -104,8 +104,9 @@ def trot(seconds: float, terrain: str = "deformable", draw: bool = False) -> dic
 
 
 def trot_demo(run: str, interval: float | None = None):
-    """A fresh demo (the prints study's scene and gait) on the surface of ``run`` ("flat", "deformable" or "deformable_numpy"; a
-    deformable one updated every ``interval`` s, None: the default), stood for its 0.5 s (untimed)."""
+    """A fresh demo (the prints study's scene and gait) on the surface of ``run`` ("flat", "deformable" or
+    "deformable_numpy"; a deformable one updated every ``interval`` s, None: the default), stood for its 0.5 s
+    (untimed)."""
     from rft_mujoco.studies.demo import Demo
 
     warnings.simplefilter("ignore")                  # (the validity monitor's warnings of the trot: not timed here)

@@ -335,7 +335,8 @@ def deformable_trot(seconds: float = 1.0, reps: int = 3, numpy_seconds: float = 
     prints study's scene and gait, :mod:`rft_mujoco.studies.prints`) on its flat surface and on a deformable one
     (updated every ``interval`` s; None: the default), compiled, ``reps`` times in this process (each time a
     fresh pair of demos, stood untimed, then ``seconds`` s of trot timed in alternating chunks of 25 steps:
-    :func:`rft_mujoco.studies.prints.side_by_side`, after an untimed pair), and once on the deformable surface with numpy
+    :func:`rft_mujoco.studies.prints.side_by_side`, after an untimed pair), and once on the deformable surface
+    with numpy
     (``numpy_seconds`` s of trot). Returns {run: [CPU s per simulated s, one per repetition]} over
     :data:`DEFORMABLE_RUNS`."""
     from rft_mujoco.studies.prints import side_by_side
@@ -347,13 +348,15 @@ def deformable_trot(seconds: float = 1.0, reps: int = 3, numpy_seconds: float = 
             for run, row in zip(DEFORMABLE_RUNS[:2], side_by_side(DEFORMABLE_RUNS[:2], seconds, interval=interval)):
                 out[run].append(row["cpu"])
         if numpy_seconds > 0:
-            out["deformable_numpy"].append(side_by_side(DEFORMABLE_RUNS[2:], numpy_seconds, interval=interval)[0]["cpu"])
+            row = side_by_side(DEFORMABLE_RUNS[2:], numpy_seconds, interval=interval)[0]
+            out["deformable_numpy"].append(row["cpu"])
     return out
 
 
 def interval_sweep(intervals, seconds: float = 2.0) -> list[dict]:
     """The trade of ``DeformableSurface.update_interval``: for each interval (s), one pair of demos (flat and
-    deformable, compiled) trotting ``seconds`` s in alternating chunks (:func:`rft_mujoco.studies.prints.side_by_side`): ``ratio`` (CPU time,
+    deformable, compiled) trotting ``seconds`` s in alternating chunks (:func:`rft_mujoco.studies.prints.
+    side_by_side`): ``ratio`` (CPU time,
     deformable / flat), ``deepest`` and ``berm`` (m) of the surface after the run, ``trunk_x`` (m)."""
     from rft_mujoco.studies.prints import side_by_side
 
