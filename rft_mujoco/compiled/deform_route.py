@@ -23,6 +23,7 @@ from rft_mujoco.compiled import route as rt
 from rft_mujoco.compiled import table
 from rft_mujoco.compiled.deform import press_touching
 from rft_mujoco.compiled.jit import cfunc
+from rft_mujoco.compiled import schema as sc
 
 FIELDS = (("cycles", "f2"), ("reach", "f2"), ("clock", "f1"), ("live", "i1"), ("stats", "f1"), ("pts", "f2"),
           ("nrm", "f2"), ("ar", "f1"), ("mark", "i1"), ("val", "f1"), ("nodes", "i1"), ("low", "f1"), ("rim", "i1"))
@@ -30,9 +31,6 @@ FIELDS = (("cycles", "f2"), ("reach", "f2"), ("clock", "f1"), ("live", "i1"), ("
 the MjData's surface, then the buffers of :func:`rft_mujoco.compiled.deform.buffers`."""
 _SLACK = 1.0 + tol.TIME_RTOL
 _SNAPSHOT = [name for name, _ in rt.BOOK_FIELDS].index("snapshot") * table.SLOT
-_HC = {name: i for i, (name, _) in enumerate(rt.ev.HANDLE_FIELDS)}
-_WS = {name: i for i, (name, _) in enumerate(rt.ev.WORK_FIELDS)}
-_TOUCHING = rt.ev.STATE.index("touching")
 
 if rt.AVAILABLE:
     _part = table.loader(FIELDS)
@@ -53,18 +51,16 @@ def press_phase(ptr, h, time):
     ws = rt._ws(t, base + rt._HC_SLOTS)
     dt = rt._f1(t, t[1] + _SNAPSHOT)[0]              # the model's timestep, as the dispatcher last checked it
     cycles, reach, clock, live, stats, pts, nrm, ar, mark, val, nodes, low, rim = _part(t, t[rt._HEADER + 2 * n + h])
-    params = hc[35]
-    top = press_touching(hc[26], hc[27], cycles, reach, live, clock, time, dt, _SLACK, int(ws[45][2]), ws[0], ws[1],
-                         ws[2], hc[21], hc[22], hc[23], hc[4], hc[5], params[0], pts, nrm, ar, mark, val, nodes, low,
-                         rim, stats)
+    params = hc[sc.H_PARAMS]
+    top = press_touching(hc[sc.H_TP], hc[sc.H_HEIGHTS], cycles, reach, live, clock, time, dt, _SLACK,
+                         int(ws[sc.W_STATE][sc.S_TOUCHING]), ws[sc.W_TOUCH], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT],
+                         hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
+                         hc[sc.H_BODY_CLUSTERS], params[sc.P_MAX_HEIGHT], pts, nrm, ar, mark, val, nodes, low, rim,
+                         stats)
     if top == top:                                   # not NaN: the heights changed
-        params[0] = top
+        params[sc.P_MAX_HEIGHT] = top
     return 0
 
-
-assert tuple(_HC[name] for name in ("cluster_start", "body_clusters", "centroids", "normals", "areas", "tp",
-                                    "heights", "params")) == (4, 5, 21, 22, 23, 26, 27, 35)
-assert (_WS["touch"], _WS["body_pos"], _WS["body_mat"], _WS["state"], _TOUCHING) == (0, 1, 2, 45, 2)
 
 _cfunc: list = []
 _lock = threading.Lock()

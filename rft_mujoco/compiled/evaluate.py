@@ -32,6 +32,8 @@ from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, wrenches
 from rft_mujoco.compiled.elements import finish_naive, touching
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled.locks import lock_matrices, locked_rest, stuck_dofs
+from rft_mujoco.compiled import schema as sc
+from rft_mujoco.compiled.schema import HANDLE_FIELDS, MJDATA_FIELDS, PARAMS, STATE, WORK_FIELDS  # noqa: F401
 from rft_mujoco.compiled.rest import KEPT_GROUPS, KEPT_RANK, _chain_dof, add_user_wrenches, rest_wrenches, solve_m
 from rft_mujoco.compiled.share import (BAD_ACCELERATION, NOT_FINITE, NOT_FINITE_STATE,  # noqa: F401
                                        _clear, _share_and_commit, touching_groups)
@@ -39,60 +41,12 @@ from rft_mujoco.compiled.share import (BAD_ACCELERATION, NOT_FINITE, NOT_FINITE_
 _TIME_SLACK = 1.0 + tol.TIME_RTOL
 """A step of dt (1 + TIME_RTOL) still follows the previous evaluation (frozen into the compiled code)."""
 
-MJDATA_FIELDS = (
-    ("xpos", "f2"), ("xmat", "f2"), ("xipos", "f2"), ("cvel", "f2"), ("subtree_com", "f2"), ("qpos", "f1"),
-    ("qvel", "f1"), ("cdof", "f2"), ("qfrc_passive", "f1"), ("qfrc_bias", "f1"), ("qfrc_actuator", "f1"),
-    ("qfrc_applied", "f1"), ("qfrc_constraint", "f1"), ("qLD", "f1"), ("qLDiagInv", "f1"), ("geom_xpos", "f2"),
-    ("geom_xmat", "f2"))
-"""(name, kind) of the MjData arrays of ``md``, in order (float64: MuJoCo's mjtNum, checked at attach)."""
-
-HANDLE_FIELDS = (
-    ("ids", "i1"), ("root", "i1"), ("group_of", "i1"), ("group_ref", "i1"), ("cluster_start", "i1"),
-    ("body_clusters", "i1"), ("body_rootid", "i1"), ("body_dofnum", "i1"), ("body_dofadr", "i1"),
-    ("body_parentid", "i1"), ("dof_parentid", "i1"), ("M_rownnz", "i1"), ("M_rowadr", "i1"), ("M_colind", "i1"),
-    ("occ_start", "i1"), ("occ_geom", "i1"), ("occ_kind", "i1"), ("occ_hs_start", "i1"),
-    ("bound_center", "f2"), ("bound_radius", "f1"), ("group_radius", "f1"), ("centroids", "f2"),
-    ("normals", "f2"), ("areas", "f1"), ("cluster_center", "f2"), ("cluster_radius", "f1"), ("tp", "f1"),
-    ("heights", "f2"), ("coef", "f2"), ("tol", "f1"), ("settings", "f1"), ("occ_size", "f2"),
-    ("occ_rbound", "f1"), ("occ_hs", "f2"), ("gravity", "f1"), ("params", "f1"))
-"""(name, kind) of the arrays of ``hc``, in order; kind: dtype (i int64, f float64, b bool) and ndim."""
-
-WORK_FIELDS = (
-    ("touch", "i1"), ("body_pos", "f2"), ("body_mat", "f2"), ("body_com", "f2"), ("v_com", "f2"),
-    ("omega", "f2"), ("scratch", "f2"), ("wrench", "f2"), ("count", "i1"), ("depth", "f1"), ("occluded", "f1"),
-    ("active", "i1"), ("slot", "i1"), ("idx", "i1"), ("rest", "b1"), ("flow", "b1"), ("zt", "f2"),
-    ("minv_jt", "f2"), ("mob", "f2"), ("a", "f2"), ("block", "f2"), ("qacc", "f1"), ("v", "f1"), ("rhs", "f1"),
-    ("weight", "f1"), ("twist", "f2"), ("free", "f2"), ("u", "f2"), ("rft_g", "f2"), ("w", "f2"), ("cap", "f2"),
-    ("u_lin", "f2"), ("u_ang", "f2"), ("arm", "f2"), ("applied", "f2"), ("size", "f1"), ("total", "f1"),
-    ("force", "f2"), ("torque", "f2"), ("submerged", "i1"), ("max_depth", "f1"), ("scale", "f1"),
-    ("rft_force", "f2"), ("resting", "b1"), ("occluded_area", "f1"), ("state", "f1"), ("lin", "f2"),
-    ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"), ("keep_active", "i1"), ("keep_rest", "b1"),
-    ("lock_i", "i2"), ("lock_f", "f2"), ("lock_z", "f2"), ("lock_chain", "i2"), ("lock_s", "f2"), ("lock_c", "f2"),
-    ("lock_r", "f2"), ("lock_x", "f2"), ("lock_mob", "f2"), ("lock_free", "f2"), ("lock_w", "f2"), ("lock_rest", "b1"),
-    ("group_tree", "i1"), ("lock_prev", "b1"))
-"""(name, kind) of the arrays of ``ws``, in order."""
-
 FRICTION_FIELDS = (("efc_type", "i4"), ("efc_id", "i4"), ("efc_D", "f8"), ("efc_aref", "f8"),
                    ("efc_frictionloss", "f8"), ("qacc", "f8"))
 """(name, dtype) of the ``fr`` tuple: MjData's constraint rows of this step (they move with ``nefc``, so
 the Python path reads them at every call and the native route from ``mjData``'s pointers) and its
 ``qacc`` (the last solve's accelerations)."""
 
-PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
-          "passive", "margin", "monitor_every", "rk4_first")
-"""Entries of ``hc.params``: highest sand (m), ``xi_n / |g|`` (N/m^3 per m/s^2), surface friction, the
-three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
-validity checks (0: no monitor), ``rk4_stages="first"`` (0/1)."""
-STATE = ("last_time", "clean", "touching", "lagged", "evaluations", "rk4_stage", "kept_groups", "kept_rank",
-         "kept_evaluations", "locked_dofs", "locked_evaluations")
-"""Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
-the number of touching bodies found by the last broadphase, whether MuJoCo's previous constraint solve
-belongs to this motion, evaluations so far; the RK4 stage of this evaluation (written by the caller
-before the broadphase: 1-4, 0 for other integrators), the number of groups whose mobility is kept for
-the later stages of this step (0: none), the kept rest factor's rank (-1: none, see
-:func:`rft_mujoco.compiled.rest.rest_wrenches`), the evaluations that used a kept mobility; the dofs
-held by their dry friction in this evaluation's rest solve (:func:`rft_mujoco.physics.rest.locked_rest`)
-and the evaluations that held any."""
 assert STATE.index("kept_groups") == KEPT_GROUPS and STATE.index("kept_rank") == KEPT_RANK
 
 
@@ -128,44 +82,49 @@ def _gravity(gravity):
 
 @njit(**INLINE)
 def broadphase(md, hc, ws, time, dt):
-    """Phase 1: the time, the touching bodies (their count in ``state[2]``; none: the diagnostics cleared once).
-    Returns the count, or NOT_FINITE_STATE."""
-    xpos, xmat, xipos, cvel, subtree_com, qpos, qvel = md[0], md[1], md[2], md[3], md[4], md[5], md[6]
-    ids, root, cluster_start, body_clusters = hc[0], hc[1], hc[4], hc[5]
-    bound_center, bound_radius, centroids = hc[18], hc[19], hc[21]
-    cluster_center, cluster_radius, tp, heights, gravity, params = hc[24], hc[25], hc[26], hc[27], hc[34], hc[35]
-    touch, body_pos, body_mat, body_com, v_com, omega = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]
-    state = ws[45]
-    state[4] += 1.0
-    if state[5] < 2.0:                    # not a later RK4 stage: nothing kept from an earlier evaluation
+    """Phase 1: the time, the touching bodies (their count in ``state[S_TOUCHING]``; none: the diagnostics
+    cleared once). Returns the count, or NOT_FINITE_STATE."""
+    xpos, xmat, xipos, cvel = md[sc.M_XPOS], md[sc.M_XMAT], md[sc.M_XIPOS], md[sc.M_CVEL]
+    subtree_com, qpos, qvel = md[sc.M_SUBTREE_COM], md[sc.M_QPOS], md[sc.M_QVEL]
+    ids, root, cluster_start = hc[sc.H_IDS], hc[sc.H_ROOT], hc[sc.H_CLUSTER_START]
+    body_clusters = hc[sc.H_BODY_CLUSTERS]
+    bound_center, bound_radius, centroids = hc[sc.H_BOUND_CENTER], hc[sc.H_BOUND_RADIUS], hc[sc.H_CENTROIDS]
+    cluster_center, cluster_radius, tp = hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_TP]
+    heights, gravity, params = hc[sc.H_HEIGHTS], hc[sc.H_GRAVITY], hc[sc.H_PARAMS]
+    touch, body_pos, body_mat, body_com = ws[sc.W_TOUCH], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM]
+    v_com, omega = ws[sc.W_V_COM], ws[sc.W_OMEGA]
+    state = ws[sc.W_STATE]
+    state[sc.S_EVALUATIONS] += 1.0
+    if state[sc.S_RK4_STAGE] < 2.0:                    # not a later RK4 stage: nothing kept from an earlier evaluation
         state[KEPT_GROUPS] = 0.0
         state[KEPT_RANK] = -1.0
-    step = time - state[0]
-    state[3] = 1.0 if 0.0 <= step <= dt * _TIME_SLACK else 0.0         # coupling._Workspace.follow_time
-    state[0] = time
+    step = time - state[sc.S_LAST_TIME]
+    state[sc.S_LAGGED] = 1.0 if 0.0 <= step <= dt * _TIME_SLACK else 0.0         # coupling._Workspace.follow_time
+    state[sc.S_LAST_TIME] = time
     g0, g1, g2, _ = _gravity(gravity)
     g_hat = np.array((g0, g1, g2))
-    k = touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_center, bound_radius,
-                 centroids, cluster_start, cluster_center, cluster_radius, body_clusters, g_hat, params[0],
-                 int(params[6]), tp, heights, touch, body_pos, body_mat, body_com, v_com, omega)
+    k = touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_center, bound_radius, centroids,
+                 cluster_start, cluster_center, cluster_radius, body_clusters, g_hat, params[sc.P_MAX_HEIGHT],
+                 int(params[sc.P_KIND]), tp, heights, touch, body_pos, body_mat, body_com, v_com, omega)
     if k < 0:
         return NOT_FINITE_STATE
-    state[2] = k
-    if k == 0 and state[1] == 0.0:
-        _clear(ws[37], ws[38], ws[39], ws[40], ws[41], ws[42], ws[43], ws[44])
-        state[1] = 1.0
+    state[sc.S_TOUCHING] = k
+    if k == 0 and state[sc.S_CLEAN] == 0.0:
+        _clear(ws[sc.W_FORCE], ws[sc.W_TORQUE], ws[sc.W_SUBMERGED], ws[sc.W_MAX_DEPTH], ws[sc.W_SCALE],
+               ws[sc.W_RFT_FORCE], ws[sc.W_RESTING], ws[sc.W_OCCLUDED_AREA])
+        state[sc.S_CLEAN] = 1.0
     return k
 
 
 @njit(**INLINE)
 def evaluate(md, hc, ws, user_xfrc, dt, sand_out, fr):
-    """Phase 2 (after ``mj_fwdActuation``), for the ``state[2] > 0`` touching bodies of :func:`broadphase`
+    """Phase 2 (after ``mj_fwdActuation``), for the ``state[sc.S_TOUCHING] > 0`` touching bodies of :func:`broadphase`
     (:func:`evaluate_rest` with the rest treatment, else :func:`evaluate_naive`): the sand wrenches, the
     diagnostics, and the wrenches added to ``sand_out`` (nbody, 6) at their bodies' rows. ``user_xfrc``
     (nbody, 6): the user's own xfrc_applied (enters the free motion); ``fr`` (:data:`FRICTION_FIELDS`): this
     step's constraint rows and MuJoCo's last ``qacc``. Returns 1 (a non-zero wrench), 0 (none), NOT_FINITE or
     BAD_ACCELERATION (nothing written)."""
-    if hc[35][7] != 0.0:
+    if hc[sc.H_PARAMS][7] != 0.0:
         return evaluate_rest(md, hc, ws, user_xfrc, dt, sand_out, fr)
     return evaluate_naive(md, hc, ws, sand_out)
 
@@ -173,29 +132,35 @@ def evaluate(md, hc, ws, user_xfrc, dt, sand_out, fr):
 @njit(**INLINE)
 def evaluate_rest(md, hc, ws, user_xfrc, dt, sand_out, fr):
     """:func:`evaluate` with the rest treatment (the route's own C function: ``route.rest_phase``)."""
-    state = ws[45]
-    state[1] = 0.0
-    g0, g1, g2, g_mag = _gravity(hc[34])
-    return _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, int(state[2]), np.array((g0, g1, g2)), hc[35][1] * g_mag,
-                 state[3] != 0.0)
+    state = ws[sc.W_STATE]
+    state[sc.S_CLEAN] = 0.0
+    g0, g1, g2, g_mag = _gravity(hc[sc.H_GRAVITY])
+    return _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, int(state[sc.S_TOUCHING]), np.array((g0, g1, g2)),
+                 hc[sc.H_PARAMS][1] * g_mag, state[sc.S_LAGGED] != 0.0)
 
 
 @njit(**INLINE)
 def evaluate_naive(md, hc, ws, sand_out):
     """:func:`evaluate` without the rest treatment: the published force at the element velocities."""
-    state = ws[45]
-    k = int(state[2])
-    state[1] = 0.0
-    g0, g1, g2, g_mag = _gravity(hc[34])
+    state = ws[sc.W_STATE]
+    k = int(state[sc.S_TOUCHING])
+    state[sc.S_CLEAN] = 0.0
+    g0, g1, g2, g_mag = _gravity(hc[sc.H_GRAVITY])
     g_hat = np.array((g0, g1, g2))
-    params = hc[35]
-    xi_n = params[1] * g_mag
-    wrenches(ws[0], k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], ws[3], ws[4], ws[5],
-             g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
-             params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
-             params[9], md[15], md[16], ws[6], ws[49], ws[7], ws[8], ws[9], ws[10], 0.0)
-    return finish_naive(ws[7], ws[8], ws[9], ws[4], ws[5], params[8] != 0.0, ws[0], k, hc[0], ws[37], ws[38],
-                        ws[39], ws[40], ws[41], ws[42], ws[43], ws[44], ws[10], sand_out)
+    params = hc[sc.H_PARAMS]
+    xi_n = params[sc.P_XI_PER_G] * g_mag
+    wrenches(ws[sc.W_TOUCH], k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
+             hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS],
+             ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM], ws[sc.W_V_COM], ws[sc.W_OMEGA], g_hat, params[sc.P_MAX_HEIGHT],
+             int(params[sc.P_KIND]), hc[sc.H_TP], hc[sc.H_HEIGHTS], xi_n, hc[sc.H_COEF], params[sc.P_MU_SURF],
+             params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0, params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL],
+             hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE], hc[sc.H_OCC_RBOUND],
+             hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], params[sc.P_MARGIN], md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT],
+             ws[sc.W_SCRATCH], ws[sc.W_INDEX], ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_OCCLUDED], 0.0)
+    return finish_naive(ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_V_COM], ws[sc.W_OMEGA],
+                        params[sc.P_PASSIVE] != 0.0, ws[sc.W_TOUCH], k, hc[sc.H_IDS], ws[sc.W_FORCE], ws[sc.W_TORQUE],
+                        ws[sc.W_SUBMERGED], ws[sc.W_MAX_DEPTH], ws[sc.W_SCALE], ws[sc.W_RFT_FORCE], ws[sc.W_RESTING],
+                        ws[sc.W_OCCLUDED_AREA], ws[sc.W_OCCLUDED], sand_out)
 
 
 @njit(**INLINE)
@@ -301,21 +266,25 @@ def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, 
 @njit(**INLINE)
 def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     """The rest treatment of the ``k`` touching bodies: ``SandHandle._evaluate_rest``."""
-    xipos, cdof, subtree_com, qvel = md[2], md[7], md[4], md[6]
-    qfrc_passive, qfrc_bias, qfrc_actuator, qfrc_applied, qfrc_constraint = md[8], md[9], md[10], md[11], md[12]
-    qld, qld_diag_inv = md[13], md[14]
-    ids, group_of, group_ref = hc[0], hc[2], hc[3]
-    body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid = hc[6], hc[7], hc[8], hc[9], hc[10]
-    rownnz, rowadr, colind = hc[11], hc[12], hc[13]
-    bound_radius, group_radius, settings, params = hc[19], hc[20], hc[30], hc[35]
-    touch, body_com = ws[0], ws[3]
-    count, depth_max, occluded = ws[8], ws[9], ws[10]
-    active, slot, idx, rest, flow = ws[11], ws[12], ws[13], ws[14], ws[15]
-    zt, minv_jt, mob, a, block = ws[16], ws[17], ws[18], ws[19], ws[20]
-    qacc, v, rhs, weight = ws[21], ws[22], ws[23], ws[24]
-    twist, free, u, rft_g, w, cap = ws[25], ws[26], ws[27], ws[28], ws[29], ws[30]
-    u_lin, u_ang, arm, applied, size, total = ws[31], ws[32], ws[33], ws[34], ws[35], ws[36]
-    wrench = ws[7]
+    xipos, cdof, subtree_com, qvel = md[sc.M_XIPOS], md[sc.M_CDOF], md[sc.M_SUBTREE_COM], md[sc.M_QVEL]
+    qfrc_passive, qfrc_bias, qfrc_actuator = md[sc.M_QFRC_PASSIVE], md[sc.M_QFRC_BIAS], md[sc.M_QFRC_ACTUATOR]
+    qfrc_applied, qfrc_constraint = md[sc.M_QFRC_APPLIED], md[sc.M_QFRC_CONSTRAINT]
+    qld, qld_diag_inv = md[sc.M_QLD], md[sc.M_QLDIAGINV]
+    ids, group_of, group_ref = hc[sc.H_IDS], hc[sc.H_GROUP_OF], hc[sc.H_GROUP_REF]
+    body_rootid, body_dofnum, body_dofadr = hc[sc.H_BODY_ROOTID], hc[sc.H_BODY_DOFNUM], hc[sc.H_BODY_DOFADR]
+    body_parentid, dof_parentid = hc[sc.H_BODY_PARENTID], hc[sc.H_DOF_PARENTID]
+    rownnz, rowadr, colind = hc[sc.H_M_ROWNNZ], hc[sc.H_M_ROWADR], hc[sc.H_M_COLIND]
+    bound_radius, group_radius, settings = hc[sc.H_BOUND_RADIUS], hc[sc.H_GROUP_RADIUS], hc[sc.H_SETTINGS]
+    params = hc[sc.H_PARAMS]
+    touch, body_com = ws[sc.W_TOUCH], ws[sc.W_BODY_COM]
+    count, depth_max, occluded = ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_OCCLUDED]
+    active, slot, idx, rest, flow = ws[sc.W_ACTIVE], ws[sc.W_SLOT], ws[sc.W_IDX], ws[sc.W_REST], ws[sc.W_FLOW]
+    zt, minv_jt, mob, a, block = ws[sc.W_ZT], ws[sc.W_MINV_JT], ws[sc.W_MOB], ws[sc.W_A], ws[sc.W_BLOCK]
+    qacc, v, rhs, weight = ws[sc.W_QACC], ws[sc.W_V], ws[sc.W_RHS], ws[sc.W_WEIGHT]
+    twist, free, u, rft_g, w, cap = ws[sc.W_TWIST], ws[sc.W_FREE], ws[sc.W_U], ws[sc.W_RFT_G], ws[sc.W_W], ws[sc.W_CAP]
+    u_lin, u_ang, arm, applied, size = ws[sc.W_U_LIN], ws[sc.W_U_ANG], ws[sc.W_ARM], ws[sc.W_APPLIED], ws[sc.W_SIZE]
+    total = ws[sc.W_TOTAL]
+    wrench = ws[sc.W_WRENCH]
     nv = qvel.shape[0]
     # 1. the touching groups, in increasing group order, and each touching body's row among them
     ng_all = group_ref.shape[0]
@@ -333,29 +302,29 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     # 3. the dofs their dry friction held in MuJoCo's last solve (reference.stuck_dofs); Jacobians of the
     #    reference points, twists now and free, mobility J M^-1 J^T (_mobility): at a later RK4 stage with
     #    the same touching groups and no such dof, an earlier stage's mobility (reference.StepKeep)
-    lock_i, lock_f = ws[53], ws[54]
+    lock_i, lock_f = ws[sc.W_LOCK_I], ws[sc.W_LOCK_F]
     nl = 0
     if lagged:
         nl = stuck_dofs(fr[0], fr[1], fr[2], fr[3], fr[4], fr[5], ng, active, ids, group_ref, body_dofnum,
-                        body_dofadr, body_parentid, dof_parentid, lock_i, lock_f, ws[65])
-    state = ws[45]
-    keep_active, keep_rest = ws[51], ws[52]
-    frozen = state[5] >= 2.0 and state[KEPT_GROUPS] == ng and nl == 0
+                        body_dofadr, body_parentid, dof_parentid, lock_i, lock_f, ws[sc.W_GROUP_TREE])
+    state = ws[sc.W_STATE]
+    keep_active, keep_rest = ws[sc.W_KEEP_ACTIVE], ws[sc.W_KEEP_REST]
+    frozen = state[sc.S_RK4_STAGE] >= 2.0 and state[KEPT_GROUPS] == ng and nl == 0
     for r in range(ng):
         frozen = frozen and keep_active[r] == active[r]
     if frozen:
-        state[8] += 1.0
+        state[sc.S_KEPT_EVALUATIONS] += 1.0
     else:
-        state[KEPT_GROUPS] = ng if state[5] >= 1.0 and nl == 0 else 0.0
+        state[KEPT_GROUPS] = ng if state[sc.S_RK4_STAGE] >= 1.0 and nl == 0 else 0.0
         state[KEPT_RANK] = -1.0
         for r in range(ng):
             keep_active[r] = active[r]
-    _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
-              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[50], zt,
-              twist, free, mob, not frozen)
+    _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum, body_dofadr,
+              body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[sc.W_CHAIN], zt, twist,
+              free, mob, not frozen)
     if nl > 0:
-        lock_matrices(nl, rowadr, rownnz, colind, qld, qld_diag_inv, qacc, dof_parentid, lock_i, lock_f, ws[55],
-                      ws[56], ws[57])
+        lock_matrices(nl, rowadr, rownnz, colind, qld, qld_diag_inv, qacc, dof_parentid, lock_i, lock_f,
+                      ws[sc.W_LOCK_Z], ws[sc.W_LOCK_CHAIN], ws[sc.W_LOCK_S])
     # 4. blended twists (rest.blend), moved to each touching body's COM
     for r in range(ng):
         rad = group_radius[active[r]]
@@ -389,10 +358,14 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
         u_lin[j, 1] = u[r, 1] + (wz * ax - wx * az)
         u_lin[j, 2] = u[r, 2] + (wx * ay - wy * ax)
     # 5. RFT wrenches at the blended twists; the groups' wrenches about their reference points
-    wrenches(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com, u_lin, u_ang,
-             g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
-             params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
-             params[9], md[15], md[16], ws[6], ws[49], wrench, count, depth_max, occluded, 0.0)
+    wrenches(touch, k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
+             hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS],
+             ws[sc.W_BODY_MAT], body_com, u_lin, u_ang, g_hat, params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]),
+             hc[sc.H_TP], hc[sc.H_HEIGHTS], xi_n, hc[sc.H_COEF], params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0,
+             params[sc.P_NO_FORWARD] != 0.0, params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], hc[sc.H_OCC_START],
+             hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE], hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START],
+             hc[sc.H_OCC_HS], params[sc.P_MARGIN], md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT], ws[sc.W_SCRATCH],
+             ws[sc.W_INDEX], wrench, count, depth_max, occluded, 0.0)
     for r in range(ng):
         for c in range(6):
             rft_g[r, c] = 0.0
@@ -410,26 +383,28 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     rad_g = total                                   # (G,) reuses ``total`` as the active groups' radii
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
-    state[9] = 0.0
-    lock_prev = ws[66]                               # the dofs locked in the last evaluation
+    state[sc.S_LOCKED_DOFS] = 0.0
+    lock_prev = ws[sc.W_LOCK_PREV]                               # the dofs locked in the last evaluation
     sticky = False
     for l in range(nl):
         sticky = sticky or lock_prev[lock_i[0, l]]
     for j in range(lock_prev.shape[0]):
         lock_prev[j] = False
     if nl > 0:
-        state[9] = locked_rest(nl, free, mob, rft_g, u, rad_g, dt, ng, settings, a, v, cap, w, rest, flow, idx, block,
-                               rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state, twist, ws[50], zt, lock_i,
-                               lock_f, ws[55], ws[56], ws[57], ws[58], ws[59], ws[60], ws[61], ws[62], ws[63], ws[64],
-                               not sticky)
+        state[sc.S_LOCKED_DOFS] = locked_rest(nl, free, mob, rft_g, u, rad_g, dt, ng, settings, a, v, cap, w, rest,
+                                              flow, idx, block, rhs, size, weight, ws[sc.W_LIN], ws[sc.W_PERM],
+                                              ws[sc.W_X], keep_rest, state, twist, ws[sc.W_CHAIN], zt, lock_i, lock_f,
+                                              ws[sc.W_LOCK_Z], ws[sc.W_LOCK_CHAIN], ws[sc.W_LOCK_S], ws[sc.W_LOCK_C],
+                                              ws[sc.W_LOCK_R], ws[sc.W_LOCK_X], ws[sc.W_LOCK_MOB], ws[sc.W_LOCK_FREE],
+                                              ws[sc.W_LOCK_W], ws[sc.W_LOCK_REST], not sticky)
         for l in range(nl):
             if lock_i[1, l] != 0:
                 lock_prev[lock_i[0, l]] = True
-        state[10] += 1.0 if state[9] > 0.0 else 0.0
+        state[sc.S_LOCKED_EVALUATIONS] += 1.0 if state[sc.S_LOCKED_DOFS] > 0.0 else 0.0
     else:
-        rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v,
-                      cap, w, rest, flow, idx, block, rhs, size, weight, ws[46], ws[47], ws[48], keep_rest, state,
-                      frozen)
+        rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v, cap,
+                      w, rest, flow, idx, block, rhs, size, weight, ws[sc.W_LIN], ws[sc.W_PERM], ws[sc.W_X], keep_rest,
+                      state, frozen)
     # 7. each body's part (coupling._share); 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
     return _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap, applied, ws, touch,
                              bound_radius, count, depth_max, occluded, ids, sand_out)

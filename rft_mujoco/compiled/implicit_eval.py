@@ -23,6 +23,7 @@ from rft_mujoco.compiled.element_pass import wrenches
 from rft_mujoco.compiled.implicit import NEED_ELEMENTS, _blend, solve_from_probe
 from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
+from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.rest import add_user_wrenches
 from rft_mujoco.compiled.system import cholesky, constrained_system, end_acceleration, free_motion, row_zones
 
@@ -58,35 +59,36 @@ def efc_arrays(data) -> tuple:
 
 @njit(**JIT)
 def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_val, damping, st, linearized):
-    """The implicit solve of the ``state[2]`` touching bodies of the broadphase: the sand wrenches, the
+    """The implicit solve of the ``state[sc.S_TOUCHING]`` touching bodies of the broadphase: the sand wrenches, the
     diagnostics and the wrenches added to ``sand_out`` (nbody, 6). ``linearized``: this step's constraints
     (:func:`rft_mujoco.compiled.system.constrained_system`), else MuJoCo's previous constraint forces (when
     they belong to this motion); ``sparse``: MuJoCo's constraint Jacobian is sparse. Returns 1 (a non-zero
     wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing written)."""
-    xipos, cdof, subtree_com, qvel = md[2], md[7], md[4], md[6]
-    ids, group_of, group_ref = hc[0], hc[2], hc[3]
-    body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid = hc[6], hc[7], hc[8], hc[9], hc[10]
-    rownnz, rowadr, colind = hc[11], hc[12], hc[13]
-    bound_radius, group_radius, params = hc[19], hc[20], hc[35]
-    touch, body_com = ws[0], ws[3]
-    wrench, count, depth_max, occluded = ws[7], ws[8], ws[9], ws[10]
-    active, slot, rest = ws[11], ws[12], ws[14]
-    twist, free, w = ws[25], ws[26], ws[29]
-    arm, applied, size, total, cap = ws[33], ws[34], ws[35], ws[36], ws[30]
-    state = ws[45]
+    xipos, cdof, subtree_com, qvel = md[sc.M_XIPOS], md[sc.M_CDOF], md[sc.M_SUBTREE_COM], md[sc.M_QVEL]
+    ids, group_of, group_ref = hc[sc.H_IDS], hc[sc.H_GROUP_OF], hc[sc.H_GROUP_REF]
+    body_rootid, body_dofnum, body_dofadr = hc[sc.H_BODY_ROOTID], hc[sc.H_BODY_DOFNUM], hc[sc.H_BODY_DOFADR]
+    body_parentid, dof_parentid = hc[sc.H_BODY_PARENTID], hc[sc.H_DOF_PARENTID]
+    rownnz, rowadr, colind = hc[sc.H_M_ROWNNZ], hc[sc.H_M_ROWADR], hc[sc.H_M_COLIND]
+    bound_radius, group_radius, params = hc[sc.H_BOUND_RADIUS], hc[sc.H_GROUP_RADIUS], hc[sc.H_PARAMS]
+    touch, body_com = ws[sc.W_TOUCH], ws[sc.W_BODY_COM]
+    wrench, count, depth_max, occluded = ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_OCCLUDED]
+    active, slot, rest = ws[sc.W_ACTIVE], ws[sc.W_SLOT], ws[sc.W_REST]
+    twist, free, w = ws[sc.W_TWIST], ws[sc.W_FREE], ws[sc.W_W]
+    arm, applied, size, total, cap = ws[sc.W_ARM], ws[sc.W_APPLIED], ws[sc.W_SIZE], ws[sc.W_TOTAL], ws[sc.W_CAP]
+    state = ws[sc.W_STATE]
     e_slot, e_arm, e_nrm, e_depth, e_area = iw[0], iw[1], iw[2], iw[3], iw[4]
     jac_b, lin, ang, on = iw[5], iw[6], iw[7], iw[8]
     jrows, h, f, y, end, probe, gf, gdf = iw[9], iw[10], iw[11], iw[12], iw[13], iw[14], iw[15], iw[16]
     flowing, prev_active, prev_flow, istate, scr, pk = iw[17], iw[18], iw[19], iw[20], iw[21], iw[22]
-    k = int(state[2])
-    state[1] = 0.0
+    k = int(state[sc.S_TOUCHING])
+    state[sc.S_CLEAN] = 0.0
     nv = qvel.shape[0]
-    g0, g1, g2, g_mag = _gravity(hc[34])
+    g0, g1, g2, g_mag = _gravity(hc[sc.H_GRAVITY])
     g_hat = np.empty(3)
     g_hat[0] = g0
     g_hat[1] = g1
     g_hat[2] = g2
-    xi_n = params[1] * g_mag
+    xi_n = params[sc.P_XI_PER_G] * g_mag
     # 1. the touching groups, in increasing group order, and each touching body's row among them
     ng_all = group_ref.shape[0]
     ng = touching_groups(k, touch, group_of, ng_all, rest, active, slot)
@@ -97,10 +99,10 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     if linearized:
         row_zones(nv, nefc, sparse, efc[0], efc[1], efc[2], efc[3], efc[4], efc[5], efc[6], efc[7], efc[8], efc[9],
                   zones, False, zones)
-    prior = istate[0] != 0.0 and state[3] != 0.0      # the last evaluation was of this motion (time continuous)
+    prior = istate[0] != 0.0 and state[sc.S_LAGGED] != 0.0      # the last evaluation was of this motion
     for g in range(ng_all):
         prior = prior and prev_active[g] == rest[g]
-    resting = ws[15]                                # (G,) the solve's rest flags (the explicit solve's ``flow``)
+    resting = ws[sc.W_FLOW]                                # (G,) the solve's rest flags (the explicit solve's ``flow``)
     its = NEED_ELEMENTS
     n_e = 0
     for j in range(k):                              # the touching bodies' COMs from their groups' reference points
@@ -114,9 +116,10 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     for zone_pass in range(int(st[9])):
         # 2. the smooth force of this evaluation (+ the user's wrenches; + the last constraint forces when lagged)
         for i in range(nv):
-            f[i] = md[8][i] - md[9][i] + md[10][i] + md[11][i]
-            if not linearized and state[3] != 0.0:
-                f[i] += md[12][i]
+            f[i] = (md[sc.M_QFRC_PASSIVE][i] - md[sc.M_QFRC_BIAS][i] + md[sc.M_QFRC_ACTUATOR][i]
+                    + md[sc.M_QFRC_APPLIED][i])
+            if not linearized and state[sc.S_LAGGED] != 0.0:
+                f[i] += md[sc.M_QFRC_CONSTRAINT][i]
         add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
                           dof_parentid, jrows, f)
         # 3. H (this step's constraints linearized), its factor, the free motion and mobility of the groups
@@ -134,23 +137,31 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         #    the element pass
         _blend(twist, free, rad_g, ng, probe)
         group_twists(probe, all_on, k, slot, arm, lin, ang, on)
-        wrenches(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2], body_com, lin, ang,
-                 g_hat, params[0], int(params[6]), hc[26], hc[27], xi_n, hc[28], params[2], params[3] != 0.0,
-                 params[4] != 0.0, params[5] != 0.0, hc[29], hc[14], hc[15], hc[16], hc[31], hc[32], hc[17], hc[33],
-                 params[9], md[15], md[16], ws[6], ws[49], wrench, count, depth_max, occluded, st[0])
+        wrenches(touch, k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
+                 hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS],
+                 ws[sc.W_BODY_MAT], body_com, lin, ang, g_hat, params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]),
+                 hc[sc.H_TP], hc[sc.H_HEIGHTS], xi_n, hc[sc.H_COEF], params[sc.P_MU_SURF],
+                 params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0, params[sc.P_NO_POWER] != 0.0,
+                 hc[sc.H_TOL], hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE],
+                 hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], params[sc.P_MARGIN], md[sc.M_GEOM_XPOS],
+                 md[sc.M_GEOM_XMAT], ws[sc.W_SCRATCH], ws[sc.W_INDEX], wrench, count, depth_max, occluded, st[0])
         group_sums(ng, all_on, k, slot, arm, on, wrench, gf)
         # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
         #    this motion: not after a state restore); the elements that may carry stress are found (in the world
         #    frame, for the Newton solve) only when a group is to flow
         for ready in (False, True):
             if ready:
-                n_e = loaded_candidates(touch, k, hc[21], hc[22], hc[23], hc[4], hc[24], hc[25], hc[5], ws[1], ws[2],
-                                        body_com, g_hat, params[0], int(params[6]), hc[26], hc[27], hc[14], hc[15],
-                                        hc[16], hc[31], hc[32], hc[17], hc[33], params[9], md[15], md[16], e_slot, e_arm,
+                n_e = loaded_candidates(touch, k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS],
+                                        hc[sc.H_CLUSTER_START], hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS],
+                                        hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com, g_hat,
+                                        params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]), hc[sc.H_TP], hc[sc.H_HEIGHTS],
+                                        hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE],
+                                        hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS],
+                                        params[sc.P_MARGIN], md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT], e_slot, e_arm,
                                         e_nrm, e_depth, e_area, occluded)
-            lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28], params[2],
-                  params[3] != 0.0, params[4] != 0.0, params[5] != 0.0, hc[29], lin, ang, on, scr, pk, wrench, jac_b,
-                  count, depth_max)
+            lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[sc.H_COEF],
+                  params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0,
+                  params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)
             for r in range(ng):
                 flowing[r] = prev_flow[active[r]]
             its = solve_from_probe(free, mob, lw, twist, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
@@ -175,7 +186,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         prev_active[active[r]] = True
         prev_flow[active[r]] = not resting[r]
     istate[0] = 1.0
-    state[9] = its
+    state[sc.S_LOCKED_DOFS] = its
     # 6. the bodies' own law wrenches: at the end twists (flow), at the probe (rest: capacities, sharing); the
     #    groups never in flow still hold the law at the probe from the solve's capacity test
     again = False
@@ -184,9 +195,10 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         for c in range(6):
             end[r, c] = probe[r, c] if resting[r] else end[r, c]
     if again:
-        group_law(end, flowing, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[28],
-                  params[2], params[3] != 0.0, params[4] != 0.0, params[5] != 0.0, hc[29], st[0], st[4], False, lin,
-                  ang, on, scr, pk, wrench, jac_b, count, depth_max, gf, gdf)
+        group_law(end, flowing, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n,
+                  hc[sc.H_COEF], params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0,
+                  params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], st[0], st[4], False, lin, ang, on, scr, pk, wrench, jac_b,
+                  count, depth_max, gf, gdf)
     # 7. each body's part (reference.share) and the diagnostics (reference.commit)
     return _share_and_commit(k, ng, slot, wrench, rad_g, gf, w, resting, arm, size, cap, applied, ws, touch,
                              bound_radius, count, depth_max, occluded, ids, sand_out)

@@ -31,6 +31,7 @@ from rft_mujoco.compiled import route as rt
 from rft_mujoco.compiled import table
 from rft_mujoco.compiled.system import velocity_damping
 from rft_mujoco.compiled.jit import INLINE, carray, cfunc, njit
+from rft_mujoco.compiled import schema as sc
 
 EXTRA_FIELDS = (("damping", "f1"), ("settings", "f1"), ("m_val", "f1"), ("flags", "f1"), ("dof_damping", "f1"),
                 ("jnt_dofadr", "i1"), ("trntype", "j1"), ("trnid", "j2"), ("biastype", "j1"), ("biasprm", "f2"),
@@ -85,7 +86,7 @@ def implicit_phase(ptr, h, dt):
     ib = t[rt._HEADER + n + h]
     _, _, _, _, user, sand, _, _, _, _ = rt._book(t, t[1])
     md = _md(t, t[2])
-    nv = md[6].shape[0]
+    nv = md[sc.M_QVEL].shape[0]
     fr = rt._fr(t, t[3], nv)
     jac, rowadr, rownnz, colind = _jac_rows(t, t[3], nv)
     efc = (jac, rowadr, rownnz, colind, fr[0], fr[1], fr[2], fr[3], fr[4], fr[5])

@@ -31,6 +31,7 @@ from rft_mujoco.compiled import evaluate as ev
 from rft_mujoco.compiled import table
 from rft_mujoco.compiled.jit import AVAILABLE, INLINE, JIT, carray, cfunc, njit, types
 from rft_mujoco.compiled.table import SLOT
+from rft_mujoco.compiled import schema as sc
 
 DONE, ACTUATE, CONTINUE, PYTHON, MONITOR = 0, 1, 2, 3, 4
 """Phase results: committed and finished; touching, run mj_fwdActuation then phase 2; touching, phase 2
@@ -209,13 +210,13 @@ def phase1(ptr, time, dt):
         base = t[_HEADER + h]
         hc = _hc(t, base)
         ws = _ws(t, base + _HC_SLOTS)
-        ws[45][5] = state[2]                         # the RK4 stage (0: another integrator)
+        ws[sc.W_STATE][sc.S_RK4_STAGE] = state[2]            # the RK4 stage (0: another integrator)
         k = ev.broadphase(md, hc, ws, time, dt)
         if k < 0:
             return PYTHON
         if k > 0:
             total += k
-            actuate = actuate or hc[35][7] != 0.0
+            actuate = actuate or hc[sc.H_PARAMS][sc.P_STABILIZE] != 0.0
     if total == 0:
         if state[0] != 0.0:                          # the sand of the last evaluation leaves the rows
             for r in rows:
@@ -241,7 +242,7 @@ def phase2(ptr, time, dt):
     for h in range(n):
         base = t[_HEADER + h]
         ws = _ws(t, base + _HC_SLOTS)
-        if ws[45][2] <= 0.0:
+        if ws[sc.W_STATE][sc.S_TOUCHING] <= 0.0:
             continue
         if t[_HEADER + n + h] != 0:
             status = _call_rest(t[5], ptr, h, dt)             # implicit_route.implicit_phase
@@ -252,7 +253,7 @@ def phase2(ptr, time, dt):
         if status < 0:
             return PYTHON
         nonzero = nonzero or status == 1
-        if t[_HEADER + 2 * n + h] != 0 and ws[45][5] < 2.0:
+        if t[_HEADER + 2 * n + h] != 0 and ws[sc.W_STATE][sc.S_RK4_STAGE] < 2.0:
             _call_rest(t[7], ptr, h, time)                    # deform_route.press_phase: the grid update
     commit(xfrc, user, sand, rows, added, written)
     state[0] = 1.0 if nonzero else 0.0
@@ -272,7 +273,7 @@ def rest_phase(ptr, base, dt):
     t = _table(ptr)
     _, _, _, _, user, sand, _, _, _, _ = _book(t, t[1])
     md = _md(t, t[2])
-    fr = _fr(t, t[3], md[6].shape[0])
+    fr = _fr(t, t[3], md[sc.M_QVEL].shape[0])
     return ev.evaluate_rest(md, _hc(t, base), _ws(t, base + _HC_SLOTS), user, dt, sand, fr)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
+from rft_mujoco.compiled import schema as sc
 
 # Status codes (besides 0: no wrench, 1: a non-zero wrench).
 NOT_FINITE = -1
@@ -107,8 +108,9 @@ def _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap
                 applied[j, 4] = share * my
                 applied[j, 5] = share * mz
     # 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
-    force, torque, submerged, max_depth = ws[37], ws[38], ws[39], ws[40]
-    scale, rft_force, resting, occluded_area = ws[41], ws[42], ws[43], ws[44]
+    force, torque, submerged, max_depth = ws[sc.W_FORCE], ws[sc.W_TORQUE], ws[sc.W_SUBMERGED], ws[sc.W_MAX_DEPTH]
+    scale, rft_force = ws[sc.W_SCALE], ws[sc.W_RFT_FORCE]
+    resting, occluded_area = ws[sc.W_RESTING], ws[sc.W_OCCLUDED_AREA]
     _clear(force, torque, submerged, max_depth, scale, rft_force, resting, occluded_area)
     status = 0
     for j in range(k):

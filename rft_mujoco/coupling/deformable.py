@@ -53,15 +53,17 @@ def press_compiled(handle, data, work, k: int) -> None:
     bodies of the compiled broadphase of this evaluation; the surface's highest point, which the broadphase
     reads (``work.hc``'s ``params[0]``), follows the grid."""
     from rft_mujoco.compiled import deform as compiled_deform
+    from rft_mujoco.compiled import schema as sc
     a, b, hc = work.arrays, work.press, work.hc
-    params = hc[35]
+    params = hc[sc.H_PARAMS]
     top = compiled_deform.press_touching(
-        hc[26], hc[27], a["surface_cycles"], a["surface_reach"], b["live"], a["surface_clock"], data.time,
-        handle.model.opt.timestep, 1.0 + tol.TIME_RTOL, k, a["touch"], a["body_pos"], a["body_mat"], hc[21], hc[22],
-        hc[23], hc[4], hc[5], params[0], b["pts"], b["nrm"], b["ar"], b["mark"], b["val"], b["nodes"], b["low"],
-        b["rim"], b["stats"])
+        hc[sc.H_TP], hc[sc.H_HEIGHTS], a["surface_cycles"], a["surface_reach"], b["live"], a["surface_clock"],
+        data.time, handle.model.opt.timestep, 1.0 + tol.TIME_RTOL, k, a["touch"], a["body_pos"], a["body_mat"],
+        hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START], hc[sc.H_BODY_CLUSTERS],
+        params[sc.P_MAX_HEIGHT], b["pts"], b["nrm"], b["ar"], b["mark"], b["val"], b["nodes"], b["low"], b["rim"],
+        b["stats"])
     if top == top:                                   # not NaN: the heights changed
-        params[0] = top
+        params[sc.P_MAX_HEIGHT] = top
 
 
 def snapshot(handle, work) -> deform.DeformedSurface:

@@ -145,6 +145,7 @@ class SandHandle:
         if self._fast is None:
             return
         from rft_mujoco.compiled import evaluate
+        from rft_mujoco.compiled import schema as sc
         media = self._media
         every = self.monitor.every if self.monitor is not None else 0
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
@@ -152,8 +153,8 @@ class SandHandle:
                               self.rk4_stages == "first", out=self._params)   # read live by the native route
         for work in self._work.values():
             if work.press is not None:                   # a deformable surface's own copy, its own highest point
-                np.copyto(work.hc[35], self._params)
-                work.hc[35][0] = work.surface.max_height
+                np.copyto(work.hc[sc.H_PARAMS], self._params)
+                work.hc[sc.H_PARAMS][sc.P_MAX_HEIGHT] = work.surface.max_height
 
     # --- public -------------------------------------------------------------------------------------
     @property

@@ -25,10 +25,10 @@ class ImplicitWork:
     __slots__ = ("arrays", "tuple", "damping", "settings", "model_arrays")
 
     def __init__(self, handle, arrays=None) -> None:
-        from rft_mujoco.compiled import implicit, implicit_eval
+        from rft_mujoco.compiled import implicit, implicit_eval, schema
         m = handle.model
         if arrays is None:
-            arrays = implicit_eval.build_implicit(handle._hc[21].shape[1], len(handle.body_ids),
+            arrays = implicit_eval.build_implicit(handle._hc[schema.H_CENTROIDS].shape[1], len(handle.body_ids),
                                                   handle.groups.ref.size, m.nv)
         self.arrays = arrays
         self.tuple = tuple(arrays[name] for name, _ in implicit_eval.IMPLICIT_FIELDS)

@@ -97,7 +97,7 @@ class _Workspace:
                 grid = terrain.deformable_heights(self.terrain)
                 ny = self.terrain.shape[0]
                 fresh = type(fresh)(self.terrain, grid[:ny], grid[ny:], fresh.cycles, fresh.reach)
-                self.press = deform.buffers(self.terrain.shape, self.hc[21].shape[1])
+                self.press = deform.buffers(self.terrain.shape, self.hc[evaluate.sc.H_CENTROIDS].shape[1])
                 a["surface_live"], a["surface_stats"] = self.press["live"], self.press["stats"]
                 a["surface_params"] = handle._params.copy()             # max_height: this surface's
                 self.hc = tuple(grid if name == "heights" else a["surface_params"] if name == "params" else x

@@ -1,0 +1,85 @@
+"""The compiled evaluation's argument schemas, by name: what each slot of ``md``, ``hc``, ``ws``, ``hc``'s ``params``
+and ``ws``'s ``state`` holds, and a named index constant per slot (``hc[H_TP]``, ``ws[W_STATE]``,
+``state[S_TOUCHING]``), so that the kernels address their data by name, not by position (issue 30).
+
+The constants are module-level ints, which numba freezes into the compiled code as constants (a tuple or a
+table view is then indexed statically, as with a literal); each group is unpacked from ``range(len(schema))``
+(a field added without its name fails at import) and ``tests/test_native.py`` checks every name against its
+slot. The kernels use them as ``sc.H_TP`` (``from rft_mujoco.compiled import schema as sc``).
+"""
+
+from __future__ import annotations
+
+MJDATA_FIELDS = (
+    ("xpos", "f2"), ("xmat", "f2"), ("xipos", "f2"), ("cvel", "f2"), ("subtree_com", "f2"), ("qpos", "f1"),
+    ("qvel", "f1"), ("cdof", "f2"), ("qfrc_passive", "f1"), ("qfrc_bias", "f1"), ("qfrc_actuator", "f1"),
+    ("qfrc_applied", "f1"), ("qfrc_constraint", "f1"), ("qLD", "f1"), ("qLDiagInv", "f1"), ("geom_xpos", "f2"),
+    ("geom_xmat", "f2"))
+"""(name, kind) of the MjData arrays of ``md``, in order (float64: MuJoCo's mjtNum, checked at attach)."""
+
+HANDLE_FIELDS = (
+    ("ids", "i1"), ("root", "i1"), ("group_of", "i1"), ("group_ref", "i1"), ("cluster_start", "i1"),
+    ("body_clusters", "i1"), ("body_rootid", "i1"), ("body_dofnum", "i1"), ("body_dofadr", "i1"),
+    ("body_parentid", "i1"), ("dof_parentid", "i1"), ("M_rownnz", "i1"), ("M_rowadr", "i1"), ("M_colind", "i1"),
+    ("occ_start", "i1"), ("occ_geom", "i1"), ("occ_kind", "i1"), ("occ_hs_start", "i1"),
+    ("bound_center", "f2"), ("bound_radius", "f1"), ("group_radius", "f1"), ("centroids", "f2"),
+    ("normals", "f2"), ("areas", "f1"), ("cluster_center", "f2"), ("cluster_radius", "f1"), ("tp", "f1"),
+    ("heights", "f2"), ("coef", "f2"), ("tol", "f1"), ("settings", "f1"), ("occ_size", "f2"),
+    ("occ_rbound", "f1"), ("occ_hs", "f2"), ("gravity", "f1"), ("params", "f1"))
+"""(name, kind) of the arrays of ``hc``, in order; kind: dtype (i int64, f float64, b bool) and ndim."""
+
+WORK_FIELDS = (
+    ("touch", "i1"), ("body_pos", "f2"), ("body_mat", "f2"), ("body_com", "f2"), ("v_com", "f2"),
+    ("omega", "f2"), ("scratch", "f2"), ("wrench", "f2"), ("count", "i1"), ("depth", "f1"), ("occluded", "f1"),
+    ("active", "i1"), ("slot", "i1"), ("idx", "i1"), ("rest", "b1"), ("flow", "b1"), ("zt", "f2"),
+    ("minv_jt", "f2"), ("mob", "f2"), ("a", "f2"), ("block", "f2"), ("qacc", "f1"), ("v", "f1"), ("rhs", "f1"),
+    ("weight", "f1"), ("twist", "f2"), ("free", "f2"), ("u", "f2"), ("rft_g", "f2"), ("w", "f2"), ("cap", "f2"),
+    ("u_lin", "f2"), ("u_ang", "f2"), ("arm", "f2"), ("applied", "f2"), ("size", "f1"), ("total", "f1"),
+    ("force", "f2"), ("torque", "f2"), ("submerged", "i1"), ("max_depth", "f1"), ("scale", "f1"),
+    ("rft_force", "f2"), ("resting", "b1"), ("occluded_area", "f1"), ("state", "f1"), ("lin", "f2"),
+    ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"), ("keep_active", "i1"), ("keep_rest", "b1"),
+    ("lock_i", "i2"), ("lock_f", "f2"), ("lock_z", "f2"), ("lock_chain", "i2"), ("lock_s", "f2"), ("lock_c", "f2"),
+    ("lock_r", "f2"), ("lock_x", "f2"), ("lock_mob", "f2"), ("lock_free", "f2"), ("lock_w", "f2"), ("lock_rest", "b1"),
+    ("group_tree", "i1"), ("lock_prev", "b1"))
+"""(name, kind) of the arrays of ``ws``, in order."""
+
+
+PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
+          "passive", "margin", "monitor_every", "rk4_first")
+"""Entries of ``hc.params``: highest sand (m), ``xi_n / |g|`` (N/m^3 per m/s^2), surface friction, the
+three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
+validity checks (0: no monitor), ``rk4_stages="first"`` (0/1)."""
+STATE = ("last_time", "clean", "touching", "lagged", "evaluations", "rk4_stage", "kept_groups", "kept_rank",
+         "kept_evaluations", "locked_dofs", "locked_evaluations")
+"""Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
+the number of touching bodies found by the last broadphase, whether MuJoCo's previous constraint solve
+belongs to this motion, evaluations so far; the RK4 stage of this evaluation (written by the caller
+before the broadphase: 1-4, 0 for other integrators), the number of groups whose mobility is kept for
+the later stages of this step (0: none), the kept rest factor's rank (-1: none, see
+:func:`rft_mujoco.compiled.rest.rest_wrenches`), the evaluations that used a kept mobility; the dofs
+held by their dry friction in this evaluation's rest solve (:func:`rft_mujoco.physics.rest.locked_rest`)
+and the evaluations that held any."""
+
+(M_XPOS, M_XMAT, M_XIPOS, M_CVEL, M_SUBTREE_COM, M_QPOS, M_QVEL, M_CDOF, M_QFRC_PASSIVE, M_QFRC_BIAS,
+ M_QFRC_ACTUATOR, M_QFRC_APPLIED, M_QFRC_CONSTRAINT, M_QLD, M_QLDIAGINV, M_GEOM_XPOS,
+ M_GEOM_XMAT) = range(len(MJDATA_FIELDS))
+
+(H_IDS, H_ROOT, H_GROUP_OF, H_GROUP_REF, H_CLUSTER_START, H_BODY_CLUSTERS, H_BODY_ROOTID, H_BODY_DOFNUM,
+ H_BODY_DOFADR, H_BODY_PARENTID, H_DOF_PARENTID, H_M_ROWNNZ, H_M_ROWADR, H_M_COLIND, H_OCC_START, H_OCC_GEOM,
+ H_OCC_KIND, H_OCC_HS_START, H_BOUND_CENTER, H_BOUND_RADIUS, H_GROUP_RADIUS, H_CENTROIDS, H_NORMALS, H_AREAS,
+ H_CLUSTER_CENTER, H_CLUSTER_RADIUS, H_TP, H_HEIGHTS, H_COEF, H_TOL, H_SETTINGS, H_OCC_SIZE, H_OCC_RBOUND,
+ H_OCC_HS, H_GRAVITY, H_PARAMS) = range(len(HANDLE_FIELDS))
+
+(W_TOUCH, W_BODY_POS, W_BODY_MAT, W_BODY_COM, W_V_COM, W_OMEGA, W_SCRATCH, W_WRENCH, W_COUNT, W_DEPTH,
+ W_OCCLUDED, W_ACTIVE, W_SLOT, W_IDX, W_REST, W_FLOW, W_ZT, W_MINV_JT, W_MOB, W_A, W_BLOCK, W_QACC, W_V, W_RHS,
+ W_WEIGHT, W_TWIST, W_FREE, W_U, W_RFT_G, W_W, W_CAP, W_U_LIN, W_U_ANG, W_ARM, W_APPLIED, W_SIZE, W_TOTAL,
+ W_FORCE, W_TORQUE, W_SUBMERGED, W_MAX_DEPTH, W_SCALE, W_RFT_FORCE, W_RESTING, W_OCCLUDED_AREA, W_STATE, W_LIN,
+ W_PERM, W_X, W_INDEX, W_CHAIN, W_KEEP_ACTIVE, W_KEEP_REST, W_LOCK_I, W_LOCK_F, W_LOCK_Z, W_LOCK_CHAIN,
+ W_LOCK_S, W_LOCK_C, W_LOCK_R, W_LOCK_X, W_LOCK_MOB, W_LOCK_FREE, W_LOCK_W, W_LOCK_REST, W_GROUP_TREE,
+ W_LOCK_PREV) = range(len(WORK_FIELDS))
+
+(P_MAX_HEIGHT, P_XI_PER_G, P_MU_SURF, P_NO_TENSION, P_NO_FORWARD, P_NO_POWER, P_KIND, P_STABILIZE, P_PASSIVE,
+ P_MARGIN, P_MONITOR_EVERY, P_RK4_FIRST) = range(len(PARAMS))
+
+(S_LAST_TIME, S_CLEAN, S_TOUCHING, S_LAGGED, S_EVALUATIONS, S_RK4_STAGE, S_KEPT_GROUPS, S_KEPT_RANK,
+ S_KEPT_EVALUATIONS, S_LOCKED_DOFS, S_LOCKED_EVALUATIONS) = range(len(STATE))
