@@ -76,10 +76,8 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     twist, free, w = ws[sc.W_TWIST], ws[sc.W_FREE], ws[sc.W_W]
     arm, applied, size, total, cap = ws[sc.W_ARM], ws[sc.W_APPLIED], ws[sc.W_SIZE], ws[sc.W_TOTAL], ws[sc.W_CAP]
     state = ws[sc.W_STATE]
-    e_slot, e_arm, e_nrm, e_depth, e_area = iw[0], iw[1], iw[2], iw[3], iw[4]
-    jac_b, lin, ang, on = iw[5], iw[6], iw[7], iw[8]
-    jrows, h, f, y, end, probe, gf, gdf = iw[9], iw[10], iw[11], iw[12], iw[13], iw[14], iw[15], iw[16]
-    flowing, prev_active, prev_flow, istate, scr, pk = iw[17], iw[18], iw[19], iw[20], iw[21], iw[22]
+    (e_slot, e_arm, e_nrm, e_depth, e_area, jac_b, lin, ang, on, jrows, h, f, y, end, probe, gf, gdf, flowing,
+     prev_active, prev_flow, istate, scr, pk) = iw                      # IMPLICIT_FIELDS, in order
     k = int(state[sc.S_TOUCHING])
     state[sc.S_CLEAN] = 0.0
     nv = qvel.shape[0]
