@@ -4,15 +4,16 @@ The physics is :mod:`rft_mujoco.physics.deform`; the state of each MjData is the
 workspace (:class:`rft_mujoco.coupling.workspace._Workspace`), so it follows the workspace's rules
 (docs/architecture.md, "State and copies"): a reset drops it (the next evaluation starts from the initial
 surface), a copy for the same model copies it, a copy with a copy of the model starts fresh. The grid is
-pressed once per step while bodies touch the sand; a step without a press (no body touching) unloads every
-node (:func:`rft_mujoco.physics.deform.unload`: the next press begins a new loading cycle).
+pressed while bodies touch the sand, every ``update_interval`` (:func:`rft_mujoco.physics.deform.schedule`);
+after a step with no body touching, the next press first unloads every node
+(:func:`rft_mujoco.physics.deform.unload`: it begins a new loading cycle).
 
 Both backends run it. numpy: :func:`press_touching` (the reference). Compiled (``backend="auto"`` or
 ``"numba"``): the kernels read this MjData's grid (the workspace's own handle constants, ``work.hc``: the
-terrain kind :data:`rft_mujoco.compiled.terrain.DEFORMABLE`, heights and preload of this data) and
-:func:`press_compiled` runs the compiled mirror of the press (:mod:`rft_mujoco.compiled.deform`) after each
-evaluation, on the dispatcher's Python path (the native route, which calls no Python, is not built for a
-deformable handle: docs/deformable.md "Backends").
+terrain kind :data:`rft_mujoco.compiled.terrain.DEFORMABLE`, heights and preload of this data), and the
+compiled mirror of the press (:mod:`rft_mujoco.compiled.deform`) runs after each evaluation: on the native
+route through :func:`rft_mujoco.compiled.deform_route.press_phase`, on the dispatcher's Python path (an
+observer, the first evaluation) through :func:`press_compiled` (docs/deformable.md "Backends").
 """
 
 from __future__ import annotations
