@@ -17,6 +17,8 @@ from rft_mujoco.physics import elements as kernel
 from rft_mujoco.physics import law
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
 
+from conftest import numpy_rollout
+
 pytestmark = pytest.mark.skipif(not compiled.AVAILABLE, reason="numba not importable")
 if compiled.AVAILABLE:
     from rft_mujoco.compiled import element_pass as fastkernel
@@ -219,19 +221,8 @@ SCENE = """
 
 def trajectory(integrator, terrain, stabilize, guards, steps=40, seed=0):
     """Full physics states along a sand rollout (numpy backend), one per step."""
-    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator=integrator))
-    data = mujoco.MjData(model)
-    data.qvel[:] = np.random.default_rng(seed).normal(size=model.nv) * 0.5
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    states = []
-    with rft_mujoco.attach(model, MEDIA, None, terrain, 0.01, guards=guards, stabilize=stabilize, monitor=False,
-                           backend="numpy"):
-        for _ in range(steps):
-            mujoco.mj_step(model, data)
-            state = np.empty(mujoco.mj_stateSize(model, spec))
-            mujoco.mj_getState(model, data, state, spec)
-            states.append(state)
-    return model, states
+    return numpy_rollout(SCENE.format(integrator=integrator), MEDIA, None, terrain, steps, 0.5, seed, guards=guards,
+                         stabilize=stabilize)
 
 
 def evaluate_states(model, states, backend, terrain, stabilize, guards):

@@ -10,6 +10,8 @@ from rft_mujoco.compiled import rest as fastrest
 from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface
 
+from conftest import numpy_rollout
+
 MEDIA = rft_mujoco.LI_LOOSE_GLASS_BEADS
 
 SCENE = """
@@ -78,18 +80,7 @@ def test_jacobian_equals_mj_jacbodycom():
 
 def rollout_states(integrator, terrain, steps=60, seed=0):
     """Physics states along a rollout with sand (numpy backend)."""
-    model = mujoco.MjModel.from_xml_string(SCENE.format(integrator=integrator))
-    data = mujoco.MjData(model)
-    data.qvel[:] = np.random.default_rng(seed).normal(size=model.nv) * 0.3
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    states = []
-    with rft_mujoco.attach(model, MEDIA, BODIES, terrain, 0.01, monitor=False, backend="numpy"):
-        for _ in range(steps):
-            mujoco.mj_step(model, data)
-            s = np.empty(mujoco.mj_stateSize(model, spec))
-            mujoco.mj_getState(model, data, s, spec)
-            states.append(s)
-    return model, states
+    return numpy_rollout(SCENE.format(integrator=integrator), MEDIA, BODIES, terrain, steps, 0.3, seed)
 
 
 def evaluate_at(model, states, backend, terrain, guards):

@@ -229,18 +229,25 @@ def min_norm_factor(a, weight, m, dependent_tol, tiny, lin, perm):
 @njit(**JIT)
 def _cholesky(k, g, tiny):
     """The lower Cholesky factor of ``g[:k, :k]`` in place (its lower triangle read; the loops of
-    :func:`rft_mujoco.physics.rest.pivoted_factor`; a pivot below ``tiny`` is ``sqrt(tiny)``)."""
+    :func:`rft_mujoco.physics.rest.pivoted_factor`; a pivot not above ``tiny`` > 0 is ``sqrt(tiny)``). With
+    ``tiny`` = 0 a pivot not above 0 stops the factor instead: returns False (True when factored)."""
     for c in range(k):
         t = g[c, c]
         for j in range(c):
             t -= g[c, j] * g[c, j]
-        d = np.sqrt(t) if t > tiny else np.sqrt(tiny)
+        if t > tiny:
+            d = np.sqrt(t)
+        elif tiny > 0.0:
+            d = np.sqrt(tiny)
+        else:
+            return False
         g[c, c] = d
         for r in range(c + 1, k):
             t = g[r, c]
             for j in range(c):
                 t -= g[r, j] * g[c, j]
             g[r, c] = t / d
+    return True
 
 
 @njit(**JIT)

@@ -14,10 +14,8 @@ Pure array functions (nothing here calls MuJoCo), the same algorithms as the num
 
 from __future__ import annotations
 
-import math
-
 from rft_mujoco.compiled.jit import JIT, njit
-from rft_mujoco.compiled.rest import _cholesky_solve, jacobian
+from rft_mujoco.compiled.rest import _cholesky, _cholesky_solve, jacobian
 
 # MuJoCo's mjtConstraint (checked against the bindings by tests/test_compiled_implicit.py)
 EQUALITY, FRICTION_DOF, FRICTION_TENDON, LIMIT_JOINT, LIMIT_TENDON = 0, 1, 2, 3, 4
@@ -125,21 +123,9 @@ def end_acceleration(nv, low, jrows, ng, w, qacc0, out):
 @njit(**JIT)
 def cholesky(n, h):
     """The lower Cholesky factor of ``h[:n, :n]`` in place (lower triangle); False when ``h`` is not
-    positive definite (or not finite)."""
-    for c in range(n):
-        t = h[c, c]
-        for j in range(c):
-            t -= h[c, j] * h[c, j]
-        if not t > 0.0:
-            return False
-        d = math.sqrt(t)
-        h[c, c] = d
-        for r in range(c + 1, n):
-            t = h[r, c]
-            for j in range(c):
-                t -= h[r, j] * h[c, j]
-            h[r, c] = t / d
-    return True
+    positive definite (or not finite): the rest solve's factor (:func:`rft_mujoco.compiled.rest._cholesky`)
+    without its pivot floor."""
+    return _cholesky(n, h, 0.0)
 
 
 @njit(**JIT)
