@@ -62,3 +62,12 @@ def test_the_table_and_worst_error_report_every_solve():
     assert anymass.worst(result) == {"explicit": 1.5, "implicit": 0.02}
     with pytest.raises(ValueError, match="nothing to measure"):
         anymass.measure(amplitudes=(), timesteps=(), workers=1)
+
+
+@pytest.mark.parametrize("argv, message", [(["--frequency", "0"], "--frequency must be > 0 Hz, got 0.0"),
+                                           (["--amplitudes", "-0.5"], "--amplitudes must be > 0, got [-0.5]"),
+                                           (["--workers", "0"], "--workers must be >= 1, got 0")])
+def test_the_command_refuses_what_it_cannot_measure(argv, message, capsys):
+    with pytest.raises(SystemExit):
+        anymass.main(argv)
+    assert message in capsys.readouterr().err

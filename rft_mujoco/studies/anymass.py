@@ -174,12 +174,13 @@ def plot(result: dict, out: Path) -> Path:
 
 def run(quick: bool = False, workers: int = 2, out: str | Path = "out/anymass", plots: bool = True,
         implicit_backend: str = "numpy", **grid) -> dict:
-    """The study; ``grid`` overrides :func:`measure`'s amplitudes, timesteps, densities or solves."""
+    """The study; ``grid`` overrides :func:`measure`'s amplitudes, timesteps, densities, solves or frequency
+    (None: the default)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     kw = dict(amplitudes=(0.5, 0.9), timesteps=(0.002,)) if quick else {}
     result = measure(workers=workers, implicit_backend=implicit_backend,
-                     **{**kw, **{k: v for k, v in grid.items() if v}})
+                     **{**kw, **{k: v for k, v in grid.items() if v is not None}})
     print("\nwave efficiency against the quasi-static limit "
           f"({result['element_size_m'] * 1e3:g} mm elements, {result['frequency_hz']:g} Hz)")
     print("\n".join(table(result)))
@@ -210,17 +211,23 @@ def main(argv: list[str] | None = None, command: str = "anymass") -> int:
     parser.add_argument("--densities", type=float, nargs="+",
                         help="density over the bundled model's (default 0.01, the animal, and 1)")
     parser.add_argument("--solves", nargs="+", choices=SOLVES, help="default both")
+    parser.add_argument("--frequency", type=float, default=FREQUENCY,
+                        help=f"Hz, the serpenoid's (default {FREQUENCY:g}; the law is rate-independent, so the limit "
+                             "is the same at any frequency and only the body's inertia changes)")
     parser.add_argument("--backend", choices=("numpy", "numba"), default="numpy",
                         help="the implicit solve's backend (default numpy, the reference; numba: compiled)")
     args = parser.parse_args(argv)
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
+    if not args.frequency > 0.0:
+        parser.error(f"--frequency must be > 0 Hz, got {args.frequency}")
     for name in ("amplitudes", "timesteps", "densities"):
         bad = [v for v in getattr(args, name) or () if not v > 0.0]
         if bad:
             parser.error(f"--{name} must be > 0, got {bad}")
     run(quick=args.quick, workers=args.workers, out=args.out, plots=not args.no_plots, implicit_backend=args.backend,
-        amplitudes=args.amplitudes, timesteps=args.timesteps, densities=args.densities, solves=args.solves)
+        amplitudes=args.amplitudes, timesteps=args.timesteps, densities=args.densities, solves=args.solves,
+        frequency=args.frequency)
     return 0
 
 
