@@ -16,7 +16,7 @@ from rft_mujoco.physics.media import (DEM_GLASS_BEADS, LI_LOOSE_GLASS_BEADS, MAL
                     Media, get_media)
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
 from rft_mujoco.physics.deform import DeformableSurface
-from rft_mujoco.coupling.handle import Diagnostics, SandHandle, attach, attached_handles, detach_all
+from rft_mujoco.coupling.handle import Diagnostics, SandHandle, SolveCounters, attach, attached_handles, detach_all
 from rft_mujoco.coupling.monitor import RFTValidityWarning, ValidityMonitor
 from rft_mujoco.coupling.scene import attach_scene
 from rft_mujoco.coupling.checks import SandSetupWarning
@@ -25,7 +25,7 @@ from rft_mujoco.forces import element_forces
 __all__ = [
     "Media", "PRESETS", "get_media", "MPM_VALIDATION", "DEM_GLASS_BEADS", "LI_LOOSE_GLASS_BEADS",
     "MALADEN_GLASS_BEADS", "element_forces", "stress_per_depth", "Guards", "PUBLISHED",
-    "FlatSurface", "HeightfieldSurface", "SandRegion", "DeformableSurface", "attach", "attach_scene", "attached_handles", "detach_all", "SandHandle", "Diagnostics",
+    "FlatSurface", "HeightfieldSurface", "SandRegion", "DeformableSurface", "attach", "attach_scene", "attached_handles", "detach_all", "SandHandle", "Diagnostics", "SolveCounters",
     "RFTValidityWarning", "ValidityMonitor", "SandSetupWarning",
 ]
 __version__ = "0.1.0"

@@ -188,14 +188,27 @@ def test_the_named_slots_are_the_schemas():
     from rft_mujoco.compiled import schema
 
     groups = (("M_", [n for n, _ in schema.MJDATA_FIELDS]), ("H_", [n for n, _ in schema.HANDLE_FIELDS]),
-              ("W_", [n for n, _ in schema.WORK_FIELDS]), ("P_", list(schema.PARAMS)), ("S_", list(schema.STATE)))
+              ("W_", [n for n, _ in schema.WORK_FIELDS]), ("P_", list(schema.PARAMS)), ("S_", list(schema.STATE)),
+              ("B_", list(schema.BOOK_STATE)), ("T_", list(schema.TABLE_HEADER)), ("R_", list(schema.REGISTRY_HEADER)),
+              ("E_", list(schema.REGISTRY_ENTRY)), ("ST_", list(schema.IMPLICIT_SETTINGS)))
     checked = 0
     for prefix, names in groups:
         for i, name in enumerate(names):
             assert getattr(schema, prefix + name.upper()) == i
             checked += 1
-    assert checked == len(schema.HANDLE_FIELDS) + len(schema.WORK_FIELDS) + 17 + 12 + 11
+    assert checked == len(schema.HANDLE_FIELDS) + len(schema.WORK_FIELDS) + 17 + 12 + 12 + 6 + 8 + 9 + 8 + 10
     literal = re.compile(r"\b(hc|ws|md)\[\d+\]")
     for name in ("evaluate", "implicit_eval", "share", "route", "deform_route", "implicit_route"):
         text = (PACKAGE / "compiled" / f"{name}.py").read_text()
         assert not literal.findall(text), f"compiled/{name}.py indexes hc, ws or md by position"
+    # the route table's header, the native registry, the book's and the workspace's state, the implicit
+    # settings: by name in the code (their docstrings may still say ``t[T_BOOK]``)
+    by_position = re.compile(r"^(?!\s*#).*\b(t|reg|st|state)\[\d+\]", re.MULTILINE)
+    files = [PACKAGE / "compiled" / f"{name}.py" for name in ("route", "deform_route", "implicit_route", "native",
+                                                                 "implicit", "implicit_eval")]
+    files += [PACKAGE / "coupling" / f"{name}.py" for name in ("book", "dispatch", "handle", "reference",
+                                                                  "workspace")]
+    for path in files:
+        code = "\n".join(line for line in path.read_text().splitlines() if "``" not in line)
+        found = by_position.findall(code)
+        assert not found, f"{path.relative_to(PACKAGE)} indexes {sorted(set(found))} by position"

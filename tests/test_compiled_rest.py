@@ -141,7 +141,7 @@ def test_rk4_later_stages_agree_with_the_reference_and_keep_the_first_stage_mobi
             for _ in range(300):
                 mujoco.mj_step(model, data)
                 path.append(np.concatenate([data.qpos, data.qvel]))
-            kept = handle._work[data].state[8]
+            kept = handle.counters(data).kept_evaluations
             runs[backend] = np.array(path), kept, handle.evaluations, int(handle.diagnostics(data).resting.sum())
     (ref, kept_ref, n_ref, resting), (got, kept_got, n_got, _) = runs["numpy"], runs["numba"]
     assert n_ref == n_got == 1200 and kept_ref == kept_got
@@ -223,8 +223,8 @@ def test_dofs_held_by_dry_friction_are_locked_alike_by_both_paths(integrator, st
             for _ in range(steps):
                 mujoco.mj_step(model, data)
                 path.append(np.concatenate([data.qpos, data.qvel]))
-            st = handle._work[data].state
-            runs[backend] = np.array(path), st[10], st[8]
+            counters = handle.counters(data)
+            runs[backend] = np.array(path), counters.locked_evaluations, counters.kept_evaluations
     (ref, locked_ref, kept_ref), (got, locked_got, kept_got) = runs["numpy"], runs["numba"]
     assert locked_ref == locked_got and locked_got >= 50
     assert kept_ref == kept_got

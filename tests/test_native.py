@@ -96,7 +96,7 @@ def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=Tru
             for data in ds:
                 data.ctrl[:] = np.sin(0.05 * i)
                 mujoco.mj_step(model, data)
-    out = [(state(m, d), d.xfrc_applied.copy(), h.evaluations, h._work[d].state[10]) for m, h, ds in runs
+    out = [(state(m, d), d.xfrc_applied.copy(), h.evaluations, h.counters(d).locked_evaluations) for m, h, ds in runs
            for d in ds]
     assert any(np.abs(x).max() > 0.1 for _, x, _, _ in out)               # the sand acted
     assert solve == "implicit" or all((locked > 0) == friction for *_, locked in out)

@@ -3,7 +3,7 @@ terrain is a :class:`~rft_mujoco.DeformableSurface`.
 
 Phase 2 of the route (:mod:`rft_mujoco.compiled.route`) evaluates the handle, then, for a deformable handle
 that touches and at the first RK4 stage (or another integrator), calls :func:`press_phase` through its
-address (the table's header, ``t[7]``): what the dispatcher's Python path runs after its evaluation
+address (the table's header, ``t[T_PRESS_PHASE]``): what the dispatcher's Python path runs after its evaluation
 (:func:`rft_mujoco.coupling.deformable.press_compiled`), on the same arrays, so both give the same numbers
 bit for bit (tests/test_deformable_coupling.py). Without it, a deformable handle took the Python callback and
 paid its cost at every step (issue 31's cost: docs/deformable.md).
@@ -45,11 +45,11 @@ def press_phase(ptr, h, time):
     evaluation's broadphase; the surface's highest point (``params[0]``, which the broadphase reads) follows
     the grid. Returns 0. A C function (:func:`cfunc_address`) with the route's rest signature."""
     t = rt._table(ptr)
-    n = t[0]
+    n = t[sc.T_HANDLES]
     base = t[rt._HEADER + h]
     hc = rt._hc(t, base)
     ws = rt._ws(t, base + rt._HC_SLOTS)
-    dt = rt._f1(t, t[1] + _SNAPSHOT)[0]              # the model's timestep, as the dispatcher last checked it
+    dt = rt._f1(t, t[sc.T_BOOK] + _SNAPSHOT)[0]              # the model's timestep, as the dispatcher last checked it
     cycles, reach, clock, live, stats, pts, nrm, ar, mark, val, nodes, low, rim = _part(t, t[rt._HEADER + 2 * n + h])
     params = hc[sc.H_PARAMS]
     top = press_touching(hc[sc.H_TP], hc[sc.H_HEIGHTS], cycles, reach, live, clock, time, dt, _SLACK,

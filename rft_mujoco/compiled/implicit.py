@@ -20,15 +20,13 @@ import math
 
 import numpy as np
 
+from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.implicit_law import group_law
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled.rest import pivoted_apply, pivoted_factor
 
-SETTINGS = ("speed_scale", "rest_retry", "newton_iterations", "newton_rtol", "fd_step", "dependent_tol",
-            "weight_floor", "capacity_tol", "tiny", "zone_passes")
-"""Entries of ``st``: :data:`rft_mujoco.physics.implicit.SPEED_SCALE`, ``REST_RETRY``, ``NEWTON_ITERATIONS``,
-``NEWTON_RTOL``, :data:`rft_mujoco.physics.elements.FD_STEP`, :data:`rft_mujoco.physics.rest.DEPENDENT_TOL`,
-``WEIGHT_FLOOR``, ``CAPACITY_TOL``, :data:`rft_mujoco.tol.TINY` and ``ZONE_PASSES`` (:func:`settings`)."""
+SETTINGS = sc.IMPLICIT_SETTINGS
+"""Entries of ``st`` (:data:`rft_mujoco.compiled.schema.IMPLICIT_SETTINGS`, indexed as ``st[sc.ST_TINY]``)."""
 LAW_FIELDS = ("k", "slot", "arm", "n_e", "e_slot", "e_arm", "e_nrm", "e_depth", "e_area", "g_hat", "xi_n", "coef",
               "mu_surf", "no_tension", "no_forward", "no_power", "tol", "lin", "ang", "on", "scr", "pk", "wrench", "jac",
               "count", "max_depth")
@@ -39,9 +37,11 @@ def settings() -> np.ndarray:
     """``st`` (:data:`SETTINGS`) from the reference modules' constants now."""
     from rft_mujoco import tol
     from rft_mujoco.physics import elements, implicit, rest
-    return np.array([implicit.SPEED_SCALE, implicit.REST_RETRY, implicit.NEWTON_ITERATIONS, implicit.NEWTON_RTOL,
-                     elements.FD_STEP, rest.DEPENDENT_TOL, rest.WEIGHT_FLOOR, rest.CAPACITY_TOL, tol.TINY,
-                     implicit.ZONE_PASSES])
+    values = dict(speed_scale=implicit.SPEED_SCALE, rest_retry=implicit.REST_RETRY,
+                  newton_iterations=implicit.NEWTON_ITERATIONS, newton_rtol=implicit.NEWTON_RTOL,
+                  fd_step=elements.FD_STEP, dependent_tol=rest.DEPENDENT_TOL, weight_floor=rest.WEIGHT_FLOOR,
+                  capacity_tol=rest.CAPACITY_TOL, tiny=tol.TINY, zone_passes=implicit.ZONE_PASSES)
+    return np.array([values[name] for name in SETTINGS], dtype=np.float64)
 
 
 # --- the solve --------------------------------------------------------------------------------------------
@@ -49,8 +49,8 @@ def settings() -> np.ndarray:
 def _law(lw, u, groups_on, ng, st, derivative, f, df):
     """:func:`rft_mujoco.compiled.implicit_law.group_law` with the fixed arguments of ``lw``."""
     group_law(u, groups_on, ng, lw[0], lw[1], lw[2], lw[3], lw[4], lw[5], lw[6], lw[7], lw[8], lw[9], lw[10], lw[11],
-              lw[12], lw[13], lw[14], lw[15], lw[16], st[0], st[4], derivative, lw[17], lw[18], lw[19], lw[20], lw[21],
-              lw[22], lw[23], lw[24], lw[25], f, df)
+              lw[12], lw[13], lw[14], lw[15], lw[16], st[sc.ST_SPEED_SCALE], st[sc.ST_FD_STEP], derivative, lw[17],
+              lw[18], lw[19], lw[20], lw[21], lw[22], lw[23], lw[24], lw[25], f, df)
 
 
 @njit(**JIT)
@@ -128,7 +128,7 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
         for q in range(n):
             res[p] -= a_eff[p, q] * wf[q]
         scale = max(scale, abs(v_eff[p] - u[p]))
-    scale = max(scale, st[0]) * st[3]
+    scale = max(scale, st[sc.ST_SPEED_SCALE]) * st[sc.ST_NEWTON_RTOL]
     its = 0
     mat = np.empty((n, n))
     step = np.empty(n)
@@ -136,7 +136,7 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
     wf_try = np.empty(n)
     jac_try = np.empty((kf, 6, 6))
     res_try = np.empty(n)
-    for it in range(1, int(st[2]) + 1):
+    for it in range(1, int(st[sc.ST_NEWTON_ITERATIONS]) + 1):
         its = it
         top = 0.0
         for p in range(n):
@@ -225,7 +225,7 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
     evaluation's elements: the probe's law came from the element pass), returns :data:`NEED_ELEMENTS` before
     the first Newton solve, having written nothing but ``flowing`` (the caller restores it, fills ``lw`` and
     calls again with ``ready``); a solve that keeps every group at rest never needs them."""
-    n6 = 6 * ng
+    n6, retry = 6 * ng, st[sc.ST_REST_RETRY] * st[sc.ST_SPEED_SCALE]
     sv = np.empty(n6)
     sw = np.empty(n6)
     for g in range(ng):
@@ -288,18 +288,18 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
         mr, mf = 6 * nr, 6 * nf
         block = np.empty((mr, mr))
         weight = np.empty(mr)
-        order, gfac, wfac = pivoted_factor(np.empty((0, 0)), np.empty(0), st[5], st[8])   # (no rest: nothing kept)
+        order, gfac, wfac = pivoted_factor(np.empty((0, 0)), np.empty(0), st[sc.ST_DEPENDENT_TOL], st[sc.ST_TINY])
         if mr:
             top = 0.0
             for i in range(mr):
                 weight[i] = weight_all[r_idx[i] // 6]
                 top = max(top, weight[i])
             for i in range(mr):
-                weight[i] = max(weight[i], st[6] * top)
+                weight[i] = max(weight[i], st[sc.ST_WEIGHT_FLOOR] * top)
             for i in range(mr):
                 for j in range(mr):
                     block[i, j] = a[r_idx[i], r_idx[j]]
-            order, gfac, wfac = pivoted_factor(block, weight, st[5], st[8])
+            order, gfac, wfac = pivoted_factor(block, weight, st[sc.ST_DEPENDENT_TOL], st[sc.ST_TINY])
         for i in range(n6):
             w[i] = 0.0
         if mf and not ready:
@@ -347,7 +347,7 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
                 for c in range(3):
                     sl += (u_flow[6 * i + c] / sv[6 * g + c]) ** 2
                     sa += (u_flow[6 * i + 3 + c] / sv[6 * g + 3 + c]) ** 2
-                if untried[g] and math.sqrt(sl) + radius[g] * math.sqrt(sa) < st[1] * st[0]:
+                if untried[g] and math.sqrt(sl) + radius[g] * math.sqrt(sa) < retry:
                     untried[g] = False
                     flow[g] = False
                     rest[g] = True
@@ -371,7 +371,7 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
                 demand = 0.0
                 for c in range(6):
                     demand -= w[6 * g + c] * u_probe[6 * g + c]
-                if demand > max(capacity[g], 0.0) * (1.0 + st[7]):
+                if demand > max(capacity[g], 0.0) * (1.0 + st[sc.ST_CAPACITY_TOL]):
                     rest[g] = False
                     flow[g] = True
                     flowing[g] = True

@@ -111,7 +111,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
     all_on = np.ones(ng, np.bool_)
-    for zone_pass in range(int(st[9])):
+    for zone_pass in range(int(st[sc.ST_ZONE_PASSES])):
         # 2. the smooth force of this evaluation (+ the user's wrenches; + the last constraint forces when lagged)
         for i in range(nv):
             f[i] = (md[sc.M_QFRC_PASSIVE][i] - md[sc.M_QFRC_BIAS][i] + md[sc.M_QFRC_ACTUATOR][i]
@@ -142,7 +142,8 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
                  params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0, params[sc.P_NO_POWER] != 0.0,
                  hc[sc.H_TOL], hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE],
                  hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], params[sc.P_MARGIN], md[sc.M_GEOM_XPOS],
-                 md[sc.M_GEOM_XMAT], ws[sc.W_SCRATCH], ws[sc.W_INDEX], wrench, count, depth_max, occluded, st[0])
+                 md[sc.M_GEOM_XMAT], ws[sc.W_SCRATCH], ws[sc.W_INDEX], wrench, count, depth_max, occluded,
+                 st[sc.ST_SPEED_SCALE])
         group_sums(ng, all_on, k, slot, arm, on, wrench, gf)
         # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
         #    this motion: not after a state restore); the elements that may carry stress are found (in the world
@@ -166,7 +167,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
                                    gdf, ready)
             if its != NEED_ELEMENTS:
                 break
-        if not linearized or nefc == 0 or zone_pass == int(st[9]) - 1:
+        if not linearized or nefc == 0 or zone_pass == int(st[sc.ST_ZONE_PASSES]) - 1:
             break
         end_acceleration(nv, h, jrows, ng, w, f, qacc_end)
         row_zones(nv, nefc, sparse, efc[0], efc[1], efc[2], efc[3], efc[4], efc[5], efc[6], efc[7], efc[8], qacc_end,
@@ -184,7 +185,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         prev_active[active[r]] = True
         prev_flow[active[r]] = not resting[r]
     istate[0] = 1.0
-    state[sc.S_LOCKED_DOFS] = its
+    state[sc.S_NEWTON_ITERATIONS] = its
     # 6. the bodies' own law wrenches: at the end twists (flow), at the probe (rest: capacities, sharing); the
     #    groups never in flow still hold the law at the probe from the solve's capacity test
     again = False
@@ -195,8 +196,8 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     if again:
         group_law(end, flowing, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n,
                   hc[sc.H_COEF], params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0,
-                  params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], st[0], st[4], False, lin, ang, on, scr, pk, wrench, jac_b,
-                  count, depth_max, gf, gdf)
+                  params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], st[sc.ST_SPEED_SCALE], st[sc.ST_FD_STEP], False, lin,
+                  ang, on, scr, pk, wrench, jac_b, count, depth_max, gf, gdf)
     # 7. each body's part (reference.share) and the diagnostics (reference.commit)
     return _share_and_commit(k, ng, slot, wrench, rad_g, gf, w, resting, arm, size, cap, applied, ws, touch,
                              bound_radius, count, depth_max, occluded, ids, sand_out)

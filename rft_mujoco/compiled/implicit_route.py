@@ -1,7 +1,7 @@
 """The implicit solve on the native route: one C function per evaluation of a ``solve="implicit"`` handle.
 
 The route (:mod:`rft_mujoco.compiled.route`) runs every handle of a (model, MjData) in two native phases;
-phase 2 calls :func:`implicit_phase` through its address (the table's header, ``t[5]``) for each touching
+phase 2 calls :func:`implicit_phase` through its address (the table's header, ``t[T_IMPLICIT_PHASE]``) for each touching
 handle with ``solve="implicit"``, as it calls ``route.rest_phase`` for the explicit solve. It runs what the
 dispatcher's Python path runs (:func:`rft_mujoco.coupling.implicit.evaluate_compiled`): the dofs' implicit
 damping from the model now (:func:`rft_mujoco.compiled.system.velocity_damping`), then
@@ -79,16 +79,16 @@ def _jac_rows(t, base, nv):
 def implicit_phase(ptr, h, dt):
     """The evaluation of handle ``h`` of the table at ``ptr`` with the implicit solve, after the
     broadphase and ``mj_fwdActuation``: its wrenches added into the book's ``sand``; the evaluation's status.
-    A C function (:func:`cfunc_address`), called by ``route.phase2`` through the table's ``t[5]``."""
+    A C function (:func:`cfunc_address`), called by ``route.phase2`` through the table's ``t[T_IMPLICIT_PHASE]``."""
     t = rt._table(ptr)
-    n = t[0]
+    n = t[sc.T_HANDLES]
     base = t[rt._HEADER + h]
     ib = t[rt._HEADER + n + h]
-    _, _, _, _, user, sand, _, _, _, _ = rt._book(t, t[1])
-    md = _md(t, t[2])
+    _, _, _, _, user, sand, _, _, _, _ = rt._book(t, t[sc.T_BOOK])
+    md = _md(t, t[sc.T_MD])
     nv = md[sc.M_QVEL].shape[0]
-    fr = rt._fr(t, t[3], nv)
-    jac, rowadr, rownnz, colind = _jac_rows(t, t[3], nv)
+    fr = rt._fr(t, t[sc.T_ROWS], nv)
+    jac, rowadr, rownnz, colind = _jac_rows(t, t[sc.T_ROWS], nv)
     efc = (jac, rowadr, rownnz, colind, fr[0], fr[1], fr[2], fr[3], fr[4], fr[5])
     s = ib + len(ie.IMPLICIT_FIELDS) * rt.SLOT
     damping, st, m_val, flags = rt._f1(t, s), rt._f1(t, s + 4), rt._f1(t, s + 8), rt._f1(t, s + 12)

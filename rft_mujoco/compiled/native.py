@@ -41,13 +41,14 @@ import mujoco
 import numpy as np
 
 from rft_mujoco.compiled import route as rt
+from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.jit import AVAILABLE, INLINE, JIT, carray, cfunc, njit, types
 
 MUJOCO_VERSION = "4.0.0"
 """The mujoco version whose struct layout and callback semantics this module was written and tested for."""
 SYMBOL = "rft_mujoco_native_registry"
 """Global symbol holding the address of the registry array."""
-HEAD, ENTRY = 9, 8
+HEAD, ENTRY = len(sc.REGISTRY_HEADER), len(sc.REGISTRY_ENTRY)
 """Registry: a header of HEAD int64 (entries, control trampoline, passive trampoline, mj_fwdActuation,
 addresses of mjcb_act_dyn / gain / bias, the route's phase 1 and phase 2 C functions), then ENTRY int64 per
 entry (mjModel*, mjData* or 0 for a model without a route yet, route table, &data.time, &opt.timestep,
@@ -124,15 +125,15 @@ def _f8(addr):
 @njit(**JIT)
 def _later_rk4_stage(state, t, dt):
     """:meth:`rft_mujoco.coupling.dispatch.Dispatcher._later_rk4_stage` on the book's state (stage in
-    ``state[2]``, its first time in ``state[3]``, TIME_RTOL in ``state[4]``)."""
-    n = int(state[2])
+    ``state[B_RK4_STAGE]``, its first time in ``state[B_RK4_STAGE_TIME]``, TIME_RTOL in ``state[B_TIME_RTOL]``)."""
+    n = int(state[sc.B_RK4_STAGE])
     if 1 <= n <= 3:
         frac = 0.5 if n < 3 else 1.0
-        if abs(t - (state[3] + frac * dt)) <= state[4] * dt:
-            state[2] = n + 1
+        if abs(t - (state[sc.B_RK4_STAGE_TIME] + frac * dt)) <= state[sc.B_TIME_RTOL] * dt:
+            state[sc.B_RK4_STAGE] = n + 1
             return True
-    state[3] = t
-    state[2] = 1.0
+    state[sc.B_RK4_STAGE_TIME] = t
+    state[sc.B_RK4_STAGE] = 1.0
     return False
 
 
@@ -142,44 +143,44 @@ _RUN_SIG = types.void(types.Array(types.int64, 1, "C"), types.int64, types.int64
 @njit(_RUN_SIG, **JIT)                                # one signature: not one per literal ``passive``
 def run(reg, m, d, passive):
     """One callback: the route of (``m``, ``d``) natively, or the Python trampoline, or nothing."""
-    n = reg[0]
+    n = reg[sc.R_ENTRIES]
     model = -1
     entry = -1
     for e in range(n):
         base = HEAD + ENTRY * e
-        if reg[base] == m:
+        if reg[base + sc.E_MODEL] == m:
             model = base
-            if reg[base + 1] == d:
+            if reg[base + sc.E_DATA] == d:
                 entry = base
                 break
     if model < 0:
         return                                       # no sand on this model (e.g. one being compiled)
-    off = (_i4(reg[model + 6]) & _ACTUATION_OFF) != 0
+    off = (_i4(reg[model + sc.E_DISABLEFLAGS]) & _ACTUATION_OFF) != 0
     if passive != 0 and not off:
         return                                       # mjcb_control evaluates the sand
-    trampoline = reg[1 + passive]
-    if entry < 0 or _i8(reg[4]) != 0 or _i8(reg[5]) != 0 or _i8(reg[6]) != 0:
+    trampoline = reg[sc.R_PASSIVE_TRAMPOLINE if passive != 0 else sc.R_CONTROL_TRAMPOLINE]
+    if entry < 0 or _i8(reg[sc.R_ACT_DYN]) != 0 or _i8(reg[sc.R_ACT_GAIN]) != 0 or _i8(reg[sc.R_ACT_BIAS]) != 0:
         _call(trampoline, m, d)                      # the Python path (builds the route, user act callbacks)
         return
-    size = reg[entry + 7]
-    t = carray(_as_i8(reg[entry + 2]), (size,))
-    state = rt._book(t, t[1])[6]
-    time = _f8(reg[entry + 3])
-    dt = _f8(reg[entry + 4])
-    if _i4(reg[entry + 5]) == _RK4:
+    size = reg[entry + sc.E_LENGTH]
+    t = carray(_as_i8(reg[entry + sc.E_TABLE]), (size,))
+    state = rt._book(t, t[sc.T_BOOK])[rt.BOOK_STATE]
+    time = _f8(reg[entry + sc.E_TIME])
+    dt = _f8(reg[entry + sc.E_TIMESTEP])
+    if _i4(reg[entry + sc.E_INTEGRATOR]) == _RK4:
         if _later_rk4_stage(state, time, dt) and rt.all_first(t):
             return                                   # xfrc_applied holds the first stage's user + sand wrench
     else:
-        state[2] = 0.0
-    table = reg[entry + 2]
-    code = _phase(reg[7], table, time, dt)           # rt.phase1
+        state[sc.B_RK4_STAGE] = 0.0
+    table = reg[entry + sc.E_TABLE]
+    code = _phase(reg[sc.R_PHASE1], table, time, dt)
     if code == rt.ACTUATE:
-        _call(reg[3], m, d)                          # mj_fwdActuation: no user actuator callback installed
-        code = _phase(reg[8], table, time, dt)       # rt.phase2
+        _call(reg[sc.R_FWD_ACTUATION], m, d)         # no user actuator callback installed
+        code = _phase(reg[sc.R_PHASE2], table, time, dt)
     elif code == rt.CONTINUE:
-        code = _phase(reg[8], table, time, dt)
+        code = _phase(reg[sc.R_PHASE2], table, time, dt)
     if code == rt.MONITOR or code == rt.PYTHON:
-        state[5] = code                              # what the Python side is to do
+        state[sc.B_PENDING] = code                              # what the Python side is to do
         _call(trampoline, m, d)
 
 
@@ -189,13 +190,13 @@ if AVAILABLE:
     @cfunc(_SIG, cache=True)
     def _control_c(m, d):
         reg = carray(_as_i8(_registry_address()), (HEAD,))
-        reg = carray(_as_i8(_registry_address()), (HEAD + ENTRY * reg[0],))
+        reg = carray(_as_i8(_registry_address()), (HEAD + ENTRY * reg[sc.R_ENTRIES],))
         run(reg, _address(m), _address(d), 0)
 
     @cfunc(_SIG, cache=True)
     def _passive_c(m, d):
         reg = carray(_as_i8(_registry_address()), (HEAD,))
-        reg = carray(_as_i8(_registry_address()), (HEAD + ENTRY * reg[0],))
+        reg = carray(_as_i8(_registry_address()), (HEAD + ENTRY * reg[sc.R_ENTRIES],))
         run(reg, _address(m), _address(d), 1)
 
 
@@ -356,14 +357,19 @@ class Registry:
         info = self.info
         entries = []
         for (m, d), (r, t_time, t_step, t_int, t_flags) in self._routes.items():
-            entries.append((m, d, r.address, t_time, t_step, t_int, t_flags, r.table.size))
+            entries.append(dict(model=m, data=d, table=r.address, time=t_time, timestep=t_step, integrator=t_int,
+                                disableflags=t_flags, length=r.table.size))
         for m, flags in self._models.items():
-            entries.append((m, 0, 0, 0, 0, 0, flags, 0))
+            entries.append(dict(model=m, data=0, table=0, time=0, timestep=0, integrator=0, disableflags=flags,
+                                length=0))
         reg = np.zeros(HEAD + ENTRY * len(entries), dtype=np.int64)
-        reg[:HEAD] = (len(entries), *self.trampolines, info["fwd_actuation"], info["act_dyn"], info["act_gain"],
-                      info["act_bias"], info["phase1_c"], info["phase2_c"])
+        control, passive = self.trampolines
+        head = dict(entries=len(entries), control_trampoline=control, passive_trampoline=passive,
+                    fwd_actuation=info["fwd_actuation"], act_dyn=info["act_dyn"], act_gain=info["act_gain"],
+                    act_bias=info["act_bias"], phase1=info["phase1_c"], phase2=info["phase2_c"])
+        reg[:HEAD] = [head[name] for name in sc.REGISTRY_HEADER]
         for e, values in enumerate(entries):
-            reg[HEAD + ENTRY * e:HEAD + ENTRY * (e + 1)] = values
+            reg[HEAD + ENTRY * e:HEAD + ENTRY * (e + 1)] = [values[name] for name in sc.REGISTRY_ENTRY]
         self._old.append(reg)
         _CELL.value = reg.ctypes.data
         del self._old[:-16]

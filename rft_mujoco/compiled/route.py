@@ -43,7 +43,9 @@ BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"
 (nonzero, sand_dirty, rk4 stage (1-4; 0: another integrator), rk4 stage time, TIME_RTOL, what the native
 callback left to Python); ``snapshot``: the model's timestep, gravity and ``geom_size`` the dispatcher last
 checked (:func:`model_changed`), ``gravity`` and ``geom_size`` live views of the model's."""
-_HEADER = 8
+_HEADER = len(sc.TABLE_HEADER)
+BOOK_STATE = [name for name, _ in BOOK_FIELDS].index("state")
+"""The index of the book's ``state`` among :data:`BOOK_FIELDS`."""
 """Table header: number of handles, base of the book, base of md, base of the constraint rows, the address of
 :func:`rest_phase`'s C function, that of the implicit solve's (:func:`rft_mujoco.compiled.implicit_route.
 implicit_phase`; 0 when no handle has ``solve="implicit"``), the table's length, the address of the deformable
@@ -180,7 +182,7 @@ _STATE = _HC_SLOTS + [name for name, _ in ev.WORK_FIELDS].index("state") * SLOT
 @njit(**JIT)
 def all_first(t):
     """Whether every handle of the route asks for ``rk4_stages="first"``."""
-    n = t[0]
+    n = t[sc.T_HANDLES]
     for h in range(n):
         if _f1(t, t[_HEADER + h] + _PARAMS)[_RK4_FIRST] == 0.0:
             return False
@@ -190,7 +192,7 @@ def all_first(t):
 @njit(**INLINE)
 def _table(ptr):
     """The table at ``ptr`` (its length from its header)."""
-    return carray(ptr, (carray(ptr, (_HEADER,))[6],))
+    return carray(ptr, (carray(ptr, (_HEADER,))[sc.T_LENGTH],))
 
 
 def phase1(ptr, time, dt):
@@ -198,11 +200,11 @@ def phase1(ptr, time, dt):
     DONE, ACTUATE, CONTINUE or PYTHON (also when the model's timestep, gravity or geom sizes changed:
     :func:`model_changed`). A C function (:func:`cfuncs`), compiled only as such: one compile, not two."""
     t = _table(ptr)
-    n = t[0]
-    xfrc, written, added, rows, user, sand, state, snapshot, gravity, geom_size = _book(t, t[1])
+    n = t[sc.T_HANDLES]
+    xfrc, written, added, rows, user, sand, state, snapshot, gravity, geom_size = _book(t, t[sc.T_BOOK])
     if model_changed(snapshot, dt, gravity, geom_size):
         return PYTHON
-    md = _md(t, t[2])
+    md = _md(t, t[sc.T_MD])
     user_part(xfrc, written, added, rows, user)
     total = 0
     actuate = False
@@ -210,7 +212,7 @@ def phase1(ptr, time, dt):
         base = t[_HEADER + h]
         hc = _hc(t, base)
         ws = _ws(t, base + _HC_SLOTS)
-        ws[sc.W_STATE][sc.S_RK4_STAGE] = state[2]            # the RK4 stage (0: another integrator)
+        ws[sc.W_STATE][sc.S_RK4_STAGE] = state[sc.B_RK4_STAGE]   # the RK4 stage (0: another integrator)
         k = ev.broadphase(md, hc, ws, time, dt)
         if k < 0:
             return PYTHON
@@ -218,13 +220,13 @@ def phase1(ptr, time, dt):
             total += k
             actuate = actuate or hc[sc.H_PARAMS][sc.P_STABILIZE] != 0.0
     if total == 0:
-        if state[0] != 0.0:                          # the sand of the last evaluation leaves the rows
+        if state[sc.B_NONZERO] != 0.0:                  # the sand of the last evaluation leaves the rows
             for r in rows:
                 for c in range(6):
                     xfrc[r, c] = user[r, c]
                     added[r, c] = 0.0
                     written[r, c] = user[r, c]
-            state[0] = 0.0
+            state[sc.B_NONZERO] = 0.0
         return DONE
     return ACTUATE if actuate else CONTINUE
 
@@ -233,11 +235,11 @@ def phase2(ptr, time, dt):
     """Every touching handle's evaluation and the commit, on the table at ``ptr``; returns DONE, MONITOR or
     PYTHON. A C function (:func:`cfuncs`)."""
     t = _table(ptr)
-    n = t[0]
-    xfrc, written, added, rows, user, sand, state, _, _, _ = _book(t, t[1])
-    md = _md(t, t[2])
+    n = t[sc.T_HANDLES]
+    xfrc, written, added, rows, user, sand, state, _, _, _ = _book(t, t[sc.T_BOOK])
+    md = _md(t, t[sc.T_MD])
     sand[:] = 0.0
-    state[1] = 1.0                                   # sand_dirty: the Python path zeroes ``sand`` before use
+    state[sc.B_SAND_DIRTY] = 1.0                     # the Python path zeroes ``sand`` before use
     nonzero = False
     for h in range(n):
         base = t[_HEADER + h]
@@ -245,23 +247,23 @@ def phase2(ptr, time, dt):
         if ws[sc.W_STATE][sc.S_TOUCHING] <= 0.0:
             continue
         if t[_HEADER + n + h] != 0:
-            status = _call_rest(t[5], ptr, h, dt)             # implicit_route.implicit_phase
+            status = _call_rest(t[sc.T_IMPLICIT_PHASE], ptr, h, dt)             # implicit_route.implicit_phase
         elif _f1(t, base + _PARAMS)[_STABILIZE] != 0.0:
-            status = _call_rest(t[4], ptr, base, dt)
+            status = _call_rest(t[sc.T_REST_PHASE], ptr, base, dt)
         else:
             status = ev.evaluate_naive(md, _hc(t, base), ws, sand)
         if status < 0:
             return PYTHON
         nonzero = nonzero or status == 1
         if t[_HEADER + 2 * n + h] != 0 and ws[sc.W_STATE][sc.S_RK4_STAGE] < 2.0:
-            _call_rest(t[7], ptr, h, time)                    # deform_route.press_phase: the grid update
+            _call_rest(t[sc.T_PRESS_PHASE], ptr, h, time)                    # deform_route.press_phase: the grid update
     commit(xfrc, user, sand, rows, added, written)
-    state[0] = 1.0 if nonzero else 0.0
+    state[sc.B_NONZERO] = 1.0 if nonzero else 0.0
     for h in range(n):
         base = t[_HEADER + h]
         every = _f1(t, base + _PARAMS)[_MONITOR_EVERY]       # (not the whole hc, ws tuples: less to compile)
         st = _f1(t, base + _STATE)
-        if every > 0.0 and st[2] > 0.0 and st[4] % every == 0.0:
+        if every > 0.0 and st[sc.S_TOUCHING] > 0.0 and st[sc.S_EVALUATIONS] % every == 0.0:
             return MONITOR
     return DONE
 
@@ -269,11 +271,11 @@ def phase2(ptr, time, dt):
 def rest_phase(ptr, base, dt):
     """Phase 2 of the handle at ``base`` with the rest treatment (:func:`~rft_mujoco.compiled.evaluate.evaluate_rest`)
     on the table at ``ptr``; the evaluation's status. A C function of its own that phase 2 calls through its
-    address (``t[4]``): half of phase 2's compile, done beside it (:mod:`rft_mujoco.compiled.warmup`)."""
+    address (``t[T_REST_PHASE]``): half of phase 2's compile, done beside it (:mod:`rft_mujoco.compiled.warmup`)."""
     t = _table(ptr)
-    _, _, _, _, user, sand, _, _, _, _ = _book(t, t[1])
-    md = _md(t, t[2])
-    fr = _fr(t, t[3], md[sc.M_QVEL].shape[0])
+    _, _, _, _, user, sand, _, _, _, _ = _book(t, t[sc.T_BOOK])
+    md = _md(t, t[sc.T_MD])
+    fr = _fr(t, t[sc.T_ROWS], md[sc.M_QVEL].shape[0])
     return ev.evaluate_rest(md, _hc(t, base), _ws(t, base + _HC_SLOTS), user, dt, sand, fr)
 
 
@@ -449,8 +451,10 @@ class Route:
         if any(press_bases) and not press_address:
             raise ValueError("a handle with a press part needs the grid update's C function")
         rest = cfuncs()[2].address
-        head = [n, book_base, md_base, efc_base, rest, implicit_address, book_base + len(entries_), press_address]
-        self.table = np.array([*head, *bases, *implicit_bases, *press_bases, *entries_], dtype=np.int64)
+        head = dict(handles=n, book=book_base, md=md_base, rows=efc_base, rest_phase=rest,
+                    implicit_phase=implicit_address, length=book_base + len(entries_), press_phase=press_address)
+        self.table = np.array([*(head[name] for name in sc.TABLE_HEADER), *bases, *implicit_bases, *press_bases,
+                               *entries_], dtype=np.int64)
         self.address = self.table.ctypes.data
         self.phase1, self.phase2 = entries()
 
@@ -459,7 +463,7 @@ def warm_up(model, data) -> None:
     """Compile both phases (a route over no handle)."""
     nbody = model.nbody
     book = dict(xfrc=np.zeros((nbody, 6)), written=np.zeros((nbody, 6)), added=np.zeros((nbody, 6)),
-                rows=np.zeros(0, np.int64), user=np.zeros((nbody, 6)), sand=np.zeros((nbody, 6)), state=np.zeros(6),
+                rows=np.zeros(0, np.int64), user=np.zeros((nbody, 6)), sand=np.zeros((nbody, 6)), state=np.zeros(len(sc.BOOK_STATE)),
                 snapshot=snapshot(model), gravity=model.opt.gravity, geom_size=model.geom_size)
     route = Route(book, ev.mjdata_arrays(data), [], data)
     route.phase1(route.address, 0.0, 0.001)

@@ -50,7 +50,7 @@ PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_p
 three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
 validity checks (0: no monitor), ``rk4_stages="first"`` (0/1)."""
 STATE = ("last_time", "clean", "touching", "lagged", "evaluations", "rk4_stage", "kept_groups", "kept_rank",
-         "kept_evaluations", "locked_dofs", "locked_evaluations")
+         "kept_evaluations", "locked_dofs", "locked_evaluations", "newton_iterations")
 """Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
 the number of touching bodies found by the last broadphase, whether MuJoCo's previous constraint solve
 belongs to this motion, evaluations so far; the RK4 stage of this evaluation (written by the caller
@@ -58,7 +58,35 @@ before the broadphase: 1-4, 0 for other integrators), the number of groups whose
 the later stages of this step (0: none), the kept rest factor's rank (-1: none, see
 :func:`rft_mujoco.compiled.rest.rest_wrenches`), the evaluations that used a kept mobility; the dofs
 held by their dry friction in this evaluation's rest solve (:func:`rft_mujoco.physics.rest.locked_rest`)
-and the evaluations that held any."""
+and the evaluations that held any; the Newton iterations of this evaluation's implicit solve
+(``solve="implicit"``)."""
+
+BOOK_STATE = ("nonzero", "sand_dirty", "rk4_stage", "rk4_stage_time", "time_rtol", "pending")
+"""Entries of the dispatcher's book ``state`` (:class:`rft_mujoco.coupling.book._DataBook`, read and written by
+the native route): whether the sand's last wrench was non-zero, whether the ``sand`` buffer needs zeroing, the
+RK4 stage of the last evaluation (1-4; 0: another integrator), the time of the step's first stage (s),
+:data:`rft_mujoco.tol.TIME_RTOL`, and what the native callback left to Python
+(:data:`rft_mujoco.compiled.route.MONITOR` or ``PYTHON``; 0: nothing)."""
+TABLE_HEADER = ("handles", "book", "md", "rows", "rest_phase", "implicit_phase", "length", "press_phase")
+"""The route table's header (:class:`rft_mujoco.compiled.route.Route`): the number of handles, the bases of the
+book, of ``md`` and of the constraint rows, the addresses of the rest phase's, the implicit solve's (0: no
+implicit handle) and the grid update's (0: no deformable terrain) C functions, and the table's length; one base
+per handle, one per handle's implicit part and one per handle's press part follow."""
+REGISTRY_HEADER = ("entries", "control_trampoline", "passive_trampoline", "fwd_actuation", "act_dyn", "act_gain",
+                   "act_bias", "phase1", "phase2")
+"""The native callback's registry header (:mod:`rft_mujoco.compiled.native`): the number of entries, the Python
+trampolines of ``mjcb_control`` and ``mjcb_passive``, ``mj_fwdActuation``'s address, the user's
+``mjcb_act_dyn`` / ``gain`` / ``bias`` (0: none), the route's phase 1 and phase 2 C functions."""
+REGISTRY_ENTRY = ("model", "data", "table", "time", "timestep", "integrator", "disableflags", "length")
+"""One registry entry: ``mjModel*``, ``mjData*`` (0: a model without a route yet), the route table's address,
+the addresses of ``data.time``, ``opt.timestep``, ``opt.integrator`` and ``opt.disableflags``, the table's
+length."""
+IMPLICIT_SETTINGS = ("speed_scale", "rest_retry", "newton_iterations", "newton_rtol", "fd_step", "dependent_tol",
+                     "weight_floor", "capacity_tol", "tiny", "zone_passes")
+"""Entries of the implicit solve's ``st``: :data:`rft_mujoco.physics.implicit.SPEED_SCALE` (m/s), ``REST_RETRY``,
+``NEWTON_ITERATIONS``, ``NEWTON_RTOL``, :data:`rft_mujoco.physics.elements.FD_STEP`,
+:data:`rft_mujoco.physics.rest.DEPENDENT_TOL`, ``WEIGHT_FLOOR``, ``CAPACITY_TOL``, :data:`rft_mujoco.tol.TINY`
+and ``ZONE_PASSES`` (:func:`rft_mujoco.compiled.implicit.settings`)."""
 
 (M_XPOS, M_XMAT, M_XIPOS, M_CVEL, M_SUBTREE_COM, M_QPOS, M_QVEL, M_CDOF, M_QFRC_PASSIVE, M_QFRC_BIAS,
  M_QFRC_ACTUATOR, M_QFRC_APPLIED, M_QFRC_CONSTRAINT, M_QLD, M_QLDIAGINV, M_GEOM_XPOS,
@@ -82,4 +110,16 @@ and the evaluations that held any."""
  P_MARGIN, P_MONITOR_EVERY, P_RK4_FIRST) = range(len(PARAMS))
 
 (S_LAST_TIME, S_CLEAN, S_TOUCHING, S_LAGGED, S_EVALUATIONS, S_RK4_STAGE, S_KEPT_GROUPS, S_KEPT_RANK,
- S_KEPT_EVALUATIONS, S_LOCKED_DOFS, S_LOCKED_EVALUATIONS) = range(len(STATE))
+ S_KEPT_EVALUATIONS, S_LOCKED_DOFS, S_LOCKED_EVALUATIONS, S_NEWTON_ITERATIONS) = range(len(STATE))
+
+(B_NONZERO, B_SAND_DIRTY, B_RK4_STAGE, B_RK4_STAGE_TIME, B_TIME_RTOL, B_PENDING) = range(len(BOOK_STATE))
+
+(T_HANDLES, T_BOOK, T_MD, T_ROWS, T_REST_PHASE, T_IMPLICIT_PHASE, T_LENGTH, T_PRESS_PHASE) = range(len(TABLE_HEADER))
+
+(R_ENTRIES, R_CONTROL_TRAMPOLINE, R_PASSIVE_TRAMPOLINE, R_FWD_ACTUATION, R_ACT_DYN, R_ACT_GAIN, R_ACT_BIAS, R_PHASE1,
+ R_PHASE2) = range(len(REGISTRY_HEADER))
+
+(E_MODEL, E_DATA, E_TABLE, E_TIME, E_TIMESTEP, E_INTEGRATOR, E_DISABLEFLAGS, E_LENGTH) = range(len(REGISTRY_ENTRY))
+
+(ST_SPEED_SCALE, ST_REST_RETRY, ST_NEWTON_ITERATIONS, ST_NEWTON_RTOL, ST_FD_STEP, ST_DEPENDENT_TOL, ST_WEIGHT_FLOOR,
+ ST_CAPACITY_TOL, ST_TINY, ST_ZONE_PASSES) = range(len(IMPLICIT_SETTINGS))

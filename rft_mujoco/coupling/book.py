@@ -9,6 +9,7 @@ import weakref
 import numpy as np
 
 from rft_mujoco import tol
+from rft_mujoco.compiled import schema as sc
 
 RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
 """Times of RK4 stages 2-4 after the first, in steps (mj_RungeKutta evaluates at t + dt/2, t + dt/2, t + dt)."""
@@ -42,11 +43,9 @@ class _DataBook:
         self.rows = np.zeros(0, dtype=np.int64)
         self.sand = np.zeros((nbody, 6))     # the handles' sum of this evaluation (reused buffer)
         self.user = np.zeros((nbody, 6))      # the user's part of xfrc_applied (reused buffer)
-        # (nonzero: ``added`` has a non-zero entry, sand_dirty: ``sand`` needs zeroing, rk4 stage, rk4
-        # stage time, TIME_RTOL, pending: what the native callback left to Python): read and written by
-        # the native route too (rft_mujoco.compiled.route.BOOK_FIELDS)
-        self.state = np.zeros(6)
-        self.state[4] = tol.TIME_RTOL
+        # rft_mujoco.compiled.schema.BOOK_STATE: read and written by the native route too
+        self.state = np.zeros(len(sc.BOOK_STATE))
+        self.state[sc.B_TIME_RTOL] = tol.TIME_RTOL
         self.native = None                    # (generation, Route) of this MjData's native route
         # the model's timestep, gravity and geom sizes as the handles last checked them (None: not yet);
         # the native route hands an evaluation to Python when they differ (compiled.route.model_changed)
@@ -62,37 +61,47 @@ class _DataBook:
 
     @property
     def nonzero(self) -> bool:
-        return bool(self.state[0])
+        return bool(self.state[sc.B_NONZERO])
 
     @nonzero.setter
     def nonzero(self, value: bool) -> None:
-        self.state[0] = float(value)
+        self.state[sc.B_NONZERO] = float(value)
+
+    @property
+    def pending(self) -> int:
+        """What the native callback left to the Python path in this evaluation (:data:`rft_mujoco.compiled.route.
+        MONITOR` or ``PYTHON``; 0: nothing)."""
+        return int(self.state[sc.B_PENDING])
+
+    @pending.setter
+    def pending(self, value: int) -> None:
+        self.state[sc.B_PENDING] = float(value)
 
     @property
     def stage(self) -> int:
         """With integrator="RK4": the stage of the last evaluation (1-4; 0: another integrator)."""
-        return int(self.state[2])
+        return int(self.state[sc.B_RK4_STAGE])
 
     @stage.setter
     def stage(self, value: int) -> None:
-        self.state[2] = float(value)
+        self.state[sc.B_RK4_STAGE] = float(value)
 
     @property
     def stage_time(self) -> float:
         """The time of the first stage of the step (s)."""
-        return float(self.state[3])
+        return float(self.state[sc.B_RK4_STAGE_TIME])
 
     @stage_time.setter
     def stage_time(self, value: float) -> None:
-        self.state[3] = float(value)
+        self.state[sc.B_RK4_STAGE_TIME] = float(value)
 
     @property
     def sand_dirty(self) -> bool:
-        return bool(self.state[1])
+        return bool(self.state[sc.B_SAND_DIRTY])
 
     @sand_dirty.setter
     def sand_dirty(self, value: bool) -> None:
-        self.state[1] = float(value)
+        self.state[sc.B_SAND_DIRTY] = float(value)
 
     def later_rk4_stage(self, t: float, dt: float) -> bool:
         """Whether an evaluation at time ``t`` is stage 2, 3 or 4 of the RK4 step whose first stage the

@@ -464,3 +464,20 @@ def raise_not_finite(body_names: Sequence[str], diag, touch) -> None:
            if not (np.all(np.isfinite(diag.force[i])) and np.all(np.isfinite(diag.torque[i])))]
     raise FloatingPointError(f"non-finite sand wrench on bodies {bad}; nothing was written to xfrc_applied. "
                              "Check the model's inputs (ctrl, qfrc_applied, xfrc_applied, masses) for NaN/inf")
+
+
+def mass_matrix_layout_ok(model, request: str) -> bool:
+    """Whether MuJoCo's mass-matrix factor (qLD) is laid out as the compiled kernels read it
+    (:func:`rft_mujoco.compiled.rest.check_layout`); with ``request == "numba"`` a ValueError if not, otherwise
+    a RuntimeWarning (the caller falls back to the numpy reference)."""
+    from rft_mujoco.compiled.rest import check_layout
+    if check_layout(model, mujoco.MjData(model)):
+        return True
+    if request == "numba":
+        raise ValueError(f"backend='numba': MuJoCo's mass-matrix factor (qLD) is not laid out as this version of "
+                         f"rft_mujoco reads it (mujoco {mujoco.__version__}); install the mujoco version of "
+                         "pyproject.toml or use backend='numpy'")
+    warnings.warn("rft_mujoco: MuJoCo's mass-matrix factor (qLD) is not laid out as this version of rft_mujoco reads "
+                  f"it (mujoco {mujoco.__version__}); using the numpy reference (same forces, slower). Install the "
+                  "mujoco version of pyproject.toml.", RuntimeWarning, stacklevel=5)
+    return False

@@ -43,6 +43,7 @@ import numpy as np
 from rft_mujoco import compiled
 from rft_mujoco.coupling import implicit as _IMPLICIT
 from rft_mujoco.compiled import deform_route as _DEFORM_ROUTE, route as _ROUTE
+from rft_mujoco.compiled import schema as sc
 from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_components  # noqa: F401  (their home before)
 
 _COMPILE_ENTRY_POINTS = ((mujoco.MjModel, "from_xml_string", True), (mujoco.MjModel, "from_xml_path", True),
@@ -312,7 +313,7 @@ class Dispatcher:
             new = self._books[dst] = _DataBook(owner, dst)
             for name in ("added", "written", "state"):
                 np.copyto(getattr(new, name), getattr(book, name))
-            new.state[5] = 0.0
+            new.pending = 0
             new.rows = book.rows.copy()
             new.snapshot = None if book.snapshot is None else book.snapshot.copy()
             for h in self._handles:
@@ -420,9 +421,9 @@ class Dispatcher:
             book = self.book(model, data)
         if book.snapshot is None or self._model_changed(model, book):
             self._check_model(model, book, handles)
-        pending = book.state[5]
+        pending = book.pending
         if pending:                          # left to Python by the native callback (this very evaluation)
-            book.state[5] = 0.0
+            book.pending = 0
             if pending == _ROUTE.MONITOR:
                 self._monitor(book.native[1], data)
                 return
@@ -493,9 +494,9 @@ class Dispatcher:
         """The validity checks that a native evaluation found due (it committed its wrenches)."""
         for h in route.handles:
             work = h._work.get(data)
-            k = int(work.state[2])
-            if h.monitor is not None and k > 0 and int(work.state[4]) % h.monitor.every == 0:
-                h._check_validity(data, work, work.arrays["touch"][:k], int(work.state[4]))
+            k = int(work.state[sc.S_TOUCHING])
+            if h.monitor is not None and k > 0 and int(work.state[sc.S_EVALUATIONS]) % h.monitor.every == 0:
+                h._check_validity(data, work, work.arrays["touch"][:k], int(work.state[sc.S_EVALUATIONS]))
 
     def _build_route(self, data, book, handles, rows):
         """The native route of (model, data) (:class:`rft_mujoco.compiled.route.Route`), with the parts of the

@@ -33,10 +33,12 @@ import mujoco
 import numpy as np
 
 from rft_mujoco import compiled, tol
-from rft_mujoco.coupling import checks, deformable, implicit, reference, setup
+from rft_mujoco.compiled import schema as sc
+from rft_mujoco.coupling import checks, deformable, setup
 from rft_mujoco.coupling.dispatch import DISPATCHER
+from rft_mujoco.coupling.evaluators import CompiledEvaluator, NumpyEvaluator
 from rft_mujoco.coupling.monitor import ValidityMonitor
-from rft_mujoco.coupling.workspace import Diagnostics, _Workspace
+from rft_mujoco.coupling.workspace import Diagnostics, SolveCounters, _Workspace
 from rft_mujoco.geometry import surface
 from rft_mujoco.geometry.occlusion import Occluders, occluders
 from rft_mujoco.physics import law, rest
@@ -121,7 +123,7 @@ class SandHandle:
         self._observers: list = []
         self._backend_request = backend
         self._packed = None
-        self._fast = None
+        self._evaluator = NumpyEvaluator()               # set with the terrain (_select_backend)
         self._layout_ok = None
         self.media = media
         self.guards = guards
@@ -142,14 +144,14 @@ class SandHandle:
 
     def _refresh(self) -> None:
         """Rewrite ``hc.params`` (:data:`rft_mujoco.compiled.evaluate.PARAMS`) from the settings."""
-        if self._fast is None:
+        spec = self._evaluator.spec
+        if spec is None:
             return
         from rft_mujoco.compiled import evaluate
-        from rft_mujoco.compiled import schema as sc
         media = self._media
         every = self.monitor.every if self.monitor is not None else 0
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
-                              self._fast[0], self.stabilize, self.passive, self._occluders.margin, every,
+                              spec[0], self.stabilize, self.passive, self._occluders.margin, every,
                               self.rk4_stages == "first", out=self._params)   # read live by the native route
         for work in self._work.values():
             if work.press is not None:                   # a deformable surface's own copy, its own highest point
@@ -160,7 +162,7 @@ class SandHandle:
     @property
     def evaluations(self) -> int:
         """Sand evaluations so far (all MjData together)."""
-        return self._evaluations + sum(int(w.state[4]) for w in self._work.values())
+        return self._evaluations + sum(int(w.state[sc.S_EVALUATIONS]) for w in self._work.values())
 
     @property
     def media(self) -> Media:
@@ -235,6 +237,12 @@ class SandHandle:
             new.append(int(gid))
         checks.check_replaced_floor(self.model, new, self._terrain)
 
+    def counters(self, data) -> SolveCounters:
+        """How the sand solve went on ``data`` so far (:class:`~rft_mujoco.coupling.workspace.SolveCounters`:
+        evaluations that kept the first RK4 stage's mobility, dofs held by dry friction now and evaluations
+        that held any, Newton iterations of the last implicit solve); zeros before its first evaluation."""
+        return self._workspace(data).counters()
+
     def diagnostics(self, data) -> Diagnostics:
         """Per-body force, torque, submerged element count, max depth and rest state of the latest
         evaluation of ``data`` (a live view, updated by later steps; ``.copy()`` keeps a snapshot)."""
@@ -261,7 +269,13 @@ class SandHandle:
     @property
     def backend(self) -> str:
         """The backend in use: "numba" (:mod:`rft_mujoco.compiled`) or "numpy" (the reference)."""
-        return "numpy" if self._fast is None else "numba"
+        return self._evaluator.backend
+
+    @property
+    def evaluator(self) -> NumpyEvaluator | CompiledEvaluator:
+        """The evaluation behind this handle (:mod:`rft_mujoco.coupling.evaluators`): the numpy reference or the
+        compiled kernels, chosen with the terrain and ``backend``."""
+        return self._evaluator
 
     def evaluation_path(self, data) -> str:
         """The path that evaluates this handle's sand on ``data`` now: "native" (the compiled route that MuJoCo's
@@ -278,7 +292,7 @@ class SandHandle:
     @property
     def _native_ok(self) -> bool:
         """Whether the native route may evaluate this handle: compiled, no observer."""
-        return self._fast is not None and not self._observers
+        return self._evaluator.backend == "numba" and not self._observers
 
     def _select_backend(self, terrain) -> None:
         from rft_mujoco.compiled.jit import AVAILABLE, IMPORT_ERROR
@@ -294,11 +308,9 @@ class SandHandle:
             raise ValueError("backend='numba' supports FlatSurface, HeightfieldSurface, SandRegion and "
                              f"DeformableSurface terrains, got {type(terrain).__name__}; use backend='auto' (numpy for this "
                              "terrain) or 'numpy'")
-        self._fast = None
-        self._hc = None
+        self._evaluator = NumpyEvaluator()
         if spec is not None and self._compiled_ok(request):
-            self._fast = spec
-            self._hc = self._handle_constants(spec)
+            self._evaluator = CompiledEvaluator(spec, self._handle_constants(spec))
         self._work.clear()                         # workspaces are per backend (the md tuple, buffer sizes)
         DISPATCHER.invalidate()
 
@@ -313,17 +325,7 @@ class SandHandle:
                           RuntimeWarning, stacklevel=4)
             return False
         if self._layout_ok is None:
-            from rft_mujoco.compiled.rest import check_layout
-            self._layout_ok = check_layout(self.model, mujoco.MjData(self.model))
-            if not self._layout_ok:
-                if request == "numba":
-                    raise ValueError(f"backend='numba': MuJoCo's mass-matrix factor (qLD) is not laid out as "
-                                     f"this version of rft_mujoco reads it (mujoco {mujoco.__version__}); install "
-                                     "the mujoco version of pyproject.toml or use backend='numpy'")
-                warnings.warn("rft_mujoco: MuJoCo's mass-matrix factor (qLD) is not laid out as this version "
-                              f"of rft_mujoco reads it (mujoco {mujoco.__version__}); using the numpy reference "
-                              "(same forces, slower). Install the mujoco version of pyproject.toml.",
-                              RuntimeWarning, stacklevel=4)
+            self._layout_ok = checks.mass_matrix_layout_ok(self.model, request)
         return self._layout_ok
 
     def _handle_constants(self, spec) -> tuple:
@@ -430,58 +432,9 @@ class SandHandle:
 
     def _evaluate_once(self, data, user_xfrc: np.ndarray, sand_out: np.ndarray, stage: int = 0) -> bool:
         work = self._workspace(data)
-        work.state[5] = stage
-        dt = self.model.opt.timestep
+        work.state[sc.S_RK4_STAGE] = stage
         self._check_floor()
-        if self._fast is not None:
-            return self._evaluate_compiled(data, work, user_xfrc, sand_out, dt)
-        self._evaluations += 1
-        g_hat = self._gravity()
-        lagged = work.follow_time(data.time, dt)
-        if stage < 2:
-            work.keep.clear()
-        touch = reference.touching(self, data, g_hat, work)
-        if touch.size == 0:
-            if work.state[1] == 0.0:
-                work.diag.clear()
-                work.state[1] = 1.0
-            return False
-        work.state[1] = 0.0
-        if self.stabilize and self.solve == "implicit":
-            status = reference.evaluate_implicit(self, data, user_xfrc, work, touch, dt, g_hat, sand_out)
-        elif self.stabilize:
-            status = reference.evaluate_rest(self, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out)
-        else:
-            status = reference.evaluate_naive(self, data, work, touch, g_hat, sand_out)
-        if status < 0:
-            checks.raise_not_finite(self.body_names, work.diag, touch)
-        if work.surface is not None and stage < 2:
-            deformable.press_touching(self, data, work, touch)
-        self._check_validity(data, work, touch, self._evaluations)
-        return bool(status)
-
-    def _evaluate_compiled(self, data, work, user_xfrc, sand_out, dt) -> bool:
-        from rft_mujoco.compiled import evaluate
-        self._gravity()                                  # raises on a zero gravity set after attach
-        k = evaluate.broadphase(work.md, work.hc, work.tuple, data.time, dt)
-        if k == evaluate.NOT_FINITE_STATE:
-            reference.touching(self, data, self._g_hat, work)       # raises the non-finite state error
-        if k <= 0:
-            return False
-        if self.stabilize:
-            mujoco.mj_fwdActuation(self.model, data)
-        status = implicit.evaluate_compiled(self, data, work, user_xfrc, dt, sand_out) \
-            if self.stabilize and self.solve == "implicit" else \
-            evaluate.evaluate(work.md, work.hc, work.tuple, user_xfrc, dt, sand_out, evaluate.friction_arrays(data))
-        touch = work.arrays["touch"][:k]
-        if status == evaluate.BAD_ACCELERATION:
-            reference.free_twists(self, data, user_xfrc, self.body_ids[self.groups.ref], dt, False)  # raises
-        if status < 0:
-            checks.raise_not_finite(self.body_names, work.diag, touch)
-        if work.press is not None and work.state[5] < 2:
-            deformable.press_compiled(self, data, work, k)
-        self._check_validity(data, work, touch, int(work.state[4]))
-        return bool(status)
+        return self._evaluator.evaluate(self, data, work, user_xfrc, sand_out)
 
     def _check_validity(self, data, work, touch, count: int) -> None:
         """The validity monitor, every ``monitor.every`` evaluations of ``data``."""
@@ -504,9 +457,9 @@ class SandHandle:
             self._g_hat = np.ascontiguousarray(g_hat)
             self._gravity_vec = np.array(g)
             self._gravity_seen = g
-            if self._fast is not None:
+            if self._evaluator.spec is not None:
                 from rft_mujoco.compiled.terrain import check_gravity
-                check_gravity(self._terrain, self._fast, self._g_hat)
+                check_gravity(self._terrain, self._evaluator.spec, self._g_hat)
         return self._g_hat
 
 

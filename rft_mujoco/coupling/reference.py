@@ -4,9 +4,13 @@ Plain, readable numpy on the handle's arrays and MuJoCo's functions (``mj_jacBod
 ``mj_applyFT``); tests/test_compiled_rest.py compares the compiled evaluation with it. The steps are those
 of :mod:`rft_mujoco.compiled.evaluate`: broadphase, run-time culling, the rest treatment
 (:mod:`rft_mujoco.physics.rest`) or the naive published force, diagnostics and the wrenches into the sum.
+The evaluations return what they did (:class:`Outcome`); the evaluator that calls them
+(:class:`rft_mujoco.coupling.evaluators.NumpyEvaluator`) records it in the workspace's counters.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -96,9 +100,25 @@ def rft(handle, data, work, touch, v_com, omega, g_hat):
     return wrench, count, max_depth, occluded
 
 
-def evaluate_naive(handle, data, work, touch, g_hat, sand_out) -> int:
+class Outcome(NamedTuple):
+    """What one evaluation did besides its wrenches.
+
+    Attributes:
+        status: :func:`commit`'s (1: a non-zero wrench, 0: none, -1: not finite).
+        kept: a later RK4 stage used the first stage's mobility and rest factor (rest treatment).
+        locked_dofs: dofs held by their dry friction in the rest solve.
+        newton_iterations: the implicit solve's Newton iterations (0: another solve).
+    """
+
+    status: int
+    kept: bool = False
+    locked_dofs: int = 0
+    newton_iterations: int = 0
+
+
+def evaluate_naive(handle, data, work, touch, g_hat, sand_out) -> Outcome:
     """``stabilize=False``: the published force at each element's velocity (``passive``: a body's wrench is
-    dropped when it would do positive work). Returns the status of :func:`commit`."""
+    dropped when it would do positive work)."""
     k = touch.size
     v_com, omega = work.arrays["v_com"][:k], work.arrays["omega"][:k]
     wrench, count, max_depth, occluded = rft(handle, data, work, touch, v_com, omega, g_hat)
@@ -106,13 +126,14 @@ def evaluate_naive(handle, data, work, touch, g_hat, sand_out) -> int:
     if handle.passive:
         power = np.einsum("ij,ij->i", wrench[:, :3], v_com) + np.einsum("ij,ij->i", wrench[:, 3:], omega)
         applied[power > 0.0] = 0.0
-    return commit(handle, work.diag, touch, applied, wrench, count, max_depth, occluded, np.zeros(k, dtype=bool),
-                  sand_out)
+    return Outcome(commit(handle, work.diag, touch, applied, wrench, count, max_depth, occluded,
+                          np.zeros(k, dtype=bool), sand_out))
 
 
-def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out) -> int:
-    """The rest treatment (:mod:`rft_mujoco.physics.rest`) of the touching bodies. Returns the status of
-    :func:`commit`."""
+def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, stage, sand_out) -> Outcome:
+    """The rest treatment (:mod:`rft_mujoco.physics.rest`) of the touching bodies; ``lagged``: MuJoCo's last
+    constraint solve belongs to this motion (:meth:`~rft_mujoco.coupling.workspace._Workspace.follow_time`);
+    ``stage``: the RK4 stage (1-4; 0: another integrator)."""
     m, grp = handle.model, handle.groups
     a = work.arrays
     group_of = grp.of_body[touch]                      # (k,) group of each touching body
@@ -134,18 +155,15 @@ def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_
     keep = work.keep
     # A later RK4 stage reuses an earlier stage's mobility and factor while the same groups touch and no
     # dof is held by its dry friction (the locks change the mobility).
-    frozen = (work.state[5] >= 2 and keep.groups is not None and np.array_equal(keep.groups, active)
-              and dofs.size == 0)
-    if frozen:
-        work.state[8] += 1
-    else:
+    frozen = stage >= 2 and keep.groups is not None and np.array_equal(keep.groups, active) and dofs.size == 0
+    if not frozen:
         flat = jac.reshape(-1, m.nv)
         minv_jt = np.empty_like(flat)
         mujoco.mj_solveM(m, data, minv_jt, flat)
         keep.factor.clear()
-        kept = work.state[5] >= 1 and dofs.size == 0
+        kept = stage >= 1 and dofs.size == 0
         keep.groups, keep.mobility = (active if kept else None), flat @ minv_jt.T
-    work.state[9] = 0
+    n_locked = 0
     prev = work.arrays["lock_prev"]                        # (nv,) the dofs locked in the last evaluation
     sticky = bool(prev[dofs].any())
     prev[:] = False
@@ -158,14 +176,13 @@ def evaluate_rest(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_
             free, keep.mobility, jac.reshape(-1, m.nv) @ minv_et.T, minv_et[:, dofs], qacc[dofs], force, capacity,
             dt, lambda f, mob: rest.rest_wrenches(f, mob, rft_g, u, radius, dt), twist, radius, not sticky)
         prev[dofs[locked]] = True
-        work.state[9] = np.count_nonzero(locked)
-        work.state[10] += 1 if locked.any() else 0
+        n_locked = int(np.count_nonzero(locked))
     else:
         applied_g, resting_g = rest.rest_wrenches(free, keep.mobility, rft_g, u, radius, dt,
                                                   keep.factor if keep.groups is not None else None, frozen)
     applied = share(applied_g, rft_g, resting_g, wrench, slot, arm, radius)
-    return commit(handle, work.diag, touch, applied, wrench, count, max_depth, occluded, resting_g[slot],
-                  sand_out)
+    status = commit(handle, work.diag, touch, applied, wrench, count, max_depth, occluded, resting_g[slot], sand_out)
+    return Outcome(status, bool(frozen), n_locked)
 
 
 class StepKeep:
@@ -428,13 +445,13 @@ def velocity_damping(model) -> np.ndarray:
     return out
 
 
-def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str, zones=None):
+def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str, zones=None, lagged: bool = False):
     """Jacobians (G, 6, nv), free twists (G, 6), twists now (G, 6), the mobility (6G, 6G) of the groups'
     reference points for the implicit solve, and the end accelerations (nv,) as a function of the groups'
     wrenches (G, 6): with ``constraints="linearized"`` through this step's constraint rows in their ``zones``
     (:func:`constrained_free_motion`; default: at MuJoCo's last solve) and the zones, with
-    ``"lagged"`` through the mass matrix and MuJoCo's previous constraint forces (as :func:`free_twists`;
-    zones None)."""
+    ``"lagged"`` through the mass matrix and MuJoCo's previous constraint forces when they belong to this motion
+    (``lagged``, as :func:`free_twists`; zones None)."""
     m = handle.model
     jac, qfrc = _jacobians_and_forces(m, data, user_xfrc, ref)
     flat = jac.reshape(-1, m.nv)
@@ -446,7 +463,7 @@ def implicit_free(handle, data, user_xfrc, ref, dt, constraints: str, zones=None
         qacc = solve(f)
         minv_jt = solve(flat.T)
     else:
-        if handle._work.get(data) is not None and handle._work[data].state[3]:
+        if lagged:
             qfrc = qfrc + data.qfrc_constraint
         qacc = np.empty(m.nv)
         mujoco.mj_solveM(m, data, qacc.reshape(1, -1), qfrc.reshape(1, -1))
@@ -483,9 +500,9 @@ def _shift(arm: np.ndarray) -> np.ndarray:
     return s
 
 
-def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out) -> int:
-    """The implicit solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`) of the touching bodies. Returns
-    the status of :func:`commit`."""
+def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, sand_out) -> Outcome:
+    """The implicit solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`) of the touching bodies;
+    ``lagged`` as in :func:`evaluate_rest`."""
     grp = handle.groups
     group_of = grp.of_body[touch]
     active = np.unique(group_of)
@@ -493,7 +510,7 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
     ref = handle.body_ids[grp.ref[active]]
     radius = grp.radius[active]
     jac, free, twist, mobility, end_qacc, zones = implicit_free(handle, data, user_xfrc, ref, dt,
-                                                                 handle._constraints)
+                                                                 handle._constraints, lagged=lagged)
     arm = work.arrays["body_com"][:touch.size] - data.xipos[ref[slot]]
     shift = _shift(arm)
     last = {}
@@ -511,7 +528,7 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
         return f, df
 
     prior = work.flowing                              # (groups, flowed) of the last evaluation of this motion
-    flowing = prior[1] if prior is not None and work.state[3] and np.array_equal(prior[0], active) else None
+    flowing = prior[1] if prior is not None and lagged and np.array_equal(prior[0], active) else None
     applied_g, resting_g, end, its = implicit.implicit_wrenches(free, mobility, law, twist, radius, dt, flowing)
     for _ in range(implicit.ZONE_PASSES - 1):
         if zones is None:
@@ -520,7 +537,7 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
         if np.array_equal(now[0], zones[0]) and np.array_equal(now[1], zones[1]):
             break
         jac, free, twist, mobility, end_qacc, zones = implicit_free(handle, data, user_xfrc, ref, dt,
-                                                                     handle._constraints, now)
+                                                                     handle._constraints, now, lagged)
         applied_g, resting_g, end, its = implicit.implicit_wrenches(free, mobility, law, twist, radius, dt,
                                                                     flowing)
     work.flowing = (active, ~resting_g)
@@ -531,11 +548,11 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, sand_out)
     rft_g = np.zeros((active.size, 6))
     np.add.at(rft_g, slot, np.einsum("kji,kj->ki", shift, wrench))
     applied = share(applied_g, rft_g, resting_g, wrench, slot, arm, radius)
-    work.state[9] = its
     sel, b, hidden = touching                          # the submerged area inside other bodies' geoms
     mats = work.arrays["body_mat"][:touch.size].reshape(-1, 3, 3)[b]
     pos = work.arrays["body_pos"][:touch.size][b] + np.einsum("eij,ej->ei", mats, handle.local_centroids[sel])
     occluded = np.bincount(b, weights=handle.areas[sel] * (hidden & (handle.terrain.depth(pos, g_hat) > 0.0)),
                            minlength=touch.size)
-    return commit(handle, work.diag, touch, applied, wrench, last["count"], last["max_depth"], occluded,
-                  resting_g[slot], sand_out)
+    status = commit(handle, work.diag, touch, applied, wrench, last["count"], last["max_depth"], occluded,
+                    resting_g[slot], sand_out)
+    return Outcome(status, newton_iterations=int(its))

@@ -4,10 +4,12 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import numpy as np
 
 from rft_mujoco import tol
+from rft_mujoco.compiled import schema as sc
 from rft_mujoco.coupling import reference
 from rft_mujoco.physics.deform import DeformableSurface
 
@@ -58,6 +60,23 @@ class Diagnostics:
         self.occluded_area[:] = 0.0
 
 
+class SolveCounters(NamedTuple):
+    """How the sand solve went on one MjData since its workspace was made (at its first evaluation, or copied
+    with it): :meth:`rft_mujoco.SandHandle.counters`. The same on every backend.
+
+    Attributes:
+        kept_evaluations: evaluations at RK4 stages 2-4 that kept the first stage's mobility and rest factor.
+        locked_dofs: dofs held by their dry friction (``frictionloss``) in the last evaluation's rest solve.
+        locked_evaluations: evaluations whose rest solve held any dof by its dry friction.
+        newton_iterations: Newton iterations of the last evaluation's implicit solve (``solve="implicit"``).
+    """
+
+    kept_evaluations: int
+    locked_dofs: int
+    locked_evaluations: int
+    newton_iterations: int
+
+
 class _Workspace:
     """Per-MjData state of one handle (datas may be stepped in different threads): the arrays of
     :data:`rft_mujoco.compiled.evaluate.WORK_FIELDS` (the diagnostics are views of them), their tuple for the
@@ -81,14 +100,14 @@ class _Workspace:
                                      handle._cluster_width)
         self.arrays = a
         self.tuple = tuple(a[name] for name, _ in evaluate.WORK_FIELDS)
-        self.md = evaluate.mjdata_arrays(data) if handle._fast is not None else None
+        self.md = evaluate.mjdata_arrays(data) if handle.evaluator.spec is not None else None
         self.diag = Diagnostics(a["force"], a["torque"], a["submerged"], a["max_depth"], a["scale"],
                                 a["rft_force"], a["resting"], a["occluded_area"])
         self.keep = reference.StepKeep()
         self.flowing = None                 # the implicit solve's (touching groups, flowed) of the last evaluation
         self.surface = None
         self.terrain = handle.terrain
-        self.hc = handle._hc                # the compiled evaluation's handle constants (None: numpy)
+        self.hc = handle.evaluator.constants  # the compiled evaluation's handle constants (None: numpy)
         self.press = None                   # the compiled grid update's buffers (a deformable terrain)
         if isinstance(self.terrain, DeformableSurface):
             fresh = self.terrain.initial()
@@ -114,11 +133,26 @@ class _Workspace:
         :data:`rft_mujoco.compiled.evaluate.STATE`."""
         return self.arrays["state"]
 
+    def counters(self) -> SolveCounters:
+        """The solve's counters of this MjData (:class:`SolveCounters`)."""
+        s = self.arrays["state"]
+        return SolveCounters(int(s[sc.S_KEPT_EVALUATIONS]), int(s[sc.S_LOCKED_DOFS]), int(s[sc.S_LOCKED_EVALUATIONS]),
+                             int(s[sc.S_NEWTON_ITERATIONS]))
+
+    def record(self, outcome: reference.Outcome) -> None:
+        """Count what one evaluation of the numpy reference did (the compiled kernels count in ``state``
+        themselves, :data:`rft_mujoco.compiled.schema.STATE`)."""
+        s = self.arrays["state"]
+        s[sc.S_KEPT_EVALUATIONS] += 1.0 if outcome.kept else 0.0
+        s[sc.S_LOCKED_DOFS] = outcome.locked_dofs
+        s[sc.S_LOCKED_EVALUATIONS] += 1.0 if outcome.locked_dofs else 0.0
+        s[sc.S_NEWTON_ITERATIONS] = outcome.newton_iterations
+
     def follow_time(self, t: float, dt: float) -> bool:
         """Record an evaluation at time ``t``; True when time advanced by at most one step since the last
         one (RK4 stages included): only then is MuJoCo's previous constraint solve this motion's."""
         s = self.arrays["state"]
-        continuous = 0.0 <= t - s[0] <= dt * (1.0 + tol.TIME_RTOL)
-        s[0] = t
-        s[3] = float(continuous)
+        continuous = 0.0 <= t - s[sc.S_LAST_TIME] <= dt * (1.0 + tol.TIME_RTOL)
+        s[sc.S_LAST_TIME] = t
+        s[sc.S_LAGGED] = float(continuous)
         return continuous
