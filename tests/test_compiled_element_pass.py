@@ -15,6 +15,8 @@ import rft_mujoco
 from rft_mujoco import compiled
 from rft_mujoco.physics import elements as kernel
 from rft_mujoco.physics import law
+from rft_mujoco.compiled import schema as compiled_schema
+from rft_mujoco.coupling.evaluators import CompiledEvaluator, NumpyEvaluator
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion
 
 from conftest import numpy_rollout
@@ -276,6 +278,12 @@ def test_unsupported_terrain_falls_back_to_numpy():
     model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
     handle = rft_mujoco.SandHandle(model, MEDIA, [1], Bumpy(), 0.01, law.PUBLISHED, True, True,
                                    backend="auto")
+    assert handle.backend == "numpy" and isinstance(handle.evaluator, NumpyEvaluator)
+    assert handle.evaluator.spec is None and handle.evaluator.constants is None
+    handle.terrain = rft_mujoco.FlatSurface(0.0)              # a terrain the kernels know: compiled again
+    assert handle.backend == "numba" and isinstance(handle.evaluator, CompiledEvaluator)
+    assert handle.evaluator.spec is not None and len(handle.evaluator.constants) == len(compiled_schema.HANDLE_FIELDS)
+    handle.terrain = Bumpy()
     assert handle.backend == "numpy"
     with pytest.raises(ValueError, match="numba"):
         rft_mujoco.SandHandle(model, MEDIA, [1], Bumpy(), 0.01, law.PUBLISHED, True, True,
