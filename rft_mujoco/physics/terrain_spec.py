@@ -64,8 +64,9 @@ N_PARAMS = len(PARAMS)
 """Length of ``tp``."""
 
 NO_HEIGHTS = np.zeros((2, 2))
-"""The heights of a terrain without a grid (flat): a (2, 2) array of zeros (the kernels take a 2-D array;
-:func:`terrain_spec` returns a copy)."""
+NO_HEIGHTS.setflags(write=False)
+"""The heights of a terrain without a grid (flat): a (2, 2) array of zeros, read-only (the kernels take a 2-D
+array; :func:`terrain_spec` returns a writeable copy)."""
 
 
 class TerrainSpec(NamedTuple):
