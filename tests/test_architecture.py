@@ -212,3 +212,32 @@ def test_the_named_slots_are_the_schemas():
         code = "\n".join(line for line in path.read_text().splitlines() if "``" not in line)
         found = by_position.findall(code)
         assert not found, f"{path.relative_to(PACKAGE)} indexes {sorted(set(found))} by position"
+
+
+def test_the_terrain_kernels_read_tp_by_name():
+    """The compiled terrain kernels and warp's terrain code address a terrain's parameters by the named slots
+    of :mod:`rft_mujoco.physics.terrain_spec` only (no ``tp[6]``, issue 30): one layout, both backends."""
+    import re
+
+    literal = re.compile(r"\btp\[\s*-?\d")
+    named = re.compile(r"\btp\[ts\.TP_[A-Z0-9_]+\]")
+    files = [("compiled", n) for n in ("terrain", "elements", "element_pass", "deform")] + \
+        [("warp", n) for n in ("law", "book", "handle")]
+    for part, name in files:
+        text = (PACKAGE / part / f"{name}.py").read_text()
+        assert named.search(text), f"{part}/{name}.py reads no named slot (the scan would see nothing)"
+        assert not literal.findall(text), f"{part}/{name}.py indexes tp by position"
+
+
+
+def test_the_cache_key_covers_what_the_kernels_freeze():
+    """Every module with compiled functions, and the modules whose named slots the kernels freeze as constants,
+    are hashed into the machine code cache's key (numba keys a function's cache on its own file only: a slot
+    renumbered in ``physics/terrain_spec.py`` must not reuse machine code compiled with the old numbers)."""
+    from rft_mujoco.compiled import jit
+
+    compiled = {f"compiled/{p.name}" for p in (PACKAGE / "compiled").glob("*.py")
+                if "njit(" in p.read_text() or "cfunc(" in p.read_text()}
+    assert len(compiled) > 10
+    missing = sorted((compiled | {"compiled/schema.py", "physics/terrain_spec.py"}) - set(jit.KERNEL_SOURCES))
+    assert not missing, f"add {missing} to rft_mujoco.compiled.jit.KERNEL_SOURCES"

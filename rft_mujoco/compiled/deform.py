@@ -12,8 +12,8 @@ nodes the last press left it on (``live``: count, then the nodes). :func:`press_
 elements of the touching bodies that the compiled broadphase found (the coupling's
 :func:`rft_mujoco.coupling.deformable.press_touching` in numpy) and presses with them.
 
-``tp`` (:func:`rft_mujoco.compiled.terrain.terrain_spec` of a :class:`~rft_mujoco.DeformableSurface`, 21
-entries) carries the grid and its rules: see :data:`TP`.
+``tp`` (the :class:`~rft_mujoco.physics.terrain_spec.TerrainSpec` of a :class:`~rft_mujoco.DeformableSurface`)
+carries the grid and its rules, read by their named slots (:data:`rft_mujoco.physics.terrain_spec.PARAMS`).
 """
 
 from __future__ import annotations
@@ -23,14 +23,8 @@ import math
 import numpy as np
 
 from rft_mujoco.compiled.jit import JIT, njit
+from rft_mujoco.physics import terrain_spec as ts
 
-TP = ("height", "x_origin", "x_spacing", "y_origin", "y_spacing", "", "", "", "", "", "", "reload_ratio",
-      "reload_sinkage", "reload_decay", "compaction", "berm_cells", "relax_cells", "relax", "slope", "cover_grow",
-      "update_interval")
-"""Entries of a deformable terrain's ``tp``: initial height (m); grid origin and spacing along x and y (m);
-(5-10 unused: the heightfield's); ``reload_ratio``, ``reload_sinkage``, ``reload_decay``, ``compaction``; the berm's
-half-width in nodes (``berm_nodes``'s r), the slope flow's margin in nodes (``relax``'s r); 1 when the slope flow
-is on; ``tan(repose_angle)``; :data:`rft_mujoco.physics.deform.COVER_GROW`; ``update_interval`` (s)."""
 STATS = ("covered", "yielded", "displaced", "deposited", "lost", "settled")
 """Entries of :func:`press`'s ``stats`` (6,): those of :class:`rft_mujoco.physics.deform.PressResult`."""
 
@@ -73,9 +67,9 @@ def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox, top
     whose nodes are all above its lowest point (down) or none of them marked (up) is skipped by the maxima of
     :func:`_tiles` over the tiles its nodes are in: what it would have done is nothing, so the numbers are
     those of testing every node."""
-    sx, sy, ox, oy = tp[2], tp[4], tp[1], tp[3]
+    sx, sy, ox, oy = tp[ts.TP_GRID_DX], tp[ts.TP_GRID_DY], tp[ts.TP_GRID_X0], tp[ts.TP_GRID_Y0]
     smin = min(sx, sy)
-    grow = tp[19] * smin
+    grow = tp[ts.TP_COVER_GROW] * smin
     half_max = 0.0
     xlo = ylo = np.inf
     xhi = yhi = -np.inf
@@ -167,9 +161,9 @@ def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox, top
 
 @njit(**JIT)
 def _berm(tp, nx, ny, nodes, m, bbox, mark, rim):
-    """``berm_nodes``: the nodes (sorted flat indices, into ``rim``) within ``tp[15]`` nodes (Chebyshev) of the
+    """``berm_nodes``: the nodes (sorted flat indices, into ``rim``) within ``berm_cells`` nodes (Chebyshev) of the
     ``m`` covered ``nodes`` (marked 3 in ``mark``) and not covered; returns their number."""
-    r = int(tp[15])
+    r = int(tp[ts.TP_BERM_CELLS])
     i0, i1 = max(bbox[0] - r, 0), min(bbox[1] + r, ny - 1)
     j0, j1 = max(bbox[2] - r, 0), min(bbox[3] + r, nx - 1)
     rows, cols = i1 - i0 + 1, j1 - j0 + 1
@@ -195,12 +189,12 @@ def _berm(tp, nx, ny, nodes, m, bbox, mark, rim):
 
 @njit(**JIT)
 def _relax(tp, nx, ny, h, q, bbox, mark):
-    """``relax``: the slope flow at the nodes within ``tp[16]`` nodes of the covered nodes (marked 3 in ``mark``;
+    """``relax``: the slope flow at the nodes within ``relax_cells`` nodes of the covered nodes (marked 3 in ``mark``;
     they exchange nothing), then ``bury`` of the sand received: the numpy sweeps' numbers in their order of
     operations (each sweep's fluxes from the heights at its start; ``h[1:] -= f``, then ``h[:-1] += f``), row by
     row over each row's free nodes, skipping the rows where nothing can flow: a row none of whose nodes changed
     since the last sweep of the same direction began moves nothing (every pair's flux was, and is, 0)."""
-    r = int(tp[16])
+    r = int(tp[ts.TP_RELAX_CELLS])
     i0, i1 = max(bbox[0] - r, 0), min(bbox[1] + r, ny - 1) + 1
     j0, j1 = max(bbox[2] - r, 0), min(bbox[3] + r, nx - 1) + 1
     rows, cols = i1 - i0, j1 - j0
@@ -226,7 +220,7 @@ def _relax(tp, nx, ny, h, q, bbox, mark):
                 span_lo[i] = min(span_lo[i], j)
                 span_hi[i] = j
     before = w.copy()
-    lim_x, lim_y = tp[18] * tp[2], tp[18] * tp[4]
+    lim_x, lim_y = tp[ts.TP_SLOPE] * tp[ts.TP_GRID_DX], tp[ts.TP_SLOPE] * tp[ts.TP_GRID_DY]
     pair_x = np.zeros((rows, cols))                 # 1 where both nodes of a pair are free (floats: the loops
     pair_y = np.zeros((rows, cols))                 # below then have no branch, and vectorize)
     for i in range(rows):
@@ -305,11 +299,11 @@ def _relax(tp, nx, ny, h, q, bbox, mark):
 def _flow_windows(tp, nx, nodes, m):
     """The slope flow's windows: (g, 4) int, the bounding boxes (rows i0, i1, columns j0, j1) of groups of the
     ``m`` covered ``nodes``, and g. Groups are merged until every two are more than ``2 r + 1`` nodes apart
-    (``r = tp[16]``, the flow's margin), so that no flowing pair joins two of them: the flow of each group's
+    (``r = relax_cells``, the flow's margin), so that no flowing pair joins two of them: the flow of each group's
     window (its box and ``r`` nodes around) is then the flow of the window around all of them, number for
     number (:func:`_relax`), at the cost of the nodes near the bodies instead of the box that holds them all
     (four feet far apart). Starts from the nodes' boxes per tile of ``2 r + 2`` nodes."""
-    r = int(tp[16])
+    r = int(tp[ts.TP_RELAX_CELLS])
     tile = 2 * r + 2
     boxes = np.empty((m, 4), dtype=np.int64)
     g = 0
@@ -395,7 +389,7 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
     if m == 0:
         return np.nan
     stats[0] = m
-    ratio, sink, decay = tp[11], tp[12], tp[13]
+    ratio, sink, decay = tp[ts.TP_RELOAD_RATIO], tp[ts.TP_RELOAD_SINKAGE], tp[ts.TP_RELOAD_DECAY]
     n_yield = n_settle = 0
     displaced = 0.0
     for t in range(m):
@@ -427,10 +421,10 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
     stats[5] = n_settle
     if n_yield + n_settle == 0:
         return np.nan
-    cell_area = tp[2] * tp[4]
+    cell_area = tp[ts.TP_GRID_DX] * tp[ts.TP_GRID_DY]
     displaced *= cell_area
     stats[2] = displaced
-    volume = (1.0 - tp[14]) * displaced
+    volume = (1.0 - tp[ts.TP_COMPACTION]) * displaced
     for t in range(m):
         mark[nodes[t]] = 3
     nr = _berm(tp, nx, ny, nodes, m, kept, mark, rim)
@@ -449,7 +443,7 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
             h[node] += add
             q[node] = max(q[node] - add, 0.0)
         stats[3] = volume
-        if tp[17] != 0.0:
+        if tp[ts.TP_RELAX] != 0.0:
             boxes, g = _flow_windows(tp, nx, nodes, m)
             for b in range(g):
                 _relax(tp, nx, ny, h, q, boxes[b], mark)
@@ -457,13 +451,13 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
         mark[nodes[t]] = 0
     # the highest point now (DeformedSurface.max_height): every node that changed is within the slope flow's
     # window; when a node there reaches the highest point before, it is the highest now, else look everywhere
-    r = int(tp[16])
-    top = tp[0]
+    r = int(tp[ts.TP_RELAX_CELLS])
+    top = tp[ts.TP_HEIGHT]
     for i in range(max(kept[0] - r, 0), min(kept[1] + r, ny - 1) + 1):
         for j in range(max(kept[2] - r, 0), min(kept[3] + r, nx - 1) + 1):
             top = max(top, h[i * nx + j])
     if not top >= highest:
-        top = tp[0]
+        top = tp[ts.TP_HEIGHT]
         for node in range(size):
             top = max(top, h[node])
     return top
@@ -482,7 +476,7 @@ def press_touching(tp, grid, cycles, reach, live, clock, time, dt, slack, k, tou
     elements (padding slots are NaN: never below); ``max_height``: the surface's highest point now (m). ``pts``,
     ``nrm`` (E, 3), ``ar`` (E,): gather buffers; the rest as :func:`press`. Returns what :func:`press` returns
     (NaN, the heights unchanged, when no update is due)."""
-    since_touch, interval = time - clock[1], tp[20]
+    since_touch, interval = time - clock[1], tp[ts.TP_UPDATE_INTERVAL]
     clock[1] = time
     if not (0.0 <= since_touch <= dt * slack):
         for t in range(int(live[0])):

@@ -30,6 +30,7 @@ from rft_mujoco.compiled.jit import INLINE, JIT_LAW, njit
 from rft_mujoco.compiled.law import _coef, _stress
 from rft_mujoco.compiled.terrain import ABOVE, DEFORMABLE, FLAT, _depth, deformed_range
 from rft_mujoco.geometry.occlusion import Occluders
+from rft_mujoco.physics import terrain_spec as ts
 
 # Scratch rows: per element of the cluster (depth, loaded flag), then per packed (loaded) element: lever
 # arm in the body frame, normal, depth, area, force, torque. Index rows: submerged, loaded elements.
@@ -96,9 +97,9 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
     zs2, lt2 = zero_speed * zero_speed, lead_tol * lead_tol
-    flat = kind == FLAT and tp[6] == 0.0
+    flat = kind == FLAT and tp[ts.TP_REGION] == 0.0
     deformed = kind == DEFORMABLE and g2 < 0.0
-    h0 = tp[0]
+    h0 = tp[ts.TP_HEIGHT]
     lanes = np.empty(LANES)
     dep, keep = scratch[_DEPTH], scratch[_KEEP]
     sub, load = index[0], index[1]
@@ -280,12 +281,13 @@ class ElementPass:
     def __init__(self, local_centroids, local_normals, areas, elem_body, n_bodies, terrain, g_hat, gravity,
                  media, guards):
         from rft_mujoco.compiled.law import tolerances
-        from rft_mujoco.compiled.terrain import check_gravity, terrain_spec
+        from rft_mujoco.compiled.terrain import check_gravity
         from rft_mujoco.physics import law
 
-        spec = terrain_spec(terrain)
+        spec = ts.terrain_spec(terrain)
         if spec is None:
-            raise ValueError(f"the compiled element pass supports FlatSurface, HeightfieldSurface and SandRegion, "
+            raise ValueError(f"the compiled element pass supports the terrains with a kernel form (FlatSurface, "
+                             f"HeightfieldSurface, SandRegion, DeformableSurface), "
                              f"got {type(terrain).__name__}; use rft_mujoco.physics.elements.body_wrenches")
         self.g_hat = np.ascontiguousarray(g_hat, dtype=float)
         check_gravity(terrain, spec, self.g_hat)

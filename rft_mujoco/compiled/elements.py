@@ -23,6 +23,7 @@ import numpy as np
 from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
 from rft_mujoco.compiled.terrain import ABOVE, DEFORMABLE, FLAT, _depth, deformed_range
 from rft_mujoco.geometry import occlusion
+from rft_mujoco.physics import terrain_spec as ts
 
 CLUSTER_SIZE = 128
 """Most elements per cluster (the unit of culling and of the vectorized inner loops)."""
@@ -201,7 +202,7 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
     and ``omega``. Returns their number, or -1 when some body is a candidate and qpos/qvel are not finite.
     """
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
-    flat = kind == FLAT and tp[6] == 0.0
+    flat = kind == FLAT and tp[ts.TP_REGION] == 0.0
     deformed = kind == DEFORMABLE and g2 < 0.0
     n_touch = 0
     checked = False
@@ -225,7 +226,7 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
         gb0 = r[0] * g0 + r[3] * g1 + r[6] * g2           # as rft_mujoco.compiled.element_pass.wrenches
         gb1 = r[1] * g0 + r[4] * g1 + r[7] * g2
         gb2 = r[2] * g0 + r[5] * g1 + r[8] * g2
-        c0 = tp[0] + (px * g0 + py * g1 + pz * g2)
+        c0 = tp[ts.TP_HEIGHT] + (px * g0 + py * g1 + pz * g2)
         hit = False
         for q in range(body_clusters[i], body_clusters[i + 1]):
             q0, q1, q2 = cluster_center[q, 0], cluster_center[q, 1], cluster_center[q, 2]
@@ -242,7 +243,7 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
                     hit = True                            # wholly below it
                     break
             if flat:
-                if tp[0] - (low + 2.0 * cluster_radius[q]) > 0.0:     # wholly below flat sand
+                if tp[ts.TP_HEIGHT] - (low + 2.0 * cluster_radius[q]) > 0.0:     # wholly below flat sand
                     hit = True
                     break
                 under = 0

@@ -140,8 +140,10 @@ KERNEL_SOURCES = ("compiled/jit.py", "compiled/terrain.py", "compiled/law.py", "
                   "compiled/element_pass.py", "compiled/rest.py", "compiled/locks.py", "compiled/evaluate.py",
                   "compiled/table.py", "compiled/route.py", "compiled/native.py", "compiled/implicit_law.py",
                   "compiled/implicit.py", "compiled/system.py", "compiled/implicit_eval.py", "compiled/deform.py",
-                  "physics/rest.py", "tol.py")
-"""Every source file (relative to the package) whose code ends up in compiled machine code."""
+                  "compiled/share.py", "compiled/implicit_route.py", "compiled/deform_route.py", "compiled/schema.py",
+                  "physics/terrain_spec.py", "physics/rest.py", "tol.py")
+"""Every source file (relative to the package) whose code or constants end up in compiled machine code (the
+named slots of ``compiled/schema.py`` and ``physics/terrain_spec.py`` are frozen into it)."""
 
 
 def cache_key() -> str:

@@ -10,7 +10,7 @@ after a step with no body touching, the next press first unloads every node
 
 Both backends run it. numpy: :func:`press_touching` (the reference). Compiled (``backend="auto"`` or
 ``"numba"``): the kernels read this MjData's grid (the workspace's own handle constants, ``work.hc``: the
-terrain kind :data:`rft_mujoco.compiled.terrain.DEFORMABLE`, heights and preload of this data), and the
+terrain kind :data:`rft_mujoco.physics.terrain_spec.DEFORMABLE`, heights and preload of this data), and the
 compiled mirror of the press (:mod:`rft_mujoco.compiled.deform`) runs after each evaluation: on the native
 route through :func:`rft_mujoco.compiled.deform_route.press_phase`, on the dispatcher's Python path (an
 observer, the first evaluation) through :func:`press_compiled` (docs/deformable.md "Backends").

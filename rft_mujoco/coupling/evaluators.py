@@ -21,6 +21,7 @@ import numpy as np
 
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.coupling import checks, deformable, implicit, reference
+from rft_mujoco.physics.terrain_spec import TerrainSpec
 
 
 class NumpyEvaluator:
@@ -73,15 +74,15 @@ class CompiledEvaluator:
 
     Attributes:
         backend: ``"numba"``.
-        spec: the terrain's kernel spec ``(kind, params, heights)`` (:func:`rft_mujoco.compiled.terrain.
-            terrain_spec`).
+        spec: the terrain's kernel spec, a :class:`~rft_mujoco.physics.terrain_spec.TerrainSpec` ``(kind, params,
+            heights)`` (:func:`rft_mujoco.physics.terrain_spec.terrain_spec`).
         constants: the handle constants ``hc`` (:data:`rft_mujoco.compiled.schema.HANDLE_FIELDS`), shared by every
             MjData but one on a deformable terrain (each has its own heights: the workspace's ``hc``).
     """
 
     backend = "numba"
 
-    def __init__(self, spec: tuple, constants: tuple) -> None:
+    def __init__(self, spec: TerrainSpec, constants: tuple) -> None:
         self.spec = spec
         self.constants = constants
 

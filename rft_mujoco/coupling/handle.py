@@ -46,6 +46,7 @@ from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
 from rft_mujoco.physics.media import Media, f_hat, get_media
 from rft_mujoco.physics.deform import DeformedSurface
 from rft_mujoco.physics.terrain import Terrain
+from rft_mujoco.physics.terrain_spec import terrain_spec
 
 BACKENDS = ("auto", "numba", "numpy")
 """Backends of :func:`attach`: numba-compiled (:mod:`rft_mujoco.compiled`) or numpy (the readable reference,
@@ -151,7 +152,7 @@ class SandHandle:
         media = self._media
         every = self.monitor.every if self.monitor is not None else 0
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
-                              spec[0], self.stabilize, self.passive, self._occluders.margin, every,
+                              spec.kind, self.stabilize, self.passive, self._occluders.margin, every,
                               self.rk4_stages == "first", out=self._params)   # read live by the native route
         for work in self._work.values():
             if work.press is not None:                   # a deformable surface's own copy, its own highest point
@@ -299,15 +300,14 @@ class SandHandle:
         request = self._backend_request
         spec = None
         if AVAILABLE and request != "numpy":
-            from rft_mujoco.compiled.terrain import terrain_spec
             spec = terrain_spec(terrain)
         if request == "numba" and not AVAILABLE:
             raise ValueError(f"backend='numba' needs numba, which failed to import ({IMPORT_ERROR}); "
                              "use backend='auto' or 'numpy'")
         if request == "numba" and spec is None:
             raise ValueError("backend='numba' supports FlatSurface, HeightfieldSurface, SandRegion and "
-                             f"DeformableSurface terrains, got {type(terrain).__name__}; use backend='auto' (numpy for this "
-                             "terrain) or 'numpy'")
+                             f"DeformableSurface terrains (those with a kernel_spec), got {type(terrain).__name__}; use "
+                             "backend='auto' (numpy for this terrain) or 'numpy'")
         self._evaluator = NumpyEvaluator()
         if spec is not None and self._compiled_ok(request):
             self._evaluator = CompiledEvaluator(spec, self._handle_constants(spec))

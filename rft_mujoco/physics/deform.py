@@ -74,6 +74,7 @@ import math
 import numpy as np
 
 from rft_mujoco import tol
+from rft_mujoco.physics import terrain_spec as ts
 
 FACING_DOWN = 1e-6
 """An element presses the sand below it when its world normal has ``n_z < -FACING_DOWN``."""
@@ -190,6 +191,21 @@ class DeformableSurface:
         """(n,) m, depth of ``points`` (n, 3) below the *initial* surface (checks at attach use it)."""
         _check_gravity(g_hat)
         return self.height - np.asarray(points, float)[:, 2]
+
+    def kernel_spec(self) -> ts.TerrainSpec:
+        """Kind DEFORMABLE: the grid and its rules in ``tp`` (:data:`rft_mujoco.physics.terrain_spec.PARAMS`); the
+        initial state (2 ny, nx): heights (m) over a zero preload (m), as each MjData's kernel array holds them."""
+        berm, relax = max(1, int(math.floor(self.berm_width / min(self.spacing) + tol.ROUND_RTOL))), self.repose_angle
+        tp = ts.new_params(height=self.height, max_height=self.height, grid_x0=self.origin[0],
+                           grid_dx=self.spacing[0], grid_y0=self.origin[1], grid_dy=self.spacing[1],
+                           reload_ratio=self.reload_ratio, reload_sinkage=self.reload_sinkage,
+                           reload_decay=self.reload_decay, compaction=self.compaction, berm_cells=berm,
+                           relax_cells=berm + 2, relax=relax is not None, cover_grow=COVER_GROW,
+                           slope=0.0 if relax is None else math.tan(math.radians(relax)),
+                           update_interval=self.update_interval)
+        heights = np.zeros((2 * self.shape[0], self.shape[1]))
+        heights[:self.shape[0]] = self.height
+        return ts.TerrainSpec(ts.DEFORMABLE, tp, heights)
 
     def initial(self) -> "DeformedSurface":
         """A fresh, undeformed surface state of this grid."""

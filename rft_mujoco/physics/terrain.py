@@ -6,8 +6,9 @@ xy-plane and need gravity along -z.
 
 Every terrain is a frozen dataclass with
 ``depth(points_world (n, 3) float, g_hat (3,) float) -> (n,) float`` in m (> 0 below the surface,
-``-inf`` where there is no sand), and ``max_height`` (m, an upper bound of the surface height used by the
-broadphase).
+``-inf`` where there is no sand), ``max_height`` (m, an upper bound of the surface height used by the
+broadphase) and ``kernel_spec()``, its form for the compiled and warp kernels: they satisfy the
+:class:`Terrain` protocol (:mod:`rft_mujoco.physics.terrain_spec`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ import math
 import numpy as np
 
 from rft_mujoco import tol
+from rft_mujoco.physics import terrain_spec as ts
+from rft_mujoco.physics.terrain_spec import Terrain, TerrainSpec
 
 NO_SAND = -np.inf
 """Depth returned where there is no sand (outside a bounded region)."""
@@ -45,6 +48,10 @@ class FlatSurface:
 
     def depth(self, points: np.ndarray, g_hat: np.ndarray) -> np.ndarray:
         return self.height + points @ g_hat
+
+    def kernel_spec(self) -> TerrainSpec:
+        """Kind FLAT; ``height`` and ``max_height`` the surface's height."""
+        return TerrainSpec(ts.FLAT, ts.new_params(height=self.height, max_height=self.height), ts.NO_HEIGHTS)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -127,6 +134,13 @@ class HeightfieldSurface:
         d = z - points[:, 2]
         return np.where(np.isnan(d), NO_SAND, d)
 
+    def kernel_spec(self) -> TerrainSpec:
+        """Kind HEIGHTFIELD: the grid's ranges and ``outside`` in ``tp``, the heights (m) as they are."""
+        tp = ts.new_params(max_height=self.max_height, hf_x0=self.x_range[0], hf_x1=self.x_range[1],
+                           hf_y0=self.y_range[0], hf_y1=self.y_range[1],
+                           hf_outside_none=1.0 if self.outside == "none" else 0.0)
+        return TerrainSpec(ts.HEIGHTFIELD, tp, self.heights)
+
 
 @dataclasses.dataclass(frozen=True)
 class SandRegion:
@@ -158,17 +172,27 @@ class SandRegion:
                   & (points[:, 1] >= self.y_range[0]) & (points[:, 1] <= self.y_range[1]))
         return np.where(inside, d, NO_SAND)
 
-
-Terrain = FlatSurface | HeightfieldSurface | SandRegion
+    def kernel_spec(self) -> TerrainSpec | None:
+        """The inner surface's spec with the ``region`` slots set (None when the kernels do not know the
+        inner surface as a region's: a deformable surface, a region)."""
+        inner = ts.terrain_spec(self.surface)
+        if inner is None or inner.kind == ts.DEFORMABLE or inner.params[ts.TP_REGION] != 0.0:
+            return None                      # (a region of a region: not a kernel form)
+        tp = inner.params.copy()
+        tp[ts.TP_REGION] = 1.0
+        tp[[ts.TP_REGION_X0, ts.TP_REGION_X1, ts.TP_REGION_Y0, ts.TP_REGION_Y1]] = (*self.x_range, *self.y_range)
+        return TerrainSpec(inner.kind, tp, inner.heights)
 
 
 def as_terrain(surface) -> Terrain:
-    """A terrain from a height in m (flat) or a terrain object."""
-    if isinstance(surface, (FlatSurface, HeightfieldSurface, SandRegion)):
+    """A terrain from a height in m (flat) or a terrain object (a :class:`Terrain`, or any object with
+    ``depth(points, g_hat)`` and ``max_height``: without a ``kernel_spec`` the coupling evaluates it in numpy)."""
+    if isinstance(surface, Terrain):
         return surface
     if isinstance(surface, (int, float, np.floating, np.integer)):
         return FlatSurface(float(surface))
     if callable(getattr(surface, "depth", None)) and hasattr(surface, "max_height"):
         return surface                       # a user's terrain (``depth(points, g_hat)``, ``max_height``): numpy backend
-    raise ValueError(f"surface must be a height in m, a FlatSurface / HeightfieldSurface / SandRegion, or an object "
+    raise ValueError(f"surface must be a height in m, a FlatSurface / HeightfieldSurface / SandRegion / "
+                     f"DeformableSurface, or an object "
                      f"with depth(points, g_hat) and max_height, got {type(surface).__name__}")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from rft_mujoco.physics import terrain_spec as ts
 from rft_mujoco.warp.common import F64, FLAT, gravity_of
 
 
@@ -41,7 +42,7 @@ def user_part(body_id: wp.array(dtype=int), xfrc: wp.array2d(dtype=wp.spatial_ve
     bid = body_id[b]
     center = xpos[w, bid] + xmat[w, bid] * bound_center[b]
     g, _mag = gravity_of(gravity, w)
-    top = tp[0]                                   # heightfield: its highest point
+    top = tp[ts.TP_MAX_HEIGHT]                    # the terrain's highest point at attach
     if kind == FLAT:
         top = flat_height[w % flat_height.shape[0]]
     cand[w, b] = 0

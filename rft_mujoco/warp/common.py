@@ -9,7 +9,7 @@ from __future__ import annotations
 import warp as wp
 
 from rft_mujoco import tol
-from rft_mujoco.physics import law, rest
+from rft_mujoco.physics import law, rest, terrain_spec
 
 F64 = wp.float64
 
@@ -24,8 +24,9 @@ TIME_RTOL = wp.constant(F64(tol.TIME_RTOL))
 TIME_F32_RTOL = wp.constant(F64(4.0e-7))
 """MuJoCo Warp keeps ``time`` in float32: "advanced by at most one step" also allows 4e-7 |t| (about 3 ulp)."""
 
-FLAT = wp.constant(0)
-HEIGHTFIELD = wp.constant(1)
+FLAT = wp.constant(terrain_spec.FLAT)
+"""Terrain kinds: :class:`rft_mujoco.physics.terrain_spec.TerrainKind`'s (the kinds warp evaluates)."""
+HEIGHTFIELD = wp.constant(terrain_spec.HEIGHTFIELD)
 
 NOT_FINITE = wp.constant(1)
 """Bit of ``errors``: a sand wrench came out non-finite; that world got no sand in that evaluation."""

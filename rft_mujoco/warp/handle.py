@@ -42,7 +42,8 @@ from rft_mujoco import tol
 from rft_mujoco.physics import law
 from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
 from rft_mujoco.physics.media import Media, get_media
-from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion, Terrain, as_terrain
+from rft_mujoco.physics import terrain_spec as ts
+from rft_mujoco.physics.terrain import Terrain, as_terrain
 from rft_mujoco.warp import kernels as K
 from rft_mujoco.warp import layout as _layout
 from rft_mujoco.warp import occlusion as _occlusion
@@ -126,21 +127,16 @@ class _State:
 
 
 def _terrain_spec(terrain: Terrain) -> tuple[int, np.ndarray, np.ndarray, float]:
-    """(kind, params (11,), heights (nrow, ncol), flat height m) for :func:`rft_mujoco.warp.kernels.depth`."""
-    tp = np.zeros(11, dtype=np.float32)
-    inner = terrain
-    if isinstance(terrain, SandRegion):
-        tp[6] = 1.0
-        tp[7:11] = (*terrain.x_range, *terrain.y_range)
-        inner = terrain.surface
-    if isinstance(inner, FlatSurface):
-        return int(K.FLAT), tp, np.zeros((2, 2), dtype=np.float32), float(inner.height)
-    if isinstance(inner, HeightfieldSurface):
-        tp[0] = inner.max_height
-        tp[1:5] = (*inner.x_range, *inner.y_range)
-        tp[5] = 1.0 if inner.outside == "none" else 0.0
-        return int(K.HEIGHTFIELD), tp, np.ascontiguousarray(inner.heights, dtype=np.float32), 0.0
-    raise ValueError(f"terrain must be a FlatSurface, HeightfieldSurface or SandRegion, got {type(terrain).__name__}")
+    """(kind, tp (N_PARAMS,) float32, heights float32, flat height m) for :func:`rft_mujoco.warp.law.depth`: the
+    shared :func:`rft_mujoco.physics.terrain_spec.terrain_spec` in float32 (the flat height also returned apart:
+    warp keeps it per world); the kinds warp evaluates are FLAT and HEIGHTFIELD."""
+    spec = ts.terrain_spec(terrain)
+    if spec is None or spec.kind not in (ts.FLAT, ts.HEIGHTFIELD):
+        raise ValueError(f"terrain must be a FlatSurface, HeightfieldSurface or SandRegion (of either), got "
+                         f"{type(terrain).__name__}")
+    flat_height = float(spec.params[ts.TP_HEIGHT]) if spec.kind == ts.FLAT else 0.0
+    return (spec.kind, spec.params.astype(np.float32), np.ascontiguousarray(spec.heights, dtype=np.float32),
+            flat_height)
 
 
 def _media_list(media, n: int) -> list[Media]:
@@ -206,7 +202,7 @@ class WarpSandHandle:
         kind, tp, heights, h0 = _terrain_spec(terrain)
         self._kind, self._flat_height0 = kind, h0
         g_hat, _ = gravity_direction(mj_model.opt.gravity)
-        if (kind != int(K.FLAT) or tp[6] != 0.0) and g_hat[2] > -1.0 + tol.VERTICAL_GRAVITY_TOL:
+        if (kind != ts.FLAT or tp[ts.TP_REGION] != 0.0) and g_hat[2] > -1.0 + tol.VERTICAL_GRAVITY_TOL:
             raise ValueError(f"a {type(terrain).__name__} needs gravity along -z (heights are world z), got "
                              f"gravity direction {np.round(g_hat, 6).tolist()}; use a FlatSurface")
         dev = self.device
@@ -270,7 +266,7 @@ class WarpSandHandle:
 
     def set_surface_height(self, data, height, worlds=None) -> None:
         """Flat free-surface height(s) in m (scalar or one per selected world) for a flat terrain."""
-        if self._kind != int(K.FLAT):
+        if self._kind != ts.FLAT:
             raise ValueError("set_surface_height needs a flat terrain (FlatSurface or a SandRegion of one); this "
                              f"handle's terrain is {type(self.terrain).__name__}")
         st = self.bind(data)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from rft_mujoco.physics import terrain_spec as ts
 from rft_mujoco.warp.common import FLAT, LEADING_TOL, VERTICAL_TOL
 
 
@@ -65,23 +66,24 @@ def depth(p: wp.vec3, g: wp.vec3, w: int, kind: int, flat_height: wp.array(dtype
           tp: wp.array(dtype=float), heights: wp.array2d(dtype=float)):
     """Depth (m) of world point ``p`` below the free surface of world ``w`` (-inf where there is no sand).
 
-    ``tp``: [heightfield max height, x0, x1, y0, y1, outside_none, is_region, rx0, rx1, ry0, ry1] (the
-    layout of the compiled CPU kernel's terrain_spec, whose flat height moved to ``flat_height``, (1 or
-    nworld,) m).
+    ``tp``: the shared :func:`rft_mujoco.physics.terrain_spec.terrain_spec`'s parameters in float32, read by their
+    named slots (:data:`rft_mujoco.physics.terrain_spec.PARAMS`); a flat surface's height is read from
+    ``flat_height`` ((1 or nworld,) m: per world) instead of its ``height`` slot.
     """
-    if tp[6] != 0.0:
-        if not (p[0] >= tp[7] and p[0] <= tp[8] and p[1] >= tp[9] and p[1] <= tp[10]):
+    if tp[ts.TP_REGION] != 0.0:
+        if not (p[0] >= tp[ts.TP_REGION_X0] and p[0] <= tp[ts.TP_REGION_X1] and p[1] >= tp[ts.TP_REGION_Y0]
+                and p[1] <= tp[ts.TP_REGION_Y1]):
             return -wp.inf
     if kind == FLAT:
         return flat_height[w % flat_height.shape[0]] + wp.dot(p, g)
     nrow = heights.shape[0]
     ncol = heights.shape[1]
-    u = (p[0] - tp[1]) / (tp[2] - tp[1]) * float(ncol - 1)
-    v = (p[1] - tp[3]) / (tp[4] - tp[3]) * float(nrow - 1)
+    u = (p[0] - tp[ts.TP_HF_X0]) / (tp[ts.TP_HF_X1] - tp[ts.TP_HF_X0]) * float(ncol - 1)
+    v = (p[1] - tp[ts.TP_HF_Y0]) / (tp[ts.TP_HF_Y1] - tp[ts.TP_HF_Y0]) * float(nrow - 1)
     if not (wp.isfinite(u) and wp.isfinite(v)):
         return -wp.inf
     inside = u >= 0.0 and u <= float(ncol - 1) and v >= 0.0 and v <= float(nrow - 1)
-    if tp[5] != 0.0 and not inside:
+    if tp[ts.TP_HF_OUTSIDE_NONE] != 0.0 and not inside:
         return -wp.inf
     u = wp.clamp(u, 0.0, float(ncol - 1))
     v = wp.clamp(v, 0.0, float(nrow - 1))
