@@ -22,7 +22,6 @@ import numpy as np
 
 from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
 from rft_mujoco.compiled.terrain import ABOVE, DEFORMABLE, FLAT, _depth, deformed_range
-from rft_mujoco.geometry import occlusion
 from rft_mujoco.physics import terrain_spec as ts
 
 CLUSTER_SIZE = 128
