@@ -387,6 +387,7 @@ def test_a_handle_kept_after_its_model_was_collected_says_so():
     del model
     gc.collect()
     assert not handle.attached and rft_mujoco.attached_handles() == ()
+    assert handle.evaluator.constants is None              # no views of the collected model's memory kept
     with pytest.raises(ReferenceError, match="garbage collected.*Keep a reference to the model"):
         handle.model
     handle.detach()                                         # nothing left to detach

@@ -210,7 +210,7 @@ class SandHandle:
             DISPATCHER.unregister(self)
             self._replaced.clear()
             self._work.clear()
-            self._hc = None
+            self._evaluator.constants = None           # (the compiled evaluator's views of the model's arrays)
             self._opt_gravity = None
             self.attached = False
 
