@@ -201,6 +201,11 @@ def test_the_named_slots_are_the_schemas():
     for name in ("evaluate", "implicit_eval", "share", "route", "deform_route", "implicit_route"):
         text = (PACKAGE / "compiled" / f"{name}.py").read_text()
         assert not literal.findall(text), f"compiled/{name}.py indexes hc, ws or md by position"
+    from rft_mujoco.compiled import rest, route, share       # the kernels' ints are the IntEnums' values
+    assert (route.DONE, route.ACTUATE, route.CONTINUE, route.PYTHON, route.MONITOR) == tuple(schema.Phase)
+    assert (share.NOT_FINITE, share.BAD_ACCELERATION, share.NOT_FINITE_STATE) == (
+        schema.Status.NOT_FINITE, schema.Status.BAD_ACCELERATION, schema.Status.NOT_FINITE_STATE)
+    assert (rest.KEPT_GROUPS, rest.KEPT_RANK) == (schema.STATE.index("kept_groups"), schema.STATE.index("kept_rank"))
     # the route table's header, the native registry, the book's and the workspace's state, the implicit
     # settings: by name in the code (their docstrings may still say ``t[T_BOOK]``)
     by_position = re.compile(r"^(?!\s*#).*\b(t|reg|st|state)\[\d+\]", re.MULTILINE)

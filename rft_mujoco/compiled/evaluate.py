@@ -34,7 +34,7 @@ from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled.locks import lock_matrices, locked_rest, stuck_dofs
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.schema import HANDLE_FIELDS, MJDATA_FIELDS, PARAMS, STATE, WORK_FIELDS  # noqa: F401
-from rft_mujoco.compiled.rest import KEPT_GROUPS, KEPT_RANK, _chain_dof, add_user_wrenches, rest_wrenches, solve_m
+from rft_mujoco.compiled.rest import _chain_dof, add_user_wrenches, rest_wrenches, solve_m
 from rft_mujoco.compiled.share import (BAD_ACCELERATION, NOT_FINITE, NOT_FINITE_STATE,  # noqa: F401
                                        _clear, _share_and_commit, touching_groups)
 
@@ -46,9 +46,6 @@ FRICTION_FIELDS = (("efc_type", "i4"), ("efc_id", "i4"), ("efc_D", "f8"), ("efc_
 """(name, dtype) of the ``fr`` tuple: MjData's constraint rows of this step (they move with ``nefc``, so
 the Python path reads them at every call and the native route from ``mjData``'s pointers) and its
 ``qacc`` (the last solve's accelerations)."""
-
-assert STATE.index("kept_groups") == KEPT_GROUPS and STATE.index("kept_rank") == KEPT_RANK
-
 
 
 def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
@@ -69,7 +66,7 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
     out["scale"][:] = 1.0
-    out["state"][[0, 1, KEPT_RANK]] = (-math.inf, 1.0, -1.0)
+    out["state"][[sc.S_LAST_TIME, sc.S_CLEAN, sc.S_KEPT_RANK]] = (-math.inf, 1.0, -1.0)
     return out
 
 
@@ -96,8 +93,8 @@ def broadphase(md, hc, ws, time, dt):
     state = ws[sc.W_STATE]
     state[sc.S_EVALUATIONS] += 1.0
     if state[sc.S_RK4_STAGE] < 2.0:                    # not a later RK4 stage: nothing kept from an earlier evaluation
-        state[KEPT_GROUPS] = 0.0
-        state[KEPT_RANK] = -1.0
+        state[sc.S_KEPT_GROUPS] = 0.0
+        state[sc.S_KEPT_RANK] = -1.0
     step = time - state[sc.S_LAST_TIME]
     state[sc.S_LAGGED] = 1.0 if 0.0 <= step <= dt * _TIME_SLACK else 0.0         # coupling._Workspace.follow_time
     state[sc.S_LAST_TIME] = time
@@ -309,14 +306,14 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
                         body_dofadr, body_parentid, dof_parentid, lock_i, lock_f, ws[sc.W_GROUP_TREE])
     state = ws[sc.W_STATE]
     keep_active, keep_rest = ws[sc.W_KEEP_ACTIVE], ws[sc.W_KEEP_REST]
-    frozen = state[sc.S_RK4_STAGE] >= 2.0 and state[KEPT_GROUPS] == ng and nl == 0
+    frozen = state[sc.S_RK4_STAGE] >= 2.0 and state[sc.S_KEPT_GROUPS] == ng and nl == 0
     for r in range(ng):
         frozen = frozen and keep_active[r] == active[r]
     if frozen:
         state[sc.S_KEPT_EVALUATIONS] += 1.0
     else:
-        state[KEPT_GROUPS] = ng if state[sc.S_RK4_STAGE] >= 1.0 and nl == 0 else 0.0
-        state[KEPT_RANK] = -1.0
+        state[sc.S_KEPT_GROUPS] = ng if state[sc.S_RK4_STAGE] >= 1.0 and nl == 0 else 0.0
+        state[sc.S_KEPT_RANK] = -1.0
         for r in range(ng):
             keep_active[r] = active[r]
     _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum, body_dofadr,

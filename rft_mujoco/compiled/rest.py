@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from rft_mujoco.physics import rest as _rest
+from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.jit import JIT, njit
 
 @njit(**JIT)
@@ -116,8 +117,8 @@ def add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dof
             out[i] += s
 
 
-KEPT_GROUPS, KEPT_RANK = 6, 7
-"""Entries of the evaluation's ``state`` (:data:`rft_mujoco.compiled.evaluate.STATE`) that the rest solve
+KEPT_GROUPS, KEPT_RANK = sc.S_KEPT_GROUPS, sc.S_KEPT_RANK
+"""Entries of the evaluation's ``state`` (:data:`rft_mujoco.compiled.schema.STATE`) that the rest solve
 reads and writes: the groups whose mobility is kept for this RK4 step (0: none), the kept factor's rank."""
 
 pivoted_factor = njit(**JIT)(_rest.pivoted_factor)

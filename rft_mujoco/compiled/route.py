@@ -33,10 +33,9 @@ from rft_mujoco.compiled.jit import AVAILABLE, INLINE, JIT, carray, cfunc, njit,
 from rft_mujoco.compiled.table import SLOT
 from rft_mujoco.compiled import schema as sc
 
-DONE, ACTUATE, CONTINUE, PYTHON, MONITOR = 0, 1, 2, 3, 4
-"""Phase results: committed and finished; touching, run mj_fwdActuation then phase 2; touching, phase 2
-without actuation (no stabilized handle touches); nothing committed, run the Python path; committed, run
-the due monitor checks in Python."""
+DONE, ACTUATE, CONTINUE, PYTHON, MONITOR = (int(sc.Phase.DONE), int(sc.Phase.ACTUATE), int(sc.Phase.CONTINUE),
+                                            int(sc.Phase.PYTHON), int(sc.Phase.MONITOR))
+"""Phase results (:class:`rft_mujoco.compiled.schema.Phase`) as the kernels' ints."""
 BOOK_FIELDS = (("xfrc", "f2"), ("written", "f2"), ("added", "f2"), ("rows", "i1"), ("user", "f2"),
                ("sand", "f2"), ("state", "f1"), ("snapshot", "f1"), ("gravity", "f1"), ("geom_size", "f2"))
 """The dispatcher's per-MjData book (:class:`rft_mujoco.coupling.dispatch._DataBook`); ``state`` =
@@ -463,7 +462,8 @@ def warm_up(model, data) -> None:
     """Compile both phases (a route over no handle)."""
     nbody = model.nbody
     book = dict(xfrc=np.zeros((nbody, 6)), written=np.zeros((nbody, 6)), added=np.zeros((nbody, 6)),
-                rows=np.zeros(0, np.int64), user=np.zeros((nbody, 6)), sand=np.zeros((nbody, 6)), state=np.zeros(len(sc.BOOK_STATE)),
+                rows=np.zeros(0, np.int64), user=np.zeros((nbody, 6)), sand=np.zeros((nbody, 6)),
+                state=np.zeros(len(sc.BOOK_STATE)),
                 snapshot=snapshot(model), gravity=model.opt.gravity, geom_size=model.geom_size)
     route = Route(book, ev.mjdata_arrays(data), [], data)
     route.phase1(route.address, 0.0, 0.001)

@@ -10,6 +10,41 @@ slot. The kernels use them as ``sc.H_TP`` (``from rft_mujoco.compiled import sch
 
 from __future__ import annotations
 
+import enum
+
+
+class Status(enum.IntEnum):
+    """What an evaluation returns (:func:`rft_mujoco.compiled.evaluate.evaluate`, the implicit solve's, the
+    broadphase's NOT_FINITE_STATE); the kernels use the plain ints of :mod:`rft_mujoco.compiled.share` (numba
+    types an IntEnum member as a type of its own)."""
+
+    NO_WRENCH = 0
+    """Every wrench is zero."""
+    WRENCH = 1
+    """A non-zero wrench was added into the caller's sum."""
+    NOT_FINITE = -1
+    """A wrench came out non-finite; nothing was written."""
+    BAD_ACCELERATION = -2
+    """The acceleration without sand is not finite (NaN/inf inputs); nothing was written."""
+    NOT_FINITE_STATE = -3
+    """qpos/qvel are not finite while a body is a candidate (the simulation diverged)."""
+
+
+class Phase(enum.IntEnum):
+    """What a native route phase returns (:func:`rft_mujoco.compiled.route.phase1`, ``phase2``; the plain ints
+    of :mod:`rft_mujoco.compiled.route` in the kernels)."""
+
+    DONE = 0
+    """Committed and finished."""
+    ACTUATE = 1
+    """Bodies touch: run ``mj_fwdActuation``, then phase 2."""
+    CONTINUE = 2
+    """Bodies touch, no stabilized handle among them: phase 2 without actuation."""
+    PYTHON = 3
+    """Nothing committed: run the Python path."""
+    MONITOR = 4
+    """Committed: run the due validity checks in Python."""
+
 MJDATA_FIELDS = (
     ("xpos", "f2"), ("xmat", "f2"), ("xipos", "f2"), ("cvel", "f2"), ("subtree_com", "f2"), ("qpos", "f1"),
     ("qvel", "f1"), ("cdof", "f2"), ("qfrc_passive", "f1"), ("qfrc_bias", "f1"), ("qfrc_actuator", "f1"),

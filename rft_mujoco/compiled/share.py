@@ -11,13 +11,9 @@ import math
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled import schema as sc
 
-# Status codes (besides 0: no wrench, 1: a non-zero wrench).
-NOT_FINITE = -1
-"""A wrench came out non-finite; nothing was written."""
-BAD_ACCELERATION = -2
-"""The acceleration without sand is not finite (NaN/inf inputs); nothing was written."""
-NOT_FINITE_STATE = -3
-"""qpos/qvel are not finite while a body is a candidate (the simulation diverged)."""
+NOT_FINITE, BAD_ACCELERATION, NOT_FINITE_STATE = (int(sc.Status.NOT_FINITE), int(sc.Status.BAD_ACCELERATION),
+                                                  int(sc.Status.NOT_FINITE_STATE))
+"""The error statuses (:class:`rft_mujoco.compiled.schema.Status`) as the kernels' ints."""
 
 
 @njit(**JIT)
