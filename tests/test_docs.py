@@ -49,14 +49,16 @@ RUN = {
 """The bash blocks run as written, and what they cost."""
 
 NOT_RUN = {
-    "deformable.md:0": "the box study, about a minute of CPU (tests/test_footprint.py runs it and asserts each criterion)",
+    "deformable.md:0": "the box study, about a minute of CPU (tests/test_footprint.py runs it and asserts each "
+                       "criterion)",
     "deformable.md:1": "three wheel passes three times, then five, a few minutes (tests/test_ruts.py runs the "
                        "default three)",
-    "deformable.md:2": "the quadruped trotting 2.5 s, then flat and deformable side by side and once on numpy, a minute "
-                       "(tests/test_deformable_coupling.py covers the surface in a task; the plot and frame are in "
-                       "docs/)",
+    "deformable.md:2": "the quadruped trotting 2.5 s, then flat and deformable side by side and once on numpy, a "
+                       "minute (tests/test_deformable_coupling.py covers the surface in a task; the plot and frame "
+                       "are in docs/)",
     "deformable.md:3": "the cost benchmark, flat and deformable side by side five times, numpy once, then one pair "
-                       "per interval, about a minute (tests/test_deform_compiled.py runs both functions on short trots)",
+                       "per interval, about a minute (tests/test_deform_compiled.py runs both functions on short "
+                       "trots)",
     "performance.md:0": "the whole benchmark, ~5 min (tests/test_bench.py runs it with --quick)",
     "training.md:0": "an hour of training (tests/test_train.py trains with the same command on a tiny budget)",
     "training.md:1": "10 episodes of 20 s per policy, the command table and a video, several minutes "

@@ -181,7 +181,9 @@ SCENE = """<mujoco><option timestep="0.002"/><worldbody><body name="box" pos="0 
 def test_the_coupling_falls_back_to_numpy_without_a_kernel_form(terrain):
     pytest.importorskip("numba")
     model = mujoco.MjModel.from_xml_string(SCENE)
-    handle = rft_mujoco.SandHandle(model, rft_mujoco.MPM_VALIDATION, [1], terrain, 0.01, law.PUBLISHED, True, True, backend="auto")
+    handle = rft_mujoco.SandHandle(model, rft_mujoco.MPM_VALIDATION, [1], terrain, 0.01, law.PUBLISHED, True, True,
+                                   backend="auto")
     assert handle.backend == "numpy"
     with pytest.raises(ValueError, match="backend='numba' supports .* kernel_spec"):
-        rft_mujoco.SandHandle(model, rft_mujoco.MPM_VALIDATION, [1], terrain, 0.01, law.PUBLISHED, True, True, backend="numba")
+        rft_mujoco.SandHandle(model, rft_mujoco.MPM_VALIDATION, [1], terrain, 0.01, law.PUBLISHED, True, True,
+                              backend="numba")

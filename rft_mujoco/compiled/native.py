@@ -49,10 +49,8 @@ MUJOCO_VERSION = "4.0.0"
 SYMBOL = "rft_mujoco_native_registry"
 """Global symbol holding the address of the registry array."""
 HEAD, ENTRY = len(sc.REGISTRY_HEADER), len(sc.REGISTRY_ENTRY)
-"""Registry: a header of HEAD int64 (entries, control trampoline, passive trampoline, mj_fwdActuation,
-addresses of mjcb_act_dyn / gain / bias, the route's phase 1 and phase 2 C functions), then ENTRY int64 per
-entry (mjModel*, mjData* or 0 for a model without a route yet, route table, &data.time, &opt.timestep,
-&opt.integrator, &opt.disableflags, table length)."""
+"""Registry: a header of HEAD int64 (:data:`rft_mujoco.compiled.schema.REGISTRY_HEADER`), then ENTRY int64 per
+entry (:data:`rft_mujoco.compiled.schema.REGISTRY_ENTRY`)."""
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
 _ACTUATION_OFF = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
 _CELL = ctypes.c_int64(0)               # the registry's address: what SYMBOL names

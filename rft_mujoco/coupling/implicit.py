@@ -28,8 +28,8 @@ class ImplicitWork:
         from rft_mujoco.compiled import implicit, implicit_eval, schema
         m = handle.model
         if arrays is None:
-            arrays = implicit_eval.build_implicit(handle.evaluator.constants[schema.H_CENTROIDS].shape[1], len(handle.body_ids),
-                                                  handle.groups.ref.size, m.nv)
+            width = handle.evaluator.constants[schema.H_CENTROIDS].shape[1]
+            arrays = implicit_eval.build_implicit(width, len(handle.body_ids), handle.groups.ref.size, m.nv)
         self.arrays = arrays
         self.tuple = tuple(arrays[name] for name, _ in implicit_eval.IMPLICIT_FIELDS)
         self.damping = np.zeros(m.nv)
