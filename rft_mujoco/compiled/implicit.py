@@ -6,8 +6,9 @@ Pure array functions (nothing here calls MuJoCo), the same algorithms as the num
 * the system of this step's constraints, linearized, and the groups' free motion through it:
   :mod:`rft_mujoco.compiled.system`;
 * :func:`implicit_wrenches`: :func:`rft_mujoco.physics.implicit.implicit_wrenches` with its Newton flow
-  solve (:func:`_newton_flow`) and its rest operator (the compiled :func:`rft_mujoco.physics.rest.pivoted_factor`,
-  and ``pivoted_apply`` on the vectors the operator meets instead of forming it), the law being
+  solve (:func:`_newton_flow`) and its rest operator (:func:`rft_mujoco.physics.rest.pivoted_factor` as the
+  explicit rest solve runs it, vectorized and bit for bit: :func:`rft_mujoco.compiled.rest.min_norm_factor`,
+  and ``min_norm_apply`` on the vectors the operator meets instead of forming it), the law being
   :func:`rft_mujoco.compiled.implicit_law.group_law` on the evaluation's elements (the tuple ``lw``,
   :data:`LAW_FIELDS`).
 
@@ -23,7 +24,7 @@ import numpy as np
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.implicit_law import group_law
 from rft_mujoco.compiled.jit import JIT, njit
-from rft_mujoco.compiled.rest import pivoted_apply, pivoted_factor
+from rft_mujoco.compiled.rest import min_norm_apply, min_norm_factor
 
 SETTINGS = sc.IMPLICIT_SETTINGS
 """Entries of ``st`` (:data:`rft_mujoco.compiled.schema.IMPLICIT_SETTINGS`, indexed as ``st[sc.ST_TINY]``)."""
@@ -264,6 +265,8 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
         flowing[g] = flow[g]                   # from here on: whether the group was solved in flow
     w = np.zeros(n6)
     full = np.empty((ng, 6))
+    lin = np.empty((3 * n6 + 5, n6))            # the rest operator's factor (rest.min_norm_factor's buffers)
+    perm = np.empty(2 * n6, np.int64)
     its = 0
     while True:
         nr = 0
@@ -288,7 +291,7 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
         mr, mf = 6 * nr, 6 * nf
         block = np.empty((mr, mr))
         weight = np.empty(mr)
-        order, gfac, wfac = pivoted_factor(np.empty((0, 0)), np.empty(0), st[sc.ST_DEPENDENT_TOL], st[sc.ST_TINY])
+        kf = 0                                 # the rank of the rest operator's factor (in lin, perm)
         if mr:
             top = 0.0
             for i in range(mr):
@@ -299,7 +302,7 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
             for i in range(mr):
                 for j in range(mr):
                     block[i, j] = a[r_idx[i], r_idx[j]]
-            order, gfac, wfac = pivoted_factor(block, weight, st[sc.ST_DEPENDENT_TOL], st[sc.ST_TINY])
+            kf = min_norm_factor(block, weight, mr, st[sc.ST_DEPENDENT_TOL], st[sc.ST_TINY], lin, perm)
         for i in range(n6):
             w[i] = 0.0
         if mf and not ready:
@@ -309,19 +312,20 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
             # (physics.implicit.rest_operator) applied to the vectors it meets rather than formed
             pa = np.zeros((mr, mf))            # P a_rf
             col = np.empty(mr)
+            x = np.empty(mr)
             for j in range(mf):
                 if mr == 0:
                     break
                 for l in range(mr):
                     col[l] = a[r_idx[l], f_idx[j]]
-                x = pivoted_apply(block, col, order, gfac, wfac)
+                min_norm_apply(block, col, weight, mr, kf, lin, perm, x)
                 for l in range(mr):
                     pa[l, j] = x[l]
             pv = np.zeros(mr)                  # P v_r
             if mr:
                 for l in range(mr):
                     col[l] = v[r_idx[l]]
-                pv = pivoted_apply(block, col, order, gfac, wfac)
+                min_norm_apply(block, col, weight, mr, kf, lin, perm, pv)
             a_eff = np.empty((mf, mf))
             v_eff = np.empty(mf)
             u_flow = np.empty(mf)
@@ -361,7 +365,8 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
                 for j in range(mf):
                     s += a[r_idx[i], f_idx[j]] * w[f_idx[j]]
                 rhs[i] = s
-            x = pivoted_apply(block, rhs, order, gfac, wfac)
+            x = np.empty(mr)
+            min_norm_apply(block, rhs, weight, mr, kf, lin, perm, x)
             for i in range(mr):
                 w[r_idx[i]] = -x[i]
             over = False

@@ -45,7 +45,7 @@ def build_implicit(n_elements: int, n_bodies: int, n_groups: int, nv: int) -> di
     """Zeroed ``iw`` arrays (:data:`IMPLICIT_FIELDS`) for E packed element slots, B bodies, G groups, nv dofs."""
     e, b, g, n6, nv1 = max(n_elements, 1), n_bodies, n_groups, 6 * n_groups, max(nv, 1)
     shapes = dict(e_slot=(e,), e_arm=(e, 3), e_nrm=(e, 3), e_depth=(e,), e_area=(e,), jac=(b, 6, 6), lin=(b, 3),
-                  ang=(b, 3), on=(b,), jrows=(n6, nv), h=(nv1, nv1), f=(nv,), y=(nv, n6), end=(g, 6), probe=(g, 6),
+                  ang=(b, 3), on=(b,), jrows=(n6, nv), h=(nv1, nv1), f=(nv,), y=(n6, nv), end=(g, 6), probe=(g, 6),
                   gf=(g, 6), gdf=(g, 6, 6), flowing=(g,), prev_active=(g,), prev_flow=(g,), istate=(1,),
                   scr=(SCRATCH_ROWS, e), pk=(e,))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}

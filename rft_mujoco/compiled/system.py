@@ -93,8 +93,10 @@ def constrained_system(nv, m_rowadr, m_rownnz, m_colind, m_val, nefc, sparse, ef
             d = efc_d[e]
             da = d * efc_aref[e]
             for a in range(a0, a0 + nnz):
-                p = efc_colind[a] if sparse else a - a0
                 x = efc_j[a]
+                if x == 0.0:                          # dense rows are mostly zeros (a dof's friction, limit)
+                    continue
+                p = efc_colind[a] if sparse else a - a0
                 f[p] += x * da
                 dx = d * x
                 for b in range(a0, a0 + nnz):
@@ -129,13 +131,29 @@ def cholesky(n, h):
 
 
 @njit(**JIT)
-def _forward(n, low, x, col):
-    """``x[:, col] <- L^-1 x[:, col]`` (x (n, m))."""
+def _forward(n, low, x):
+    """``x[:n] <- L^-1 x[:n]`` (a contiguous row)."""
     for r in range(n):
-        t = x[r, col]
+        t = x[r]
         for c in range(r):
-            t -= low[r, c] * x[c, col]
-        x[r, col] = t / low[r, r]
+            t -= low[r, c] * x[c]
+        x[r] = t / low[r, r]
+
+
+@njit(**JIT)
+def _forward4(n, low, x0, x1, x2, x3):
+    """:func:`_forward` of four rows at once: the same operations per entry, in the same order (the same
+    numbers), as four independent chains (one chain of dependent subtractions is latency-bound)."""
+    for r in range(n):
+        t0, t1, t2, t3 = x0[r], x1[r], x2[r], x3[r]
+        for c in range(r):
+            lrc = low[r, c]
+            t0 -= lrc * x0[c]
+            t1 -= lrc * x1[c]
+            t2 -= lrc * x2[c]
+            t3 -= lrc * x3[c]
+        d = low[r, r]
+        x0[r], x1[r], x2[r], x3[r] = t0 / d, t1 / d, t2 / d, t3 / d
 
 
 @njit(**JIT)
@@ -143,8 +161,8 @@ def free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rooti
                 body_parentid, dof_parentid, qvel, low, f, dt, jrows, y, twist, free, mob):
     """For the reference bodies (COMs) of groups ``active[:ng]``: their Jacobians into ``jrows`` (6 ng, nv),
     twists now (``twist`` (ng, 6)), free twists ``twist + dt J H^-1 f`` (``free``) and the mobility
-    ``mob`` (6 ng, 6 ng) ``= J H^-1 J^T = Y^T Y``, ``Y = L^-1 J^T`` (``y`` (nv, 6 ng)), for the lower
-    Cholesky factor ``low`` of ``H``. ``f`` (nv,) is overwritten with ``H^-1 f``."""
+    ``mob`` (6 ng, 6 ng) ``= J H^-1 J^T = Y^T Y``, ``Y = L^-1 J^T`` (``y`` (6 ng, nv): ``Y^T``, rows
+    contiguous), for the lower Cholesky factor ``low`` of ``H``. ``f`` (nv,) is overwritten with ``H^-1 f``."""
     nv = qvel.shape[0]
     n6 = 6 * ng
     for r in range(ng):
@@ -162,18 +180,37 @@ def free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rooti
                 s1 += jrows[row, i] * f[i]
             twist[r, c] = s0
             free[r, c] = s0 + dt * s1
-    for i in range(nv):
-        for col in range(n6):
-            y[i, col] = jrows[col, i]
     for col in range(n6):
-        _forward(nv, low, y, col)
-    for p in range(n6):
-        for q in range(p + 1):
+        for i in range(nv):
+            y[col, i] = jrows[col, i]
+    col = 0
+    while col + 4 <= n6:
+        _forward4(nv, low, y[col], y[col + 1], y[col + 2], y[col + 3])
+        col += 4
+    for c in range(col, n6):
+        _forward(nv, low, y[c])
+    for p in range(n6):                       # mob[p, q] = y[p] . y[q], four q at a time (independent sums)
+        yp = y[p]
+        q = 0
+        while q + 4 <= p + 1:
+            y0, y1, y2, y3 = y[q], y[q + 1], y[q + 2], y[q + 3]
+            s0 = s1 = s2 = s3 = 0.0
+            for i in range(nv):
+                x = yp[i]
+                s0 += x * y0[i]
+                s1 += x * y1[i]
+                s2 += x * y2[i]
+                s3 += x * y3[i]
+            mob[p, q], mob[p, q + 1], mob[p, q + 2], mob[p, q + 3] = s0, s1, s2, s3
+            mob[q, p], mob[q + 1, p], mob[q + 2, p], mob[q + 3, p] = s0, s1, s2, s3
+            q += 4
+        for qq in range(q, p + 1):
+            yq = y[qq]
             s = 0.0
             for i in range(nv):
-                s += y[i, p] * y[i, q]
-            mob[p, q] = s
-            mob[q, p] = s
+                s += yp[i] * yq[i]
+            mob[p, qq] = s
+            mob[qq, p] = s
 
 
 @njit(**JIT)
