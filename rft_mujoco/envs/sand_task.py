@@ -62,7 +62,10 @@ class SandTaskEnv(MujocoEnv):
     a :class:`~rft_mujoco.DeformableSurface` at the floor's height with :data:`DEFORMABLE_GRID`, or a
     ``DeformableSurface`` of the caller's. Its bodies then leave footprints and ruts that later steps of the
     episode feel (:mod:`rft_mujoco.physics.deform`); a reset restores the initial surface. It runs compiled
-    (docs/deformable.md, "The cost": the trotting quadruped about 3 times its flat-surface cost).
+    (docs/deformable.md, "The cost": the trotting quadruped at about 1.3 times its flat-surface cost).
+
+    Every task also takes ``solve`` (keyword, default ``"explicit"``): the sand solve of
+    :func:`rft_mujoco.attach` (``"implicit"``: right at any mass, docs/rest.md, "The implicit solve").
     """
 
     def __init__(self, xml_file: str, frame_skip: int, *, media: Media | str, resolution: str | float,
@@ -74,9 +77,10 @@ class SandTaskEnv(MujocoEnv):
         self._include_sand_in_observation = bool(include_sand_in_observation)
         self._bed_depth_m = bed_depth_m
         deformable = kwargs.pop("deformable", None)
+        solve = kwargs.pop("solve", "explicit")
         MujocoEnv.__init__(self, model_path(xml_file), frame_skip, observation_space=None, **kwargs)
         self.sand = SandBed(self.model, media, bodies=sand_bodies, resolution=resolution,
-                            surface=self._surface_geoms, media_ranges=media_ranges)
+                            surface=self._surface_geoms, media_ranges=media_ranges, solve=solve)
         if deformable is not None and deformable is not False:
             self.sand.handle.terrain = deformable_surface(deformable, self.sand.handle.terrain)
 

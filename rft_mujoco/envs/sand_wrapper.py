@@ -78,6 +78,7 @@ is the medium of the current episode.
 | `include_sand_in_observation` | bool               | `False`                  | append per-body sand force and sinkage |
 | `media_ranges`                | MediaRanges or None| `None`                   | per-episode uniform ranges for rho_c, mu_int, mu_surf |
 | `stabilize`                   | bool               | `True`                   | the coupling's implicit direction and impulse limiter |
+| `solve`                       | str                | `"explicit"`             | the sand solve: `"explicit"` or `"implicit"` (docs/rest.md) |
 
 ## Version History
 * v0: first version (mujoco 4.0.0, gymnasium 1.4 ``{base}`` v5 assets).
@@ -92,7 +93,8 @@ class _SandEnv:
     def __init__(self, *, media: Media | str = DEFAULT_MEDIA, resolution: str | float | None = None,
                  sand_bodies: str | Sequence[str | int] = "auto", bed_depth_m: float | None = None,
                  sand_in_contact_forces: bool = False, include_sand_in_observation: bool = False,
-                 media_ranges: MediaRanges | None = None, stabilize: bool = True, **base_kwargs):
+                 media_ranges: MediaRanges | None = None, stabilize: bool = True, solve: str = "explicit",
+                 **base_kwargs):
         resolution = self._sand_resolution if resolution is None else resolution
         self.sand = None
         self._bed_depth_m = bed_depth_m
@@ -102,11 +104,12 @@ class _SandEnv:
         utils.EzPickle.__init__(self, media=media, resolution=resolution, sand_bodies=sand_bodies,
                                 bed_depth_m=bed_depth_m, sand_in_contact_forces=sand_in_contact_forces,
                                 include_sand_in_observation=include_sand_in_observation,
-                                media_ranges=media_ranges, stabilize=stabilize, **base_kwargs)
+                                media_ranges=media_ranges, stabilize=stabilize, solve=solve, **base_kwargs)
         self._sand_in_contact_forces = bool(sand_in_contact_forces)
         self._include_sand_in_observation = bool(include_sand_in_observation)
         self.sand = SandBed(self.model, media, bodies=sand_bodies, resolution=resolution,
-                            surface=self._surface_geoms, media_ranges=media_ranges, stabilize=stabilize)
+                            surface=self._surface_geoms, media_ranges=media_ranges, stabilize=stabilize,
+                            solve=solve)
         if self._include_sand_in_observation:
             extra = FEATURES_PER_BODY * self.sand.n_bodies
             base = self.observation_space
