@@ -334,6 +334,15 @@ def test_quadruped_v1_smoke_train_save_load_evaluate(tmp_path):
                                                              ("rigid", "sand"), ("rigid", "rigid")]
     assert gap[0]["sinkage_m"] > 0.0 and gap[1]["sinkage_m"] == 0.0     # no sand on the rigid floor
     assert "trained on" in commands.format_gap(gap) and (tmp_path / "gap.json").is_file()
+    # the same policy under the implicit sand solve: --env-kwargs on top of the run's own, recorded
+    assert main(["evaluate", "--run", str(run), "--episodes", "1", "--no-video", "--no-commands",
+                 "--out", str(tmp_path / "implicit"), "--env-kwargs", "solve=implicit"]) == 0
+    implicit = json.loads((tmp_path / "implicit" / "eval.json").read_text())
+    assert implicit["env_kwargs"] == {**config.env_kwargs, "solve": "implicit"}
+    assert implicit["policies"]["trained"]["returns"] != results["policies"]["trained"]["returns"]
+    (row,) = commands.command_table(run, commands=[(0.4, 0.0, 0.0)], episodes=1, baselines=False,
+                                    env_kwargs={"solve": "implicit"})
+    assert np.isfinite(row["vx"]) and row["sinkage_m"] > 0.0
     print(f"SandQuadruped-v1 smoke: training {trained_s:.1f} s, evaluation {time.perf_counter() - start:.1f} s")
 
 

@@ -21,7 +21,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from .config import ALGOS, HYPERPARAMS_DIR, VEC_ENVS
+from .config import ALGOS, HYPERPARAMS_DIR, VEC_ENVS, parse_overrides
 
 PROG = "python -m rft_mujoco.train"
 """The command's name in help and error messages and in each run's recorded command line."""
@@ -98,6 +98,9 @@ def _parser(prog: str = PROG) -> argparse.ArgumentParser:
     ev.add_argument("--no-video", action="store_true", help="do not render a video")
     ev.add_argument("--video-frames", type=int, default=1000, help="frame cap of the video (default 1000)")
     ev.add_argument("--window", type=int, default=10, help="moving-average window of the learning curve")
+    ev.add_argument("--env-kwargs", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="keyword arguments of gymnasium.make (YAML values) on top of the run's env_kwargs, "
+                    "e.g. solve=implicit")
     ev.add_argument("--no-commands", action="store_true",
                     help="skip the command-tracking table (envs with a velocity command, e.g. SandQuadruped-v1)")
 
@@ -159,7 +162,8 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
             evaluate(args.run, episodes=args.episodes, seed=args.seed, model_path=args.model,
                      out_dir=args.out, deterministic=not args.stochastic, video=not args.no_video,
                      max_video_frames=args.video_frames, window=args.window, commands=not args.no_commands,
-                     overwrite=args.overwrite)
+                     overwrite=args.overwrite,
+                     env_kwargs=parse_overrides(args.env_kwargs, what="--env-kwargs"))
         elif args.command == "gap":
             from .commands import format_gap, gap_table
 

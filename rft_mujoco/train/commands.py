@@ -15,7 +15,7 @@ the sinkage (the deepest loaded sand element of the robot, m, mean over the step
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +23,7 @@ import numpy as np
 
 from rft_mujoco.tables import Columns, table
 
-from .config import load_config, set_num_threads
+from .config import deep_update, load_config, set_num_threads
 from .environments import make_env
 from .policies import EVAL_SEED_OFFSET, load_policy, zero_action
 from .runs import check_free, find_run
@@ -70,13 +70,14 @@ def _episode(env, act, seed: int, command, steps: int) -> dict[str, float]:
 
 def command_table(run_dir: str | Path, *, commands: Sequence[Sequence[float]] = COMMANDS, episodes: int = 3,
                   steps: int = STEPS, ground: str | None = None, seed: int | None = None,
-                  baselines: bool = True) -> list[dict[str, Any]]:
+                  baselines: bool = True, env_kwargs: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
     """Rows (policy, command, vx, yaw, falls, sinkage, return) of the run in ``run_dir`` (see the module
-    docstring); ``ground`` overrides the env's ``ground`` argument. Prints progress per row."""
+    docstring); ``env_kwargs`` go on top of the run's own, ``ground`` overrides the env's ``ground``
+    argument. Prints progress per row."""
     run_dir = find_run(run_dir)
     config = load_config(run_dir)
     set_num_threads(config)
-    kwargs = dict(config.env_kwargs)
+    kwargs = deep_update(config.env_kwargs, env_kwargs or {})
     if ground is not None:
         kwargs["ground"] = ground
     steps = min(steps, int(kwargs.pop("max_episode_steps", steps)))

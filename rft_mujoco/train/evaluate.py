@@ -18,9 +18,10 @@ with a message when offscreen rendering or mp4 writing fails).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,7 @@ import numpy as np
 
 from rft_mujoco.tables import table
 
-from .config import RunConfig, load_config, set_num_threads
+from .config import RunConfig, deep_update, load_config, set_num_threads
 from .environments import check_env_id, make_env
 from .policies import EVAL_SEED_OFFSET, Policy, load_policy, zero_action
 from .runs import check_free, default_out, find_run
@@ -170,7 +171,8 @@ def format_table(results: dict) -> str:
 def evaluate(run_dir: str | Path, *, episodes: int = 10, seed: int | None = None,
              model_path: str | Path | None = None, out_dir: str | Path | None = None,
              deterministic: bool = True, video: bool = True, max_video_frames: int = 1000,
-             window: int = 10, commands: bool = True, overwrite: bool = False) -> dict[str, Any]:
+             window: int = 10, commands: bool = True, overwrite: bool = False,
+             env_kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Evaluate the run in ``run_dir`` against random and zero-action baselines; returns the results dict.
 
     Args:
@@ -188,6 +190,8 @@ def evaluate(run_dir: str | Path, *, episodes: int = 10, seed: int | None = None
         commands: for an env with a velocity command (SandQuadruped-v1), also the command-tracking table
             of :func:`.commands.command_table` (forward speed against command, falls, sinkage).
         overwrite: replace existing eval.json, eval.png and video in ``out_dir`` (FileExistsError otherwise).
+        env_kwargs: keyword arguments of ``gymnasium.make`` on top of the run's own (e.g. ``{"solve":
+            "implicit"}``: the policy under the other sand solve); recorded in eval.json.
     """
     from tqdm.auto import tqdm
 
@@ -195,6 +199,8 @@ def evaluate(run_dir: str | Path, *, episodes: int = 10, seed: int | None = None
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     run_dir = find_run(run_dir)
     config = load_config(run_dir)
+    if env_kwargs:
+        config = dataclasses.replace(config, env_kwargs=deep_update(config.env_kwargs, env_kwargs))
     check_env_id(config.env_id)
     set_num_threads(config)
     out = Path(out_dir) if out_dir is not None else default_out("eval", run_dir)
@@ -256,7 +262,8 @@ def evaluate(run_dir: str | Path, *, episodes: int = 10, seed: int | None = None
             probe.close()
         if has_commands:
             print("command tracking (mean over episodes after the first second):")
-            results["commands"] = command_table(run_dir, episodes=min(episodes, 3), seed=seed)
+            results["commands"] = command_table(run_dir, episodes=min(episodes, 3), seed=seed,
+                                                env_kwargs=env_kwargs)
     json_path = out / JSON_FILENAME
     json_path.write_text(json.dumps(results, indent=2) + "\n")
     results["json"] = str(json_path)
