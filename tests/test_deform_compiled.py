@@ -171,7 +171,7 @@ def _pushed_box(backend: str, interval: float, observed: bool = False):
     for i in range(400):
         data.xfrc_applied[1, 0] = 5.0 * np.sin(i * 0.01)
         mujoco.mj_step(model, data)
-        clocks.add(float(handle._work[data].arrays["surface_clock"][0]))
+        clocks.add(handle.surface_updated(data))
     out = (data.qpos.copy(), handle.surface(data), handle.evaluation_path(data), len(clocks - {-np.inf}))
     handle.detach()
     return out

@@ -49,6 +49,9 @@ def test_footprint_of_a_resting_box_and_its_backend():
     assert abs(flat_data.qpos[2] - data.qpos[2]) < 5e-4
     with pytest.raises(ValueError, match="deformable terrain"):
         flat.surface(flat_data)
+    with pytest.raises(ValueError, match="surface_updated.*deformable terrain"):
+        flat.surface_updated(flat_data)
+    assert 0.0 <= handle.surface_updated(data) <= data.time       # updated in this run, by its clock
     handle.detach()
     flat.detach()
 

@@ -17,7 +17,6 @@ import pytest
 
 import rft_mujoco
 from rft_mujoco import compiled
-from rft_mujoco.coupling import dispatch
 from rft_mujoco.coupling.dispatch import DISPATCHER
 
 pytestmark = [pytest.mark.skipif(not compiled.AVAILABLE, reason="numba not importable"),
@@ -297,16 +296,16 @@ def test_a_collected_data_leaves_the_registry():
     for _ in range(3):
         mujoco.mj_step(model, data)
     key = (model._address, data._address)
-    assert key in DISPATCHER._registry._routes
+    assert key in DISPATCHER.held()["native_routes"]
     del data
     gc.collect()
-    assert key not in DISPATCHER._registry._routes
+    assert key not in DISPATCHER.held()["native_routes"]
 
 
 def test_unsupported_mujoco_falls_back_with_one_message(monkeypatch, capsys):
     if compiled.AVAILABLE:
         monkeypatch.setattr(native, "support", lambda: (False, "written for mujoco 9.9.9, found 4.0.0"))
-    monkeypatch.setattr(dispatch, "_noticed", [])
+    monkeypatch.setattr(route, "_noticed", [])
     for _ in range(2):
         model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
         handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
@@ -345,7 +344,7 @@ def test_where_the_constraint_rows_cannot_be_located_the_python_path_gives_the_s
     the bindings) runs every evaluation, says why once, and steps the very same motion."""
     expected = rollout(True, friction=True)
     monkeypatch.setattr(route, "_layout", "test: constraint rows not located")
-    monkeypatch.setattr(dispatch, "_noticed", [])
+    monkeypatch.setattr(route, "_noticed", [])
     got = rollout(True, friction=True)
     for (s0, x0, e0, l0), (s1, x1, e1, l1) in zip(expected, got):
         assert np.array_equal(s0, s1) and np.array_equal(x0, x1) and e0 == e1 and l0 == l1

@@ -358,9 +358,9 @@ def test_models_with_sand_never_detached_are_freed_when_the_user_drops_them(back
     gc.collect()
     assert all(m() is None for m in models)
     assert rft_mujoco.attached_handles() == () and DISPATCHER.handles == ()
-    assert DISPATCHER._finalizers == {} and DISPATCHER._routes == {}
-    if DISPATCHER._registry is not None:                   # the native callbacks keep no model's address
-        assert DISPATCHER._registry._models == {} and DISPATCHER._registry._routes == {}
+    held = DISPATCHER.held()                               # the native callbacks keep no model's address
+    assert (held["handles"], held["finalizers"], held["routes"], held["native_models"], held["native_routes"]) \
+        == (0, 0, 0, (), ())
     # the last model gone, the dispatcher is out, as after the last detach
     assert mujoco.get_mjcb_control() is control and mujoco.get_mjcb_passive() is passive
     assert not hasattr(mujoco.mj_copyData, "__wrapped__") and DISPATCHER._originals == {}

@@ -265,8 +265,7 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
         flowing[g] = flow[g]                   # from here on: whether the group was solved in flow
     w = np.zeros(n6)
     full = np.empty((ng, 6))
-    lin = np.empty((3 * n6 + 5, n6))            # the rest operator's factor (rest.min_norm_factor's buffers)
-    perm = np.empty(2 * n6, np.int64)
+    lin, perm, x = np.empty((3 * n6 + 5, n6)), np.empty(2 * n6, np.int64), np.empty(n6)  # min_norm_factor's
     its = 0
     while True:
         nr = 0
@@ -276,10 +275,8 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
                 nr += 1
             if flow[g]:
                 nf += 1
-        r_idx = np.empty(6 * nr, np.int64)
-        f_idx = np.empty(6 * nf, np.int64)
-        ir = 0
-        jf = 0
+        r_idx, f_idx = np.empty(6 * nr, np.int64), np.empty(6 * nf, np.int64)
+        ir = jf = 0
         for g in range(ng):
             for c in range(6):
                 if rest[g]:
@@ -312,7 +309,6 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
             # (physics.implicit.rest_operator) applied to the vectors it meets rather than formed
             pa = np.zeros((mr, mf))            # P a_rf
             col = np.empty(mr)
-            x = np.empty(mr)
             for j in range(mf):
                 if mr == 0:
                     break
@@ -365,7 +361,6 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
                 for j in range(mf):
                     s += a[r_idx[i], f_idx[j]] * w[f_idx[j]]
                 rhs[i] = s
-            x = np.empty(mr)
             min_norm_apply(block, rhs, weight, mr, kf, lin, perm, x)
             for i in range(mr):
                 w[r_idx[i]] = -x[i]

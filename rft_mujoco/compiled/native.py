@@ -312,6 +312,11 @@ class Registry:
         self.trampolines = (0, 0)
         self._write()
 
+    def held(self) -> tuple[tuple, tuple]:
+        """(model addresses, (model, data) address pairs): what the native callbacks hold now."""
+        with self._lock:
+            return tuple(self._models), tuple(self._routes)
+
     def set_trampolines(self, control: int, passive: int) -> None:
         self.trampolines = (int(control), int(passive))
         self._write()

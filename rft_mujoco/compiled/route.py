@@ -23,6 +23,8 @@ dtype its schema says (MuJoCo's ``mjtNum`` must be float64), no other Python cal
 from __future__ import annotations
 
 import ctypes
+import logging
+import sys
 import threading
 
 import numpy as np
@@ -334,6 +336,30 @@ def efc_layout() -> dict:
     if isinstance(_layout, str):
         raise RuntimeError(_layout)
     return _layout
+
+
+def layout_available() -> bool:
+    """Whether the native route can read MuJoCo's constraint rows here (else the Python path runs; said once)."""
+    try:
+        efc_layout()
+    except RuntimeError as exc:
+        say_once(str(exc), f"rft_mujoco: native sand route unavailable ({exc}); every evaluation takes "
+                           "the compiled Python path (same forces, a few us more per evaluation)")
+        return False
+    return True
+
+
+_noticed: list = []
+
+
+def say_once(reason: str, msg: str | None = None) -> None:
+    """Say once per process why the native callbacks (or, with ``msg``, the native route) are off."""
+    if not _noticed:
+        _noticed.append(reason)
+        msg = msg or (f"rft_mujoco: native sand callbacks unavailable ({reason}); using the Python callback "
+                      "(same forces, ~2 us more per evaluation)")
+        logging.getLogger("rft_mujoco").info(msg)   # (a warning would be printed twice by logging's last resort)
+        print(msg, file=sys.stderr, flush=True)
 
 
 def _layout_data(k: int):

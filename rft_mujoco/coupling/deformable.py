@@ -69,8 +69,18 @@ def press_compiled(handle, data, work, k: int) -> None:
 
 def snapshot(handle, work) -> deform.DeformedSurface:
     """A copy of the deformed surface of ``work`` (ValueError when the handle's terrain is not deformable)."""
+    _check_deformable(handle, work, "surface")
+    return work.surface.copy()
+
+
+def updated_at(handle, work) -> float:
+    """s, the ``data.time`` of the last update of the deformed surface of ``work`` (-inf before the first)."""
+    _check_deformable(handle, work, "surface_updated")
+    return float(work.arrays["surface_clock"][0])
+
+
+def _check_deformable(handle, work, method: str) -> None:
     if work.surface is None:
-        raise ValueError(f"handle.surface(data) needs a deformable terrain, but this handle's terrain is "
+        raise ValueError(f"handle.{method}(data) needs a deformable terrain, but this handle's terrain is "
                          f"{type(handle.terrain).__name__}; attach with surface_height=rft_mujoco.DeformableSurface"
                          "(...) to have footprints")
-    return work.surface.copy()

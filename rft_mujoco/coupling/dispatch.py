@@ -1,30 +1,29 @@
 """The one process-wide MuJoCo control-callback dispatcher (the package's only module-level mutable state).
 
-MuJoCo callbacks are global to the process, so every attached sand handle of every model goes through
-one dispatcher installed with ``mujoco.set_mjcb_control``. It
+MuJoCo callbacks are global to the process, so every attached sand handle of every model goes through one dispatcher
+installed with ``mujoco.set_mjcb_control``. It
 
-* chains a control callback the user had installed before (called first, so ``ctrl`` is final); also
-  a passive one that evaluates the sand when ``mjDSBL_ACTUATION`` makes MuJoCo skip ``mjcb_control``;
+* chains a control callback the user had installed before (called first, so ``ctrl`` is final); also a passive one
+  that evaluates the sand when ``mjDSBL_ACTUATION`` makes MuJoCo skip ``mjcb_control``;
 * routes each evaluation to the handles of its model (models and datas work independently);
-* owns the ``xfrc_applied`` bookkeeping per MjData: the row always ends as user wrench + sand wrench,
-  whatever the user wrote between steps (:func:`untouched_components`);
-* keeps model compilation working (mujoco 4.0's compiler raises "Python exception raised" while any
-  Python callback is installed): the compile entry points are wrapped to suspend the callback, until the
-  last handle detaches;
-* keeps the sand's state with the simulation it belongs to while installed (docs/architecture.md, "State
-  and copies"): copies of an MjData for the same model get its book and the handles' workspaces; deep
-  copies and pickles of an MjData, copies, pickles and ``mj_saveModel`` of an MjModel are of the plain state;
-  ``mj_resetData*`` makes a data new; ``set_mjcb_control`` / ``set_mjcb_passive`` set the callback it chains;
-  disableflags that would leave no callback are refused; the model's timestep, gravity and geom sizes are
-  compared at every evaluation with what the handles last checked (:meth:`SandHandle._check_model`);
+* owns the ``xfrc_applied`` bookkeeping per MjData: the row always ends as user wrench + sand wrench, whatever the
+  user wrote between steps (:func:`untouched_components`);
+* keeps model compilation working (mujoco 4.0's compiler raises "Python exception raised" while any Python callback is
+  installed): the compile entry points are wrapped to suspend the callback, until the last handle detaches;
+* keeps the sand's state with the simulation it belongs to while installed (docs/architecture.md, "State and copies"):
+  copies of an MjData for the same model get its book and the handles' workspaces; deep copies and pickles of an
+  MjData, copies, pickles and ``mj_saveModel`` of an MjModel are of the plain state; ``mj_resetData*`` makes a data
+  new; ``set_mjcb_control`` / ``set_mjcb_passive`` set the callback it chains; disableflags that would leave no
+  callback are refused; the model's timestep, gravity and geom sizes are compared at every evaluation with what the
+  handles last checked (:meth:`SandHandle._check_model`);
 * never keeps a model alive: a model's finalizer unregisters its handles (docs/architecture.md, "Lifetime").
 
 Where it can (:func:`rft_mujoco.compiled.native.support`), the dispatcher installs native callbacks
-(:mod:`rft_mujoco.compiled.native`) in MuJoCo's place of its Python ones: the bindings still hold the
-Python callbacks (``mujoco.get_mjcb_control()`` returns the dispatcher), MuJoCo calls compiled code that
-runs the native route of each (model, data) and hands everything else to the bindings' trampoline of
-the Python callback, so that behaviour and errors are those of the Python path. A callback the user had
-installed before keeps its slot Python; ``Dispatcher.native = False`` before the first attach keeps both.
+(:mod:`rft_mujoco.compiled.native`) in MuJoCo's place of its Python ones: the bindings still hold the Python callbacks
+(``mujoco.get_mjcb_control()`` returns the dispatcher), MuJoCo calls compiled code that runs the native route of each
+(model, data) and hands everything else to the bindings' trampoline of the Python callback, so that behaviour and
+errors are those of the Python path. A callback the user had installed before keeps its slot Python;
+``Dispatcher.native = False`` before the first attach keeps both.
 """
 
 from __future__ import annotations
@@ -32,8 +31,6 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import functools
-import logging
-import sys
 import threading
 import weakref
 
@@ -49,7 +46,6 @@ from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_compo
 _COMPILE_ENTRY_POINTS = ((mujoco.MjModel, "from_xml_string", True), (mujoco.MjModel, "from_xml_path", True),
                          (mujoco.MjModel, "from_binary_path", True), (mujoco.MjSpec, "compile", False),
                          (mujoco.MjSpec, "recompile", False))
-
 
 _DATA_COPIES = ((mujoco.MjData, "__copy__"), (mujoco, "mj_copyData"))
 """Copies of an MjData for the same model: the copy gets the original's sand state (:meth:`Dispatcher.copy_state`)."""
@@ -182,7 +178,7 @@ class Dispatcher:
         from rft_mujoco.compiled import native
         ok, info = native.support()
         if not ok:
-            _native_notice(info)
+            _ROUTE.say_once(info)
             return
         control = ctypes.c_void_p.from_address(info["control"])
         passive = ctypes.c_void_p.from_address(info["passive"])
@@ -209,6 +205,14 @@ class Dispatcher:
         if self._registry is not None:
             models = (h._model() for h in self._handles)
             self._registry.models({id(m): m for m in models if m is not None}.values())
+
+    def held(self) -> dict:
+        """What the dispatcher holds now (leak checks): numbers of ``handles``, their model ``finalizers`` and
+        Python ``routes``; ``native`` (native callbacks loaded), the ``native_models`` (addresses) and
+        ``native_routes`` ((model, data) addresses) their table holds."""
+        models, routes = self._registry.held() if self._registry is not None else ((), ())
+        return {"handles": len(self._handles), "finalizers": len(self._finalizers), "routes": len(self._routes),
+                "native": self._registry is not None, "native_models": models, "native_routes": routes}
 
     @property
     def native_installed(self) -> tuple:
@@ -436,7 +440,7 @@ class Dispatcher:
         if book.native is not None and book.native[0] != self._generation:
             book.native = None
         routable = book.native is None and all(h._native_ok for h in handles) \
-            and compiled.ready() and _route_layout()
+            and compiled.ready() and _ROUTE.layout_available()
         if routable and (book.rows is rows or book.rows.size == 0):
             # no rows of detached handles to clear: the native route from this evaluation on, the first of a
             # model included (the Python path's kernels then compile only where it runs)
@@ -569,30 +573,6 @@ class Dispatcher:
     def datas_of(self, model) -> list:
         """The MjData objects of ``model`` the dispatcher has written to (and that are still alive)."""
         return [d for d, b in list(self._books.items()) if b.model() is model]
-
-
-_log, _noticed = logging.getLogger("rft_mujoco"), []
-
-
-def _route_layout() -> bool:
-    """Whether the native route can read MuJoCo's constraint rows here (else the Python path runs; said once)."""
-    try:
-        _ROUTE.efc_layout()
-    except RuntimeError as exc:
-        _native_notice(str(exc), f"rft_mujoco: native sand route unavailable ({exc}); every evaluation takes "
-                                 "the compiled Python path (same forces, a few us more per evaluation)")
-        return False
-    return True
-
-
-def _native_notice(reason: str, msg: str | None = None) -> None:
-    """Say once per process why the native callbacks (or, with ``msg``, the native route) are off."""
-    if not _noticed:
-        _noticed.append(reason)
-        msg = msg or (f"rft_mujoco: native sand callbacks unavailable ({reason}); using the Python callback "
-                      "(same forces, ~2 us more per evaluation)")
-        _log.info(msg)                               # (a warning would be printed twice by logging's last resort)
-        print(msg, file=sys.stderr, flush=True)
 
 
 DISPATCHER = Dispatcher()

@@ -255,6 +255,11 @@ class SandHandle:
         :class:`~rft_mujoco.DeformableSurface`."""
         return deformable.snapshot(self, self._workspace(data))
 
+    def surface_updated(self, data) -> float:
+        """s, ``data.time`` at the last update of the deformed surface of ``data`` (-inf before the first; the
+        grid is updated every ``DeformableSurface.update_interval``); ValueError as :meth:`surface`."""
+        return deformable.updated_at(self, self._workspace(data))
+
     @property
     def terrain(self) -> Terrain:
         """The free surface; may be replaced between steps."""
