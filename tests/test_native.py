@@ -99,7 +99,7 @@ def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=Tru
            for d in ds]
     assert any(np.abs(x).max() > 0.1 for _, x, _, _ in out)               # the sand acted
     assert solve == "implicit" or all((locked > 0) == friction for *_, locked in out)
-    ROUTED[:] = [DISPATCHER._books[d].native is not None for _, _, ds in runs for d in ds]
+    ROUTED[:] = [h.evaluation_path(d) == "native" for _, h, ds in runs for d in ds]
     assert not (python_path and any(ROUTED))
     for _, h, _ in runs:
         h.detach()
@@ -159,7 +159,7 @@ def test_the_native_route_reads_a_sparse_jacobian_where_mujoco_chooses_one():
         for _ in range(60):
             mujoco.mj_step(model, data)
         assert data.nefc > 0 and handle.diagnostics(data).submerged.sum() > 0
-        assert (DISPATCHER._books[data].native is not None) != python_path
+        assert (handle.evaluation_path(data) == "native") != python_path
         finals.append(state(model, data))
         handle.detach()
     assert np.array_equal(*finals)

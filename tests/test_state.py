@@ -363,7 +363,7 @@ def test_models_with_sand_never_detached_are_freed_when_the_user_drops_them(back
         == (0, 0, 0, (), ())
     # the last model gone, the dispatcher is out, as after the last detach
     assert mujoco.get_mjcb_control() is control and mujoco.get_mjcb_passive() is passive
-    assert not hasattr(mujoco.mj_copyData, "__wrapped__") and DISPATCHER._originals == {}
+    assert not hasattr(mujoco.mj_copyData, "__wrapped__") and DISPATCHER.held()["wrapped"] == 0
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -442,5 +442,5 @@ def test_a_model_collected_while_sand_is_attached_or_detached_is_unregistered_ri
     with DISPATCHER._changing():                            # as if the collection came inside attach or detach
         del model
         gc.collect()
-        assert len(DISPATCHER._handles) == 2                # waits for the end of that call
-    assert DISPATCHER._handles == [handle] and rft_mujoco.attached_handles() == (handle,)
+        assert DISPATCHER.held()["handles"] == 2            # waits for the end of that call
+    assert DISPATCHER.held()["handles"] == 1 and rft_mujoco.attached_handles() == (handle,)   # unregistered

@@ -207,12 +207,13 @@ class Dispatcher:
             self._registry.models({id(m): m for m in models if m is not None}.values())
 
     def held(self) -> dict:
-        """What the dispatcher holds now (leak checks): numbers of ``handles``, their model ``finalizers`` and
-        Python ``routes``; ``native`` (native callbacks loaded), the ``native_models`` (addresses) and
-        ``native_routes`` ((model, data) addresses) their table holds."""
+        """What the dispatcher holds now (leak checks): numbers of ``handles``, their model ``finalizers``, Python
+        ``routes`` and ``wrapped`` MuJoCo functions; ``native`` (native callbacks loaded), the ``native_models``
+        (addresses) and ``native_routes`` ((model, data) addresses) their table holds."""
         models, routes = self._registry.held() if self._registry is not None else ((), ())
         return {"handles": len(self._handles), "finalizers": len(self._finalizers), "routes": len(self._routes),
-                "native": self._registry is not None, "native_models": models, "native_routes": routes}
+                "wrapped": len(self._originals), "native": self._registry is not None, "native_models": models,
+                "native_routes": routes}
 
     @property
     def native_installed(self) -> tuple:
