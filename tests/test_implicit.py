@@ -180,6 +180,19 @@ def test_implicit_solve_runs_on_the_compiled_backend_and_the_native_route():
             mujoco.mj_step(m, d)
         assert h.evaluations == 20 and h.diagnostics(d).submerged[0] > 0
         assert h.evaluation_path(d) == ("native" if DISPATCHER.held()["native"] else "python")
+        # the lagged constraint forces (docs/rest.md's measurement of the first change alone): another motion,
+        # on the same path; a value that does not exist is refused and the default kept
+        start = d.qpos.copy()
+        for constraints in ("lagged", "linearized"):
+            h.constraints = constraints
+            mujoco.mj_resetData(m, d)
+            for _ in range(60):
+                mujoco.mj_step(m, d)
+            start = np.vstack([start, d.qpos])
+        assert not np.array_equal(start[1], start[2])
+        with pytest.raises(ValueError, match="constraints must be one of"):
+            h.constraints = "implicit"
+        assert h.constraints == "linearized"
     finally:
         h.detach()
     with pytest.raises(ValueError, match="solve must be one of"):

@@ -20,7 +20,7 @@ import rft_mujoco  # noqa: E402
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion  # noqa: E402
 from rft_mujoco.studies.gait import FOOT_BODIES  # noqa: E402
 from rft_mujoco.warp import kernels as K  # noqa: E402
-from rft_mujoco.warp import layout as wlayout  # noqa: E402
+from rft_mujoco.coupling import layout as wlayout  # noqa: E402
 
 import rft_mujoco.warp as rw  # noqa: E402
 
@@ -118,11 +118,11 @@ def test_layout_is_the_cpu_handles(quadruped):
         assert np.array_equal(lay.elem_body, cpu.elem_body)
         assert np.array_equal(lay.groups.of_body, cpu.groups.of_body)
         assert np.array_equal(lay.groups.radius, cpu.groups.radius)
-        assert np.allclose(lay.bound_radius, cpu._bound_radius)
+        assert np.allclose(lay.bound_radius, cpu.layout.bound_radius)
         assert np.array_equal(lay.culled_area, cpu.culled_area)
         for name in ("start", "geom", "kind", "size", "rbound", "hs_start", "halfspaces"):
-            assert np.array_equal(getattr(lay.occluders, name), getattr(cpu._occluders, name)), name
-        assert lay.occluders.margin == cpu._occluders.margin
+            assert np.array_equal(getattr(lay.occluders, name), getattr(cpu.layout.occluders, name)), name
+        assert lay.occluders.margin == cpu.layout.occluders.margin
         assert lay.occluders.geom.size > 0
     finally:
         cpu.detach()

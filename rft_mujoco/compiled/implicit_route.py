@@ -148,7 +148,7 @@ def table_part(handle, iw, data) -> list:
     """[(name, kind, array)] of :data:`FIELDS` for ``handle`` on ``data``, its implicit solve's buffers being ``iw``
     (:class:`rft_mujoco.coupling.implicit.ImplicitWork`)."""
     m = handle.model
-    flags = np.array([1.0 if handle._constraints == "linearized" else 0.0])
+    flags = np.array([1.0 if handle.constraints == "linearized" else 0.0])
     extra = (iw.damping, iw.settings, data.M, flags, *iw.model_arrays,
              _int_view(m, lambda o: o.integrator, "integrator"), _int_view(m, lambda o: o.jacobian, "jacobian"))
     return [(name, kind, a) for (name, kind), a in zip(FIELDS, (*iw.tuple, *extra))]

@@ -40,7 +40,7 @@ def press_touching(handle, data, work, touch: np.ndarray) -> deform.PressResult 
     if todo == deform.RESTART:
         deform.unload(surface)
     clock[0] = data.time
-    sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in touch])
+    sel = np.concatenate([np.arange(handle.layout.elem_slices[i], handle.layout.elem_slices[i + 1]) for i in touch])
     bodies = handle.body_ids[handle.elem_body[sel]]
     rot = data.xmat[bodies].reshape(-1, 3, 3)
     pos = data.xpos[bodies] + np.einsum("eij,ej->ei", rot, handle.local_centroids[sel])

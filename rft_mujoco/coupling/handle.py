@@ -34,13 +34,12 @@ import numpy as np
 
 from rft_mujoco import compiled, tol
 from rft_mujoco.compiled import schema as sc
-from rft_mujoco.coupling import checks, deformable, setup
+from rft_mujoco.coupling import checks, deformable, layout, setup
 from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.evaluators import CompiledEvaluator, NumpyEvaluator
 from rft_mujoco.coupling.monitor import ValidityMonitor
 from rft_mujoco.coupling.workspace import Diagnostics, SolveCounters, _Workspace
 from rft_mujoco.geometry import surface
-from rft_mujoco.geometry.occlusion import Occluders, occluders
 from rft_mujoco.physics import law, rest
 from rft_mujoco.physics.law import PUBLISHED, Guards, gravity_direction
 from rft_mujoco.physics.media import Media, f_hat, get_media
@@ -56,6 +55,10 @@ SOLVES = ("explicit", "implicit")
 """Values of ``attach(solve=...)``: the explicit rest/flow treatment (:func:`rft_mujoco.physics.rest.rest_wrenches`)
 or the implicit solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`, this step's constraints linearized:
 :func:`rft_mujoco.coupling.reference.constrained_free_motion`; compiled: :mod:`rft_mujoco.coupling.implicit`)."""
+CONSTRAINTS = ("linearized", "lagged")
+"""Values of ``handle.constraints``, the implicit solve's constraint forces: this step's rows linearized in their
+zones (the default), or MuJoCo's previous constraint forces (the first of the implicit solve's two changes
+alone, a measurement: docs/rest.md, "The implicit solve")."""
 RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
 
@@ -78,6 +81,10 @@ class SandHandle:
         stabilize: the rest treatment is on (see :func:`attach`).
         rk4_stages: with integrator="RK4", "all" or "first" (see :func:`attach`).
         cull: only the exposed surface feels sand (see :func:`attach`).
+        layout: the elements, weld groups, bounding spheres and run-time occluders built at attach
+            (:class:`rft_mujoco.coupling.layout.Layout`; the warp path builds the same).
+        solve: ``"explicit"`` or ``"implicit"`` (see :func:`attach`); constraints: the implicit solve's
+            constraint forces (:data:`CONSTRAINTS`).
     """
 
     def __init__(self, model, media: Media, body_ids: Sequence[int], terrain: Terrain, size: float,
@@ -92,24 +99,17 @@ class SandHandle:
         self.body_ids = np.asarray(body_ids, dtype=np.int64)
         self.body_names = [model.body(int(b)).name for b in self.body_ids]
         self.cull = bool(cull)
-        s = setup.surfaces(model, self.body_ids, self.body_names, size, self.cull)
-        self.local_centroids, self.local_normals, self.areas, self.elem_body = s.centroids, s.normals, s.areas, s.elem_body
-        self.culled_area = s.culled_area
-        self.n_elements = int(self.areas.size)
-        n = len(self.body_ids)
-        self._bound_center, self._bound_radius = setup.bounding_spheres(self.local_centroids, self.elem_body, n, size)
-        self._elem_slices = np.ascontiguousarray(np.concatenate([[0], np.cumsum(np.bincount(self.elem_body,
-                                                                                          minlength=n))]),
-                                                 dtype=np.int64)
-        self.groups = setup.groups(model, self.body_ids, self.local_centroids, self.elem_body, size)
-        self._occluders = occluders(model, self.body_ids) if self.cull else Occluders.none(n)
+        self.layout = layout.build(model, self.body_ids, size, self.cull)
+        lay = self.layout
+        self.local_centroids, self.local_normals, self.areas, self.elem_body = (lay.centroids, lay.normals,
+                                                                                lay.areas, lay.elem_body)
+        self.culled_area, self.n_elements, self.groups = lay.culled_area, lay.n_elements, lay.groups
         # the geoms whose sizes the elements and occluders were built from (model edits: _check_model)
         self._geoms = np.union1d(np.flatnonzero(np.isin(model.geom_bodyid, self.body_ids)),
-                                 self._occluders.geom).astype(np.int64)
+                                 lay.occluders.geom).astype(np.int64)
         self._geom_size0 = model.geom_size[self._geoms].copy()
         self._timestep_checked = float(model.opt.timestep)
         self._work: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-        self._root = np.ascontiguousarray(model.body_rootid[self.body_ids], dtype=np.int64)
         self.attached = False
         self._evaluations = 0
         self.monitor = (monitor if isinstance(monitor, ValidityMonitor) else
@@ -120,7 +120,7 @@ class SandHandle:
         self._gravity_seen = None
         self.rk4_stages = "all"
         self.solve = "explicit"
-        self._constraints = "linearized"
+        self.constraints = "linearized"                   # CONSTRAINTS
         self._observers: list = []
         self._backend_request = backend
         self._packed = None
@@ -137,8 +137,11 @@ class SandHandle:
     # --- settings that the compiled code reads (hc.params): every setter refreshes them -------------------
     def __setattr__(self, name, value) -> None:
         object.__setattr__(self, name, value)
-        if name == "solve" and getattr(self, "_ready", False):
-            DISPATCHER.invalidate()                      # the native route is built for solve="explicit" only
+        if name in ("solve", "constraints") and getattr(self, "_ready", False):
+            if name == "constraints" and value not in CONSTRAINTS:
+                object.__setattr__(self, name, "linearized")
+                raise ValueError(f"constraints must be one of {CONSTRAINTS}, got {value!r} (reset to 'linearized')")
+            DISPATCHER.invalidate()                      # the native route is built with both
         if name in ("_media", "guards", "stabilize", "passive", "monitor", "_terrain", "rk4_stages") \
                 and getattr(self, "_ready", False):
             self._refresh()
@@ -152,7 +155,7 @@ class SandHandle:
         media = self._media
         every = self.monitor.every if self.monitor is not None else 0
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
-                              spec.kind, self.stabilize, self.passive, self._occluders.margin, every,
+                              spec.kind, self.stabilize, self.passive, self.layout.occluders.margin, every,
                               self.rk4_stages == "first", out=self._params)   # read live by the native route
         for work in self._work.values():
             if work.press is not None:                   # a deformable surface's own copy, its own highest point
@@ -342,8 +345,9 @@ class SandHandle:
             starts = self._packed.cluster_start
             self._cluster_width = int(max(np.diff(starts).max(initial=0), 1))
         settings = np.array([rest.DEPENDENT_TOL, rest.WEIGHT_FLOOR, rest.CAPACITY_TOL, tol.TINY])
-        return evaluate.handle_constants(self.model, self.body_ids, self._root, self.groups, self._bound_center,
-                                         self._bound_radius, self._packed, self._occluders, spec, law.COEFFICIENTS,
+        lay = self.layout
+        return evaluate.handle_constants(self.model, self.body_ids, lay.root, self.groups, lay.bound_center,
+                                         lay.bound_radius, self._packed, lay.occluders, spec, law.COEFFICIENTS,
                                          tolerances(), settings, self._params)
 
     _cluster_width = 128
@@ -460,7 +464,6 @@ class SandHandle:
         if g != self._gravity_seen:
             g_hat, self._g_mag = gravity_direction(g)
             self._g_hat = np.ascontiguousarray(g_hat)
-            self._gravity_vec = np.array(g)
             self._gravity_seen = g
             if self._evaluator.spec is not None:
                 from rft_mujoco.compiled.terrain import check_gravity

@@ -73,4 +73,4 @@ def evaluate_compiled(handle, data, work, user_xfrc: np.ndarray, dt: float, sand
                             iw.damping)
     return implicit_eval.evaluate_implicit(work.md, work.hc, work.tuple, iw.tuple, user_xfrc, dt, sand_out,
                                            implicit_eval.efc_arrays(data), bool(mujoco.mj_isSparse(m)), data.M,
-                                           iw.damping, iw.settings, handle._constraints == "linearized")
+                                           iw.damping, iw.settings, handle.constraints == "linearized")

@@ -179,7 +179,7 @@ class ValidityMonitor:
         if loaded.size == 0:
             return
         r = np.asarray(rows)[loaded]
-        radius = handle._bound_radius[r]
+        radius = handle.layout.bound_radius[r]
         v = np.asarray(v_com)[loaded]
         speed = np.linalg.norm(v, axis=1) + radius * np.linalg.norm(np.asarray(omega)[loaded], axis=1)
         names = [handle.body_names[i] for i in r]

@@ -24,8 +24,8 @@ def touching(handle, data, g_hat, work) -> np.ndarray:
     fills rows 0..k-1 of the workspace's pose and velocity buffers."""
     ids = handle.body_ids
     xmat = data.xmat[ids].reshape(-1, 3, 3)
-    centers = data.xpos[ids] + np.einsum("bij,bj->bi", xmat, handle._bound_center)
-    low = -(centers @ g_hat) - handle._bound_radius
+    centers = data.xpos[ids] + np.einsum("bij,bj->bi", xmat, handle.layout.bound_center)
+    low = -(centers @ g_hat) - handle.layout.bound_radius
     cand = np.flatnonzero(low < work.terrain.max_height)
     if cand.size == 0:
         return cand
@@ -34,7 +34,7 @@ def touching(handle, data, g_hat, work) -> np.ndarray:
         raise FloatingPointError(
             f"non-finite qpos/qvel while computing sand forces on bodies {bad}: the simulation already "
             "diverged (check timestep, actuator gains and masses; keep stabilize=True)")
-    sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in cand])
+    sel = np.concatenate([np.arange(handle.layout.elem_slices[i], handle.layout.elem_slices[i + 1]) for i in cand])
     remap = np.empty(len(ids), dtype=np.int64)
     remap[cand] = np.arange(cand.size)
     b = remap[handle.elem_body[sel]]
@@ -48,14 +48,14 @@ def touching(handle, data, g_hat, work) -> np.ndarray:
     a["body_com"][:k] = data.xipos[bids]
     omega = a["omega"][:k]
     omega[:] = data.cvel[bids, :3]
-    a["v_com"][:k] = data.cvel[bids, 3:] + np.cross(omega, data.xipos[bids] - data.subtree_com[handle._root[touch]])
+    a["v_com"][:k] = data.cvel[bids, 3:] + np.cross(omega, data.xipos[bids] - data.subtree_com[handle.layout.root[touch]])
     return touch
 
 
 def occluded_mask(handle, data, touch, sel, b_of_sel) -> np.ndarray:
     """(len(sel),) bool: elements ``sel`` (of the touching bodies ``touch[b_of_sel]``) inside a run-time
     occluder (a geom of another weld group, :func:`rft_mujoco.compiled.elements.occluders`)."""
-    occ = handle._occluders
+    occ = handle.layout.occluders
     out = np.zeros(sel.size, dtype=bool)
     for j, i in enumerate(touch):
         rows = np.flatnonzero(b_of_sel == j)
@@ -76,7 +76,7 @@ def occluded_mask(handle, data, touch, sel, b_of_sel) -> np.ndarray:
 def _touching_elements(handle, data, touch):
     """The elements (n,) of the touching bodies, their rows (n,) in ``touch``, and which are inside a run-time
     occluder (n,) bool."""
-    sel = np.concatenate([np.arange(handle._elem_slices[i], handle._elem_slices[i + 1]) for i in touch])
+    sel = np.concatenate([np.arange(handle.layout.elem_slices[i], handle.layout.elem_slices[i + 1]) for i in touch])
     remap = np.empty(len(handle.body_ids), dtype=np.int64)
     remap[touch] = np.arange(touch.size)
     b = remap[handle.elem_body[sel]]
@@ -96,7 +96,7 @@ def rft(handle, data, work, touch, v_com, omega, g_hat):
     wrench, count, max_depth = elements.body_wrenches(
         handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
         a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, work.terrain, g_hat,
-        handle._gravity_vec, handle._media, handle.guards, active=~hidden)
+        handle.model.opt.gravity, handle.media, handle.guards, active=~hidden)
     return wrench, count, max_depth, occluded
 
 
@@ -323,7 +323,7 @@ def commit(handle, diag, touch, applied, rft_b, count, max_depth, occluded, rest
     """Diagnostics of the touching bodies and ``applied`` (k, 6) into ``sand_out``. Returns 1 when a wrench
     is non-zero, 0 when none is, -1 (``sand_out`` untouched) when one is not finite."""
     diag.clear()
-    radius = handle._bound_radius[touch][:, None]
+    radius = handle.layout.bound_radius[touch][:, None]
     rft_norm = np.linalg.norm(np.hstack([rft_b[:, :3], rft_b[:, 3:] / radius]), axis=1)
     app_norm = np.linalg.norm(np.hstack([applied[:, :3], applied[:, 3:] / radius]), axis=1)
     loaded = rft_norm > 0.0
@@ -487,7 +487,7 @@ def rft_jacobian(handle, data, work, touch, v_com, omega, g_hat, speed_scale, el
     return elements.body_wrench_jacobians(
         handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
         a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, work.terrain, g_hat,
-        handle._gravity_vec, handle._media, handle.guards, speed_scale, active=~hidden)
+        handle.model.opt.gravity, handle.media, handle.guards, speed_scale, active=~hidden)
 
 
 def _shift(arm: np.ndarray) -> np.ndarray:
@@ -510,7 +510,7 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, s
     ref = handle.body_ids[grp.ref[active]]
     radius = grp.radius[active]
     jac, free, twist, mobility, end_qacc, zones = implicit_free(handle, data, user_xfrc, ref, dt,
-                                                                 handle._constraints, lagged=lagged)
+                                                                 handle.constraints, lagged=lagged)
     arm = work.arrays["body_com"][:touch.size] - data.xipos[ref[slot]]
     shift = _shift(arm)
     last = {}
@@ -537,7 +537,7 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, s
         if np.array_equal(now[0], zones[0]) and np.array_equal(now[1], zones[1]):
             break
         jac, free, twist, mobility, end_qacc, zones = implicit_free(handle, data, user_xfrc, ref, dt,
-                                                                     handle._constraints, now, lagged)
+                                                                     handle.constraints, now, lagged)
         applied_g, resting_g, end, its = implicit.implicit_wrenches(free, mobility, law, twist, radius, dt,
                                                                     flowing)
     work.flowing = (active, ~resting_g)

@@ -156,7 +156,7 @@ def run_case(case: Case) -> Result:
         sand = attach(model, case.media, resolution=RESOLUTION, stabilize=case.stabilize)
         rec = StageRecorder(sand, model)
         try:
-            radius = float(sand._bound_radius[0])
+            radius = float(sand.layout.bound_radius[0])
             for i in range(n):
                 t = i * dt
                 loaded = case.kind != "drop" and SETTLE <= t < SETTLE + LOAD

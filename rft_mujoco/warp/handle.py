@@ -45,7 +45,7 @@ from rft_mujoco.physics.media import Media, get_media
 from rft_mujoco.physics import terrain_spec as ts
 from rft_mujoco.physics.terrain import Terrain, as_terrain
 from rft_mujoco.warp import kernels as K
-from rft_mujoco.warp import layout as _layout
+from rft_mujoco.coupling import layout as _layout
 from rft_mujoco.warp import occlusion as _occlusion
 
 
@@ -216,7 +216,8 @@ class WarpSandHandle:
             normal=v3(layout.normals), bound_center=v3(layout.bound_center), area=wp.array(layout.areas.astype(np.float32), dtype=float, device=dev),
             body_group=i4(layout.groups.of_body), group_ref=i4(layout.groups.ref),
             group_radius=wp.array(layout.groups.radius, dtype=wp.float64, device=dev),
-            bound_radius=wp.array(layout.bound_radius, dtype=wp.float64, device=dev),
+            bound_radius=wp.array(np.where(np.isfinite(layout.bound_radius), layout.bound_radius,  # no elements
+                                           layout.element_size), dtype=wp.float64, device=dev),
             attached_index=i4(attached_index), body_rootid=i4(m.body_rootid), body_dofnum=i4(m.body_dofnum),
             body_dofadr=i4(m.body_dofadr), body_parentid=i4(m.body_parentid), dof_parentid=i4(m.dof_parentid),
             tp=wp.array(tp, dtype=float, device=dev), heights=wp.array(heights, dtype=float, device=dev),

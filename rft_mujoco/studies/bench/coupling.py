@@ -36,7 +36,7 @@ def _trot(model, data, state) -> tuple[np.ndarray, np.ndarray]:
 
 def _touching_elements(handle, data) -> int:
     """Elements of the bodies that touch the sand at ``data``'s state."""
-    counts = np.diff(handle._elem_slices)
+    counts = np.diff(handle.layout.elem_slices)
     d = handle.diagnostics(data)
     return int(counts[(d.submerged > 0) | (d.max_depth > 0)].sum())
 
