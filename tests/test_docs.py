@@ -43,8 +43,8 @@ BASH = {f"{page.name}:{i}": code for page in sorted(DOCS.glob("*.md"))
         for i, code in enumerate(re.findall(r"```bash\n(.*?)```", page.read_text(), flags=re.S))}
 
 RUN = {
-    "training.md:2": "the sand gap of the shipped runs: 12 episodes of 10 s (about 1 min on this 2-core VM)",
-    "training.md:5": "a shipped run written in rl-zoo3's layout and one episode of it in rl_zoo3.enjoy (~20 s)",
+    "training.md:3": "the sand gap of the shipped runs: 12 episodes of 10 s (about 1 min on this 2-core VM)",
+    "training.md:6": "a shipped run written in rl-zoo3's layout and one episode of it in rl_zoo3.enjoy (~20 s)",
 }
 """The bash blocks run as written, and what they cost."""
 
@@ -61,11 +61,13 @@ NOT_RUN = {
                        "trots)",
     "performance.md:0": "the whole benchmark, ~5 min (tests/test_bench.py runs it with --quick)",
     "training.md:0": "an hour of training (tests/test_train.py trains with the same command on a tiny budget)",
+    "training.md:2": "the shipped policy evaluated under each solve, 10 episodes and the command table each, "
+                     "about 10 minutes (tests/test_train.py evaluates a run with --env-kwargs solve=implicit)",
     "training.md:1": "10 episodes of 20 s per policy, the command table and a video, several minutes "
                      "(tests/test_train.py evaluates the shipped run on fewer episodes)",
-    "training.md:3": "resumes a run of your own (tests/test_train.py interrupts a tiny run with SIGTERM and resumes "
+    "training.md:4": "resumes a run of your own (tests/test_train.py interrupts a tiny run with SIGTERM and resumes "
                      "it by folder and by name)",
-    "training.md:4": "a million steps of rl-zoo3 training (tests/test_zoo.py runs the zoo's train, evaluation and "
+    "training.md:5": "a million steps of rl-zoo3 training (tests/test_zoo.py runs the zoo's train, evaluation and "
                      "enjoy with the same YAML on a tiny budget)",
 }
 """The bash blocks not run, and why: their commands are checked (:func:`test_costly_bash_block_commands_exist`)."""
@@ -98,12 +100,12 @@ def test_bash_block_runs_as_written(key, tmp_path):
     if "rl_zoo3" in BASH[key]:
         pytest.importorskip("rl_zoo3")
     out = _run_bash(BASH[key], tmp_path)
-    if key == "training.md:2":   # the page's table is what the command prints
+    if key == "training.md:3":   # the page's table is what the command prints
         printed = re.findall(r"^(sand|rigid)\s+(sand|rigid)\s+([\d.]+)\s", out, re.M)
         assert len(printed) == 4 and set(_doc_gap_rows()) == {(a, b) for a, b, _ in printed}, out
         for a, b, vx in printed:
             assert float(vx) == pytest.approx(_doc_gap_rows()[a, b], abs=0.005), (a, b, out)
-    if key == "training.md:5":   # the shipped run replayed by the zoo, with its VecNormalize statistics
+    if key == "training.md:6":   # the shipped run replayed by the zoo, with its VecNormalize statistics
         assert "rft_mujoco-SandQuadruped-v1_1" in out and "Loading running average" in out, out
         assert "Mean episode length: 1000.00" in out, out
 
