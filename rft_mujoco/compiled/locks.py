@@ -230,20 +230,21 @@ def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, c
     in the final solve; which: ``lock_i[1]`` (1/0); the other ``lock_*`` are work space."""
     n6 = 6 * ng
     tiny = settings[3]
-    rest_wrenches(free, mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2], tiny, a, v, cap,
-                  w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest, state, False)
-    for l in range(nl):
-        lock_i[1, l] = 0
-    if check and not _lock_needed(nl, ng, lock_f.shape[1], dt, chain, zt, free, twist, radius, w, lock_i, lock_f,
-                                  lock_z, lock_chain, lock_s, lock_r, tiny):
-        return 0
+    if check:                                        # step 1 needs the unlocked solve; without it (a dof held at
+        rest_wrenches(free, mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2], tiny, a, v,
+                      cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest, state, False)
+        for l in range(nl):                          # the last evaluation) it is made only if every lock releases:
+            lock_i[1, l] = 0                         # the same numbers, one rest solve fewer while a robot stands
+        if not _lock_needed(nl, ng, lock_f.shape[1], dt, chain, zt, free, twist, radius, w, lock_i, lock_f, lock_z,
+                            lock_chain, lock_s, lock_r, tiny):
+            return 0
+        for g in range(ng):
+            lock_rest[g] = rest[g]
+            for c in range(6):
+                lock_w[g, c] = w[g, c]
     _lock_coupling(nl, ng, chain, zt, lock_z, lock_chain, lock_c)
     for l in range(nl):
         lock_i[1, l] = 1
-    for g in range(ng):
-        lock_rest[g] = rest[g]
-        for c in range(6):
-            lock_w[g, c] = w[g, c]
     while True:
         m = 0
         for l in range(nl):
@@ -251,6 +252,11 @@ def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, c
                 lock_i[2, m] = l
                 m += 1
         if m == 0:                                   # every lock released: the unlocked solve
+            if not check:
+                rest_wrenches(free, mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2], tiny,
+                              a, v, cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest,
+                              state, False)
+                return 0
             for g in range(ng):
                 rest[g] = lock_rest[g]
                 for c in range(6):
