@@ -125,7 +125,7 @@ OVER_THE_LIMITS = {
     "compiled.element_pass.wrenches": (43, 172), "compiled.element_pass.body_wrenches": (15, 3),
     "compiled.elements.touching": (27, 82), "compiled.elements.finish_naive": (19, 42),
     "compiled.evaluate._mobility": (26, 84), "compiled.evaluate._rest": (11, 142),
-    "compiled.evaluate.handle_constants": (13, 17), "compiled.implicit._flow_eval": (13, 15),
+"compiled.implicit._flow_eval": (13, 15),
     "compiled.implicit.implicit_wrenches": (16, 5), "compiled.implicit.solve_from_probe": (17, 174),
     "compiled.implicit_eval.evaluate_implicit": (13, 138), "compiled.implicit_law.loaded_candidates": (33, 67),
     "compiled.implicit_law.body_law": (27, 96), "compiled.implicit_law.group_law": (34, 35),

@@ -420,13 +420,17 @@ def params_array(max_height: float, xi_per_g: float, mu_surf: float, guards, kin
     return out
 
 
-def handle_constants(model, body_ids, root, groups, bound_center, bound_radius, packed, occluders, spec, coef,
-                     tol, settings, params) -> tuple:
+def handle_constants(model, layout, packed, spec, coef, tol, settings, params) -> tuple:
     """The ``hc`` tuple (:data:`HANDLE_FIELDS`) of a handle: its arrays and the model's (``model.opt.gravity``
-    as a live view, so gravity changes are seen)."""
+    as a live view, so gravity changes are seen). ``layout``: the handle's
+    :class:`rft_mujoco.coupling.layout.Layout` (bodies, roots, groups, bounding spheres, occluders); ``packed``
+    its elements packed in clusters (:func:`rft_mujoco.compiled.elements.pack`); ``spec`` the terrain's kernel
+    spec."""
     i8 = lambda a: np.ascontiguousarray(a, dtype=np.int64)        # noqa: E731
     f8 = lambda a: np.ascontiguousarray(a, dtype=np.float64)      # noqa: E731
     kind, tp, heights = spec
+    body_ids, root, groups, occluders = layout.body_ids, layout.root, layout.groups, layout.occluders
+    bound_center, bound_radius = layout.bound_center, layout.bound_radius
     arrays = dict(
         ids=i8(body_ids), root=i8(root), group_of=i8(groups.of_body), group_ref=i8(groups.ref),
         cluster_start=packed.cluster_start, body_clusters=packed.body_clusters,

@@ -345,10 +345,8 @@ class SandHandle:
             starts = self._packed.cluster_start
             self._cluster_width = int(max(np.diff(starts).max(initial=0), 1))
         settings = np.array([rest.DEPENDENT_TOL, rest.WEIGHT_FLOOR, rest.CAPACITY_TOL, tol.TINY])
-        lay = self.layout
-        return evaluate.handle_constants(self.model, self.body_ids, lay.root, self.groups, lay.bound_center,
-                                         lay.bound_radius, self._packed, lay.occluders, spec, law.COEFFICIENTS,
-                                         tolerances(), settings, self._params)
+        return evaluate.handle_constants(self.model, self.layout, self._packed, spec, law.COEFFICIENTS, tolerances(),
+                                         settings, self._params)
 
     _cluster_width = 128
 
