@@ -136,11 +136,10 @@ class SandHandle:
 
     # --- settings that the compiled code reads (hc.params): every setter refreshes them -------------------
     def __setattr__(self, name, value) -> None:
+        if name == "constraints" and value not in CONSTRAINTS:
+            raise ValueError(f"constraints must be one of {CONSTRAINTS}, got {value!r}")
         object.__setattr__(self, name, value)
         if name in ("solve", "constraints") and getattr(self, "_ready", False):
-            if name == "constraints" and value not in CONSTRAINTS:
-                object.__setattr__(self, name, "linearized")
-                raise ValueError(f"constraints must be one of {CONSTRAINTS}, got {value!r} (reset to 'linearized')")
             DISPATCHER.invalidate()                      # the native route is built with both
         if name in ("_media", "guards", "stabilize", "passive", "monitor", "_terrain", "rk4_stages") \
                 and getattr(self, "_ready", False):

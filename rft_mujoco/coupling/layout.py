@@ -20,7 +20,6 @@ from rft_mujoco.geometry import surface
 from rft_mujoco.geometry.occlusion import Occluders, occluders
 
 
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Layout:
     """Elements and groups of the attached bodies (B bodies, E elements, G weld groups).

@@ -64,8 +64,8 @@ class SandTaskEnv(MujocoEnv):
     episode feel (:mod:`rft_mujoco.physics.deform`); a reset restores the initial surface. It runs compiled
     (docs/deformable.md, "The cost": the trotting quadruped at about 1.3 times its flat-surface cost).
 
-    Every task also takes ``solve`` (keyword, default ``"explicit"``): the sand solve of
-    :func:`rft_mujoco.attach` (``"implicit"``: right at any mass, docs/rest.md, "The implicit solve").
+    Every task also takes ``solve`` (keyword; default: :func:`rft_mujoco.attach`'s, ``"explicit"``): the sand
+    solve (``"implicit"``: right at any mass, docs/rest.md, "The implicit solve").
     """
 
     def __init__(self, xml_file: str, frame_skip: int, *, media: Media | str, resolution: str | float,
@@ -77,7 +77,7 @@ class SandTaskEnv(MujocoEnv):
         self._include_sand_in_observation = bool(include_sand_in_observation)
         self._bed_depth_m = bed_depth_m
         deformable = kwargs.pop("deformable", None)
-        solve = kwargs.pop("solve", "explicit")
+        solve = kwargs.pop("solve", None)
         MujocoEnv.__init__(self, model_path(xml_file), frame_skip, observation_space=None, **kwargs)
         self.sand = SandBed(self.model, media, bodies=sand_bodies, resolution=resolution,
                             surface=self._surface_geoms, media_ranges=media_ranges, solve=solve)

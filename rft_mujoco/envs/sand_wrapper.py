@@ -78,7 +78,7 @@ is the medium of the current episode.
 | `include_sand_in_observation` | bool               | `False`                  | append per-body sand force and sinkage |
 | `media_ranges`                | MediaRanges or None| `None`                   | per-episode uniform ranges for rho_c, mu_int, mu_surf |
 | `stabilize`                   | bool               | `True`                   | the coupling's implicit direction and impulse limiter |
-| `solve`                       | str                | `"explicit"`             | the sand solve: `"explicit"` or `"implicit"` (docs/rest.md) |
+| `solve`                       | str or None        | `None`                   | the sand solve: `"explicit"` or `"implicit"` (docs/rest.md); None: `attach`'s default (`"explicit"`) |
 
 ## Version History
 * v0: first version (mujoco 4.0.0, gymnasium 1.4 ``{base}`` v5 assets).
@@ -93,7 +93,7 @@ class _SandEnv:
     def __init__(self, *, media: Media | str = DEFAULT_MEDIA, resolution: str | float | None = None,
                  sand_bodies: str | Sequence[str | int] = "auto", bed_depth_m: float | None = None,
                  sand_in_contact_forces: bool = False, include_sand_in_observation: bool = False,
-                 media_ranges: MediaRanges | None = None, stabilize: bool = True, solve: str = "explicit",
+                 media_ranges: MediaRanges | None = None, stabilize: bool = True, solve: str | None = None,
                  **base_kwargs):
         resolution = self._sand_resolution if resolution is None else resolution
         self.sand = None
