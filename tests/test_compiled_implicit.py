@@ -43,7 +43,7 @@ class Problem:
                   self.area[sub].copy())
         self.xi_n = MEDIA.rho_c * f_hat(MEDIA.mu_int) * 9.81
         self.work = (np.zeros((k, 3)), np.zeros((k, 3)), np.zeros(k, dtype=np.bool_),
-                     np.zeros((implicit_law.SCRATCH_ROWS, n)), np.zeros(n, dtype=np.int64), np.zeros((k, 6)),
+                     np.zeros((implicit_law.SCRATCH_ROWS, n)), np.zeros(n + 1, dtype=np.int64), np.zeros((k, 6)),
                      np.zeros((k, 6, 6)), np.zeros(k, dtype=np.int64), np.zeros(k))
 
     def lw(self):
@@ -84,7 +84,7 @@ def test_group_law_and_derivative_match_the_numpy_law(seed):
     u[:, 3:] *= 5.0
     f, df = np.zeros((p.ng, 6)), np.zeros((p.ng, 6, 6))
     on = np.ones(p.ng, dtype=np.bool_)
-    cimp._law(p.lw(), u, on, p.ng, cimp.settings(), True, f, df)
+    cimp._law(p.lw(), u, on, p.ng, cimp.settings(), implicit_law.LAW_AND_DERIVATIVE, f, df)
     f_ref, df_ref = p.numpy_law(u)
     assert np.abs(f_ref).max() > 1e-3
     np.testing.assert_allclose(f, f_ref, rtol=1e-10, atol=1e-12 * np.abs(f_ref).max())
@@ -93,8 +93,27 @@ def test_group_law_and_derivative_match_the_numpy_law(seed):
     off = on.copy()                                   # a group not asked for keeps its rows
     off[0] = False
     f[:] = 7.0
-    cimp._law(p.lw(), u, off, p.ng, cimp.settings(), False, f, df)
+    cimp._law(p.lw(), u, off, p.ng, cimp.settings(), implicit_law.LAW, f, df)
     assert np.all(f[0] == 7.0) and np.allclose(f[1:], f_ref[1:], rtol=1e-10, atol=1e-12 * np.abs(f_ref).max())
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_derivative_of_the_last_law_is_that_of_one_call(seed):
+    # the Newton solve evaluates the law at trial points and its derivative only where it steps from: the law
+    # then the derivative of the last law must be one call's numbers, bit for bit
+    p = Problem(seed)
+    u = np.random.default_rng(200 + seed).normal(scale=0.05, size=(p.ng, 6))
+    on = np.ones(p.ng, dtype=np.bool_)
+    one = np.zeros((p.ng, 6)), np.zeros((p.ng, 6, 6))
+    cimp._law(p.lw(), u, on, p.ng, cimp.settings(), implicit_law.LAW_AND_DERIVATIVE, *one)
+    lw = p.lw()
+    two = np.zeros((p.ng, 6)), np.zeros((p.ng, 6, 6))
+    cimp._law(lw, u * 0.5, on, p.ng, cimp.settings(), implicit_law.LAW_AND_DERIVATIVE, *two)
+    cimp._law(lw, u, on, p.ng, cimp.settings(), implicit_law.LAW, *two)
+    assert not np.array_equal(two[1], one[1])         # the law alone left the derivative at u / 2 in place
+    cimp._law(lw, u, on, p.ng, cimp.settings(), implicit_law.DERIVATIVE_OF_LAST, *two)
+    assert np.abs(one[1]).max() > 0.0
+    assert np.array_equal(two[0], one[0]) and np.array_equal(two[1], one[1])
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from rft_mujoco.compiled import schema as sc
-from rft_mujoco.compiled.implicit_law import group_law
+from rft_mujoco.compiled.implicit_law import DERIVATIVE_OF_LAST, LAW, group_law
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled.rest import min_norm_apply, min_norm_factor
 
@@ -83,9 +83,9 @@ def lu_solve(n, a, b):
 
 
 @njit(**JIT)
-def _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf, jac):
-    """The Newton solve's law: ``wf`` (6 k,) the flowing groups' scaled wrenches at scaled twists ``u`` (6 k,),
-    ``jac`` (k, 6, 6) their scaled derivative blocks."""
+def _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf):
+    """The Newton solve's law: ``wf`` (6 k,) the flowing groups' scaled wrenches at scaled twists ``u`` (6 k,)
+    (their twists, unscaled, in ``full``)."""
     kf = groups.shape[0]
     for g in range(ng):
         for c in range(6):
@@ -94,11 +94,20 @@ def _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf, jac):
         g = groups[i]
         for c in range(6):
             full[g, c] = u[6 * i + c] / sv[6 * g + c]
-    _law(lw, full, flow, ng, st, True, f, df)
+    _law(lw, full, flow, ng, st, LAW, f, df)
     for i in range(kf):
         g = groups[i]
         for a in range(6):
             wf[6 * i + a] = f[g, a] * sw[6 * g + a]
+
+
+@njit(**JIT)
+def _flow_jac(lw, groups, ng, flow, sv, sw, st, full, f, df, jac):
+    """``jac`` (k, 6, 6): the scaled derivative blocks of the law :func:`_flow_eval` evaluated last (at ``full``)."""
+    _law(lw, full, flow, ng, st, DERIVATIVE_OF_LAST, f, df)
+    for i in range(groups.shape[0]):
+        g = groups[i]
+        for a in range(6):
             for b in range(6):
                 jac[i, a, b] = sw[6 * g + a] * df[g, a, b] / sv[6 * g + b]
 
@@ -107,7 +116,9 @@ def _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf, jac):
 def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
     """:func:`rft_mujoco.physics.implicit._newton_flow`: Newton's method on ``u - v_eff - a_eff F(u) = 0`` for
     the flowing groups (scaled coordinates), from ``u`` (overwritten with the answer). Returns the flowing
-    groups' scaled wrenches and the iterations."""
+    groups' scaled wrenches and the iterations. The law's derivative is taken only at the points a step
+    starts from (:data:`~rft_mujoco.compiled.implicit_law.DERIVATIVE_OF_LAST`), not at trial points of the
+    line search nor at the answer: the iterates of a derivative at every evaluation, bit for bit."""
     kf = 0
     for g in range(ng):
         if flow[g]:
@@ -122,7 +133,7 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
     wf = np.empty(n)
     jac = np.empty((kf, 6, 6))
     res = np.empty(n)
-    _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf, jac)
+    _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf)
     scale = 0.0
     for p in range(n):
         res[p] = u[p] - v_eff[p]
@@ -135,7 +146,6 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
     step = np.empty(n)
     u_try = np.empty(n)
     wf_try = np.empty(n)
-    jac_try = np.empty((kf, 6, 6))
     res_try = np.empty(n)
     for it in range(1, int(st[sc.ST_NEWTON_ITERATIONS]) + 1):
         its = it
@@ -144,6 +154,7 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
             top = max(top, abs(res[p]))
         if top <= scale:
             break
+        _flow_jac(lw, groups, ng, flow, sv, sw, st, full, f, df, jac)   # the law evaluated last was at u
         for p in range(n):                     # I - a_eff J (J block diagonal)
             for i in range(kf):
                 for b in range(6):
@@ -161,7 +172,7 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
         while t > 1e-3:
             for p in range(n):
                 u_try[p] = u[p] + t * step[p]
-            _flow_eval(lw, u_try, groups, ng, flow, sv, sw, st, full, f, df, wf_try, jac_try)
+            _flow_eval(lw, u_try, groups, ng, flow, sv, sw, st, full, f, df, wf_try)
             norm = 0.0
             for p in range(n):
                 r = u_try[p] - v_eff[p]
@@ -172,9 +183,8 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
             if norm < norm0:
                 break
             t *= 0.5
-        u[:] = u_try                           # the accepted step (or the last, shortest, one tried)
-        wf[:] = wf_try
-        jac[:] = jac_try
+        u[:] = u_try                           # the accepted step (or the last, shortest, one tried): the law
+        wf[:] = wf_try                         # evaluated last
         res[:] = res_try
     return wf, its
 
@@ -209,7 +219,7 @@ def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, 
     in ``lw``) hold the law at the probe. Returns the Newton iterations."""
     _blend(twist, free, radius, ng, probe)
     on = np.ones(ng, np.bool_)
-    _law(lw, probe, on, ng, st, False, f, df)
+    _law(lw, probe, on, ng, st, LAW, f, df)
     return solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w_out, rest, end, probe, f, df,
                             True)
 

@@ -21,7 +21,7 @@ from rft_mujoco.compiled.evaluate import _gravity
 from rft_mujoco.compiled.share import BAD_ACCELERATION, NOT_FINITE, _share_and_commit, touching_groups
 from rft_mujoco.compiled.element_pass import wrenches
 from rft_mujoco.compiled.implicit import NEED_ELEMENTS, _blend, solve_from_probe
-from rft_mujoco.compiled.implicit_law import SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
+from rft_mujoco.compiled.implicit_law import LAW, SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.rest import add_user_wrenches
@@ -47,7 +47,7 @@ def build_implicit(n_elements: int, n_bodies: int, n_groups: int, nv: int) -> di
     shapes = dict(e_slot=(e,), e_arm=(e, 3), e_nrm=(e, 3), e_depth=(e,), e_area=(e,), jac=(b, 6, 6), lin=(b, 3),
                   ang=(b, 3), on=(b,), jrows=(n6, nv), h=(nv1, nv1), f=(nv,), y=(n6, nv), end=(g, 6), probe=(g, 6),
                   gf=(g, 6), gdf=(g, 6, 6), flowing=(g,), prev_active=(g,), prev_flow=(g,), istate=(1,),
-                  scr=(SCRATCH_ROWS, e), pk=(e,))
+                  scr=(SCRATCH_ROWS, e), pk=(e + 1,))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     return {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in IMPLICIT_FIELDS}
 
@@ -196,7 +196,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     if again:
         group_law(end, flowing, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n,
                   hc[sc.H_COEF], params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0,
-                  params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], st[sc.ST_SPEED_SCALE], st[sc.ST_FD_STEP], False, lin,
+                  params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], st[sc.ST_SPEED_SCALE], st[sc.ST_FD_STEP], LAW, lin,
                   ang, on, scr, pk, wrench, jac_b, count, depth_max, gf, gdf)
     # 7. each body's part (reference.share) and the diagnostics (reference.commit)
     return _share_and_commit(k, ng, slot, wrench, rad_g, gf, w, resting, arm, size, cap, applied, ws, touch,

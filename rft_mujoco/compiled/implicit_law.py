@@ -113,6 +113,12 @@ def loaded_candidates(touch, k, centroids, normals, areas, cluster_start, cluste
 SCRATCH_ROWS = 20
 """Rows of :func:`body_law`'s scratch buffer (per loaded element: velocity, speed, normal, stress scale, force,
 the law's 3x3 derivative)."""
+LAW, LAW_AND_DERIVATIVE, DERIVATIVE_OF_LAST = 0, 1, 2
+"""``derivative`` of :func:`body_law` and :func:`group_law`: the law only; the law and its derivative; the
+derivative of the law the last call evaluated (same elements, same twists: its loaded elements are still packed
+in ``scr`` and ``pk``), leaving the wrenches as that call left them. A Newton solve evaluates the law at each
+trial point and its derivative only at the points it steps from: LAW then DERIVATIVE_OF_LAST gives the numbers
+of one LAW_AND_DERIVATIVE call, bit for bit."""
 _V, _SP, _N, _SA, _F, _D = 0, 3, 4, 7, 8, 11
 
 
@@ -128,22 +134,30 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
     ``count`` (loaded elements), ``max_depth`` (m); with ``derivative``, ``jac`` (6, 6) d wrench /
     d (lin, ang): per element the law's 3x3 derivative by forward differences (a step of ``fd_step`` times
     the element's speed or ``c``, whichever is larger), moved to the body twist through the lever arm.
-    ``scr`` (:data:`SCRATCH_ROWS`, >= n_e) float and ``pk`` (>= n_e,) int: work space. As the element pass, the
-    loaded elements are packed first and the law runs on them without branches (vectorized)."""
+    ``derivative``: :data:`LAW`, :data:`LAW_AND_DERIVATIVE` or :data:`DERIVATIVE_OF_LAST` (``True``/``False`` read
+    as the first two). ``scr`` (:data:`SCRATCH_ROWS`, >= n_e) float and ``pk`` (> n_e,) int: work space; the
+    last slot of ``pk`` keeps the number of loaded elements for :data:`DERIVATIVE_OF_LAST`. As the element pass,
+    the loaded elements are packed first and the law runs on them without branches (vectorized)."""
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
     cc = speed_scale * speed_scale
-    ee = np.empty((3, 3))
+    last = derivative == DERIVATIVE_OF_LAST
     for j in range(k):
         if on[j]:
-            count[j] = 0
-            max_depth[j] = 0.0
+            if not last:
+                count[j] = 0
+                max_depth[j] = 0.0
             for a in range(6):
-                wrench[j, a] = 0.0
+                if not last:
+                    wrench[j, a] = 0.0
                 if derivative:
                     for b in range(6):
                         jac[j, a, b] = 0.0
+    if last:
+        _derivative_sums(pk[pk.shape[0] - 1], e_slot, e_arm, g0, g1, g2, c, mu_surf, no_tension, no_forward,
+                         no_power, lead_tol, vert_tol, cc, speed_scale, fd_step, scr, pk, jac)
+        return
     m = 0                                        # 1. the loaded elements, packed
     for e in range(n_e):
         j = e_slot[e]
@@ -160,6 +174,7 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
         scr[_V + 2, m] = vz
         scr[_SP, m] = sp
         m += on[j] and sp > zero_speed and (n0 * vx + n1 * vy + n2 * vz) / sp >= -lead_tol
+    pk[pk.shape[0] - 1] = m
     for i in range(m):
         e = pk[i]
         scr[_N, i] = e_nrm[e, 0]
@@ -174,21 +189,6 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
         scr[_F, i] = sx * ph
         scr[_F + 1, i] = sy * ph
         scr[_F + 2, i] = sz * ph
-    if derivative:
-        for q in range(3):                       # the law at v + h e_q
-            for i in range(m):
-                sp = scr[_SP, i]
-                h = fd_step * max(sp, speed_scale)
-                ux = scr[_V, i] + (h if q == 0 else 0.0)
-                uy = scr[_V + 1, i] + (h if q == 1 else 0.0)
-                uz = scr[_V + 2, i] + (h if q == 2 else 0.0)
-                s = math.sqrt(ux * ux + uy * uy + uz * uz)
-                tx, ty, tz = _stress(scr[_N, i], scr[_N + 1, i], scr[_N + 2, i], ux / s, uy / s, uz / s, g0, g1, g2,
-                                     c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)
-                p = scr[_SA, i] * (s / math.sqrt(s * s + cc))
-                scr[_D + q, i] = (tx * p - scr[_F, i]) / h           # d[i_, q] = d f_i_ / d v_q, row-major
-                scr[_D + 3 + q, i] = (ty * p - scr[_F + 1, i]) / h
-                scr[_D + 6 + q, i] = (tz * p - scr[_F + 2, i]) / h
     for i in range(m):                           # 3. sums about each COM
         e = pk[i]
         j = e_slot[e]
@@ -202,8 +202,35 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
         wrench[j, 3] += r1 * fz - r2 * fy
         wrench[j, 4] += r2 * fx - r0 * fz
         wrench[j, 5] += r0 * fy - r1 * fx
-        if not derivative:
-            continue
+    if derivative:
+        _derivative_sums(m, e_slot, e_arm, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol,
+                         vert_tol, cc, speed_scale, fd_step, scr, pk, jac)
+
+
+@njit(**JIT_LAW)
+def _derivative_sums(m, e_slot, e_arm, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol,
+                     cc, speed_scale, fd_step, scr, pk, jac):
+    """:func:`body_law`'s derivative on its ``m`` packed loaded elements (``scr``, ``pk`` as it left them), added
+    to ``jac`` (rows zeroed by the caller)."""
+    ee = np.empty((3, 3))
+    for q in range(3):                           # the law at v + h e_q
+        for i in range(m):
+            sp = scr[_SP, i]
+            h = fd_step * max(sp, speed_scale)
+            ux = scr[_V, i] + (h if q == 0 else 0.0)
+            uy = scr[_V + 1, i] + (h if q == 1 else 0.0)
+            uz = scr[_V + 2, i] + (h if q == 2 else 0.0)
+            s = math.sqrt(ux * ux + uy * uy + uz * uz)
+            tx, ty, tz = _stress(scr[_N, i], scr[_N + 1, i], scr[_N + 2, i], ux / s, uy / s, uz / s, g0, g1, g2,
+                                 c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)
+            p = scr[_SA, i] * (s / math.sqrt(s * s + cc))
+            scr[_D + q, i] = (tx * p - scr[_F, i]) / h           # d[i_, q] = d f_i_ / d v_q, row-major
+            scr[_D + 3 + q, i] = (ty * p - scr[_F + 1, i]) / h
+            scr[_D + 6 + q, i] = (tz * p - scr[_F + 2, i]) / h
+    for i in range(m):
+        e = pk[i]
+        j = e_slot[e]
+        r0, r1, r2 = e_arm[e, 0], e_arm[e, 1], e_arm[e, 2]
         # element velocity v = lin - [r]x ang; its wrench (f, [r]x f): J = [[D, -D[r]x], [[r]x D, -[r]x D [r]x]]
         for q in range(3):                       # ee = [r]x D
             d0, d1, d2 = scr[_D + q, i], scr[_D + 3 + q, i], scr[_D + 6 + q, i]
