@@ -229,10 +229,11 @@ NEED_ELEMENTS = -1
 
 
 @njit(**JIT)
-def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w_out, rest, end, probe, f, df,
+def solve_from_probe(free, mob, lw, start, radius, dt, ng, flowing, prior, st, w_out, rest, end, probe, f, df,
                      ready):
     """:func:`implicit_wrenches` from its capacity test on: ``probe`` (ng, 6) holds the blended twists
-    (:func:`_blend`) and ``f`` (ng, 6) the groups' law at them. Without ``ready`` (``lw`` does not hold the
+    (:func:`_blend`) and ``f`` (ng, 6) the groups' law at them; a flowing group's Newton solve starts from its
+    row of ``start`` (ng, 6) (the twists now, or an earlier zone pass's answer). Without ``ready`` (``lw`` does not hold the
     evaluation's elements: the probe's law came from the element pass), returns :data:`NEED_ELEMENTS` before
     the first Newton solve, having written nothing but ``flowing`` (the caller restores it, fills ``lw`` and
     calls again with ``ready``); a solve that keeps every group at rest never needs them."""
@@ -345,7 +346,7 @@ def solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w
                 for l in range(mr):
                     s += a[f_idx[i], r_idx[l]] * pv[l]
                 v_eff[i] = v[f_idx[i]] - s
-                u_flow[i] = twist[f_idx[i] // 6, f_idx[i] % 6] * sv[f_idx[i]]
+                u_flow[i] = start[f_idx[i] // 6, f_idx[i] % 6] * sv[f_idx[i]]
             w_f, it = _newton_flow(lw, flow, ng, a_eff, v_eff, u_flow, sv, sw, st, full, f, df)
             its += it
             for i in range(mf):

@@ -111,6 +111,8 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
     all_on = np.ones(ng, np.bool_)
+    start = np.empty((ng, 6))                       # the Newton solve's starting twists
+    have_elements = False                           # the evaluation's elements found (the same in every pass)
     for zone_pass in range(int(st[sc.ST_ZONE_PASSES])):
         # 2. the smooth force of this evaluation (+ the user's wrenches; + the last constraint forces when lagged)
         for i in range(nv):
@@ -147,9 +149,15 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         group_sums(ng, all_on, k, slot, arm, on, wrench, gf)
         # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
         #    this motion: not after a state restore); the elements that may carry stress are found (in the world
-        #    frame, for the Newton solve) only when a group is to flow
-        for ready in (False, True):
-            if ready:
+        #    frame, for the Newton solve) once, when a group is first to flow; a group that flowed in the last zone
+        #    pass starts its Newton solve from that pass's answer (physics.implicit.implicit_wrenches's ``start``)
+        for r in range(ng):
+            for c in range(6):
+                start[r, c] = end[r, c] if zone_pass > 0 and not resting[r] else twist[r, c]
+        ready = have_elements
+        while True:
+            if ready and not have_elements:
+                have_elements = True
                 n_e = loaded_candidates(touch, k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS],
                                         hc[sc.H_CLUSTER_START], hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS],
                                         hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com, g_hat,
@@ -163,10 +171,11 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
                   params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)
             for r in range(ng):
                 flowing[r] = prev_flow[active[r]]
-            its = solve_from_probe(free, mob, lw, twist, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
+            its = solve_from_probe(free, mob, lw, start, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
                                    gdf, ready)
             if its != NEED_ELEMENTS:
                 break
+            ready = True
         if not linearized or nefc == 0 or zone_pass == int(st[sc.ST_ZONE_PASSES]) - 1:
             break
         end_acceleration(nv, h, jrows, ng, w, f, qacc_end)

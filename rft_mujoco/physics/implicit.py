@@ -47,7 +47,8 @@ def rest_operator(block: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 
 def implicit_wrenches(free_twist: np.ndarray, mobility: np.ndarray, law, twist: np.ndarray, radius: np.ndarray,
-                      dt: float, flowing: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+                      dt: float, flowing: np.ndarray | None = None,
+                      start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Sand wrenches of G touching groups, backward Euler on the law: a flowing group gets the law's wrench at
     the twist the step ends with, a group the sand can hold rests, solved together through the mobility.
 
@@ -70,6 +71,8 @@ def implicit_wrenches(free_twist: np.ndarray, mobility: np.ndarray, law, twist: 
         flowing: (G,) bool, groups to start in flow (those that flowed at the last evaluation: a swimmer's
             links flow at every step, and trying them at rest first costs a second Newton solve); None: all
             start at rest. The answer is the same either way while the capacity test agrees.
+        start: (G, 6) twists a flowing group's Newton solve starts from (m/s, rad/s; an earlier zone pass's
+            answer); None: the twists now.
     Returns:
         wrenches (G, 6) (N, N m), resting (G,) bool, end twists (G, 6) that the wrenches give (m/s, rad/s),
         Newton iterations used.
@@ -92,6 +95,7 @@ def implicit_wrenches(free_twist: np.ndarray, mobility: np.ndarray, law, twist: 
     untried = flow.copy()                    # started in flow: tried at rest once they are slow (see below)
     weight_all = np.einsum("ij,ij->i", cap, cap)
     u_flow = None
+    base = np.asarray(twist if start is None else start, dtype=float)
     iterations = 0
     while True:
         r_idx = np.flatnonzero(np.repeat(rest, 6))
@@ -107,8 +111,8 @@ def implicit_wrenches(free_twist: np.ndarray, mobility: np.ndarray, law, twist: 
             a_fr = a[np.ix_(f_idx, r_idx)]
             a_eff = a[np.ix_(f_idx, f_idx)] - a_fr @ p @ a[np.ix_(r_idx, f_idx)]
             v_eff = v[f_idx] - a_fr @ p @ v[r_idx]
-            start = (twist * sv).reshape(-1)[f_idx] if u_flow is None else u_flow
-            u_flow, w_f, its = _newton_flow(law, flow, a_eff, v_eff, start, sv, sw, n)
+            u0 = (base * sv).reshape(-1)[f_idx] if u_flow is None else u_flow
+            u_flow, w_f, its = _newton_flow(law, flow, a_eff, v_eff, u0, sv, sw, n)
             iterations += its
             w[f_idx] = w_f
             end_f = np.zeros((n, 6))

@@ -98,15 +98,30 @@ def _print_quadruped(quad) -> None:
 
 def _print_rates(rates) -> None:
     print(f"medians of {rates[0]['rounds']} interleaved rounds" if rates else "")
-    print(table(["env", "elements", "zero action", "random actions", "zero / random", "random / Ant-v5"],
-                [[r["env"], r["elements"], f"{r['zero_sps']:.0f}", f"{r['random_sps']:.0f}",
+    print(table(["env", "solve", "elements", "zero action", "random actions", "zero / random", "random / Ant-v5"],
+                [[r["env"], r["solve"], r["elements"], f"{r['zero_sps']:.0f}", f"{r['random_sps']:.0f}",
                   f"{r['zero_over_random']:.2f}", "" if r["over_ant"] is None else f"{r['over_ant']:.2f}"]
                  for r in rates]))
     for r in rates:
+        if r["solve"] != "default":
+            continue
         if r["env"] in ("rft_mujoco/SandAnt-v0", "rft_mujoco/SandQuadruped-v0", "rft_mujoco/SandQuadruped-v1"):
             print(_verdict(f"{r['env']} zero / random", r["zero_over_random"], STANDING_TARGET, ">="))
         if r["env"] == "rft_mujoco/SandAnt-v0" and r["over_ant"] is not None:
             print(_verdict("rft_mujoco/SandAnt-v0 random / Ant-v5 random", r["over_ant"], ANT_TARGET, ">="))
+
+
+def _print_solves(rates) -> None:
+    if rates is None:
+        print("gymnasium not installed: skipped")
+        return
+    _print_rates(rates)
+    by = {(r["env"], r["solve"]): r for r in rates}
+    rows = [[env, f"{by[env, 'implicit']['zero_sps'] / by[env, 'explicit']['zero_sps']:.2f}",
+             f"{by[env, 'implicit']['random_sps'] / by[env, 'explicit']['random_sps']:.2f}"]
+            for env, solve in by if solve == "explicit" and (env, "implicit") in by]
+    print("implicit / explicit steps per second (ratio of the medians):")
+    print(table(["env", "zero action", "random actions"], rows))
 
 
 def _print_accuracy(acc, quick: bool) -> None:
@@ -293,6 +308,9 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
     parser.add_argument("--intervals", type=float, nargs="*", default=[], metavar="S",
                         help="with --deformable: also the trade of DeformableSurface.update_interval, one 2 s pair "
                              "per interval (s), e.g. --intervals 0 0.01 0.02 0.05")
+    parser.add_argument("--solves", action="store_true",
+                        help="section 2b alone, each sand env with the explicit and the implicit solve, interleaved "
+                             "(env steps per second, zero and random actions; ~3 min, --quick ~1 min)")
     parser.add_argument("--seconds", type=float, default=1.0,
                         help="with --deformable: s of trot timed per run (default 1.0; numpy: a fifth, once)")
     args = parser.parse_args(argv)
@@ -314,6 +332,12 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
         _print_deformable(coupling.deformable_trot(args.seconds, args.reps, args.seconds / 5))
         if args.intervals:
             _print_intervals(coupling.interval_sweep(args.intervals))
+        return 0
+    if args.solves:
+        print(machine())
+        compiled.ensure_compiled()
+        print("2b. Env steps per second by solve, zero action (standing still) and random actions", flush=True)
+        _print_solves(env_rates(300 if args.quick else 1000, 3, solves=("explicit", "implicit")))
         return 0
     if args.law:
         print(machine())

@@ -91,14 +91,16 @@ def _env_run(env, actions, seed: int) -> float:
     return len(actions) / (time.perf_counter() - t0)
 
 
-def env_rates(steps: int, rounds: int = 5) -> list[dict] | None:
+def env_rates(steps: int, rounds: int = 5, solves: tuple = (None,)) -> list[dict] | None:
     """Env steps per second of :data:`ENV_IDS` with zero actions (a robot standing still) and uniform
     random actions; None without gymnasium.
 
     This machine's speed drifts by 10% within a minute, so every ratio is measured side by side: each of
     ``rounds`` rounds runs every env with both action sets once (``steps`` steps from a reset with seed =
     the round), and a ratio (zero / random, SandAnt / Ant) is the median of its per-round ratios; the
-    rates are the medians of the rounds."""
+    rates are the medians of the rounds. ``solves``: the sand envs once per entry (None: the envs' default;
+    ``"explicit"`` / ``"implicit"``: ``gym.make(..., solve=...)``), interleaved in the same rounds; each row's
+    ``solve`` says which ("default" for None and for Ant-v5)."""
     try:
         import gymnasium as gym
 
@@ -111,26 +113,27 @@ def env_rates(steps: int, rounds: int = 5) -> list[dict] | None:
         for env_id in ENV_IDS:
             if env_id not in gym.registry:
                 continue
-            env = gym.make(env_id)
-            n = env.action_space.shape[0]
-            rng = np.random.default_rng(0)
-            made[env_id] = (env, np.zeros((steps, n)),
-                            rng.uniform(env.action_space.low, env.action_space.high, (steps, n)))
-        runs = {env_id: {"zero": [], "random": []} for env_id in made}
+            for solve in solves if env_id.startswith("rft_mujoco/") else (None,):
+                env = gym.make(env_id, **({} if solve is None else {"solve": solve}))
+                n = env.action_space.shape[0]
+                rng = np.random.default_rng(0)
+                made[env_id, solve] = (env, np.zeros((steps, n)),
+                                       rng.uniform(env.action_space.low, env.action_space.high, (steps, n)))
+        runs = {key: {"zero": [], "random": []} for key in made}
         for rnd in range(rounds):
-            for env_id, (env, zero, rand) in made.items():
-                runs[env_id]["zero"].append(_env_run(env, zero, rnd))
-                runs[env_id]["random"].append(_env_run(env, rand, rnd))
+            for key, (env, zero, rand) in made.items():
+                runs[key]["zero"].append(_env_run(env, zero, rnd))
+                runs[key]["random"].append(_env_run(env, rand, rnd))
         rows = []
-        bare = runs.get("Ant-v5")
-        for env_id, (env, _, _) in made.items():
-            z, r = np.array(runs[env_id]["zero"]), np.array(runs[env_id]["random"])
+        bare = runs.get(("Ant-v5", None))
+        for (env_id, solve), (env, _, _) in made.items():
+            z, r = np.array(runs[env_id, solve]["zero"]), np.array(runs[env_id, solve]["random"])
             sand = getattr(env.unwrapped, "sand", None)
             handle = getattr(sand, "handle", sand)
             over = (float(np.median(r / np.array(bare["random"]))) if bare is not None and "Ant" in env_id
                     else None)
-            rows.append(dict(env=env_id, zero_sps=float(np.median(z)), random_sps=float(np.median(r)),
-                             zero_over_random=float(np.median(z / r)), over_ant=over,
+            rows.append(dict(env=env_id, solve=solve or "default", zero_sps=float(np.median(z)),
+                             random_sps=float(np.median(r)), zero_over_random=float(np.median(z / r)), over_ant=over,
                              elements=getattr(handle, "n_elements", 0), rounds=rounds))
             env.close()
     return rows
