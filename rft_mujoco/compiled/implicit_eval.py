@@ -58,6 +58,21 @@ def efc_arrays(data) -> tuple:
 
 
 @njit(**JIT)
+def _elements(md, hc, ws, k, g_hat, e_slot, e_arm, e_nrm, e_depth, e_area):
+    """:func:`rft_mujoco.compiled.implicit_law.loaded_candidates` of the ``k`` touching bodies into the element
+    rows ``e_*`` (and the bodies' occluded area into ``ws``); returns their number."""
+    params = hc[sc.H_PARAMS]
+    return loaded_candidates(ws[sc.W_TOUCH], k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS],
+                             hc[sc.H_CLUSTER_START], hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS],
+                             hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM], g_hat,
+                             params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]), hc[sc.H_TP], hc[sc.H_HEIGHTS],
+                             hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE],
+                             hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], params[sc.P_MARGIN],
+                             md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT], e_slot, e_arm, e_nrm, e_depth, e_area,
+                             ws[sc.W_OCCLUDED])
+
+
+@njit(**JIT)
 def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_val, damping, st, linearized):
     """The implicit solve of the ``state[sc.S_TOUCHING]`` touching bodies of the broadphase: the sand wrenches, the
     diagnostics and the wrenches added to ``sand_out`` (nbody, 6). ``linearized``: this step's constraints
@@ -152,20 +167,12 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         #    frame, for the Newton solve) once, when a group is first to flow; a group that flowed in the last zone
         #    pass starts its Newton solve from that pass's answer (physics.implicit.implicit_wrenches's ``start``)
         for r in range(ng):
-            for c in range(6):
-                start[r, c] = end[r, c] if zone_pass > 0 and not resting[r] else twist[r, c]
+            start[r] = end[r] if zone_pass > 0 and not resting[r] else twist[r]
         ready = have_elements
         while True:
             if ready and not have_elements:
                 have_elements = True
-                n_e = loaded_candidates(touch, k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS],
-                                        hc[sc.H_CLUSTER_START], hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS],
-                                        hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com, g_hat,
-                                        params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]), hc[sc.H_TP], hc[sc.H_HEIGHTS],
-                                        hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE],
-                                        hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS],
-                                        params[sc.P_MARGIN], md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT], e_slot, e_arm,
-                                        e_nrm, e_depth, e_area, occluded)
+                n_e = _elements(md, hc, ws, k, g_hat, e_slot, e_arm, e_nrm, e_depth, e_area)
             lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[sc.H_COEF],
                   params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0,
                   params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)

@@ -142,6 +142,7 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
     cc = speed_scale * speed_scale
+    law = (g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)
     last = derivative == DERIVATIVE_OF_LAST
     for j in range(k):
         if on[j]:
@@ -155,8 +156,7 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
                     for b in range(6):
                         jac[j, a, b] = 0.0
     if last:
-        _derivative_sums(pk[pk.shape[0] - 1], e_slot, e_arm, g0, g1, g2, c, mu_surf, no_tension, no_forward,
-                         no_power, lead_tol, vert_tol, cc, speed_scale, fd_step, scr, pk, jac)
+        _derivative_sums(pk[pk.shape[0] - 1], e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, jac)
         return
     m = 0                                        # 1. the loaded elements, packed
     for e in range(n_e):
@@ -203,15 +203,15 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
         wrench[j, 4] += r2 * fx - r0 * fz
         wrench[j, 5] += r0 * fy - r1 * fx
     if derivative:
-        _derivative_sums(m, e_slot, e_arm, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol,
-                         vert_tol, cc, speed_scale, fd_step, scr, pk, jac)
+        _derivative_sums(m, e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, jac)
 
 
 @njit(**JIT_LAW)
-def _derivative_sums(m, e_slot, e_arm, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol,
-                     cc, speed_scale, fd_step, scr, pk, jac):
+def _derivative_sums(m, e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, jac):
     """:func:`body_law`'s derivative on its ``m`` packed loaded elements (``scr``, ``pk`` as it left them), added
-    to ``jac`` (rows zeroed by the caller)."""
+    to ``jac`` (rows zeroed by the caller); ``law``: the arguments of :func:`rft_mujoco.compiled.law._stress`
+    after the direction (gravity, coefficients, medium and guards, tolerances)."""
+    g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol = law
     ee = np.empty((3, 3))
     for q in range(3):                           # the law at v + h e_q
         for i in range(m):
