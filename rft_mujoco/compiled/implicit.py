@@ -41,8 +41,7 @@ def settings() -> np.ndarray:
     values = dict(speed_scale=implicit.SPEED_SCALE, rest_retry=implicit.REST_RETRY,
                   newton_iterations=implicit.NEWTON_ITERATIONS, newton_rtol=implicit.NEWTON_RTOL,
                   fd_step=elements.FD_STEP, dependent_tol=rest.DEPENDENT_TOL, weight_floor=rest.WEIGHT_FLOOR,
-                  capacity_tol=rest.CAPACITY_TOL, tiny=tol.TINY, zone_passes=implicit.ZONE_PASSES,
-                  newton_stall=implicit.NEWTON_STALL, newton_stall_iterations=implicit.NEWTON_STALL_ITERATIONS)
+                  capacity_tol=rest.CAPACITY_TOL, tiny=tol.TINY, zone_passes=implicit.ZONE_PASSES)
     return np.array([values[name] for name in SETTINGS], dtype=np.float64)
 
 
@@ -117,11 +116,9 @@ def _flow_jac(lw, groups, ng, flow, sv, sw, st, full, f, df, jac):
 def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
     """:func:`rft_mujoco.physics.implicit._newton_flow`: Newton's method on ``u - v_eff - a_eff F(u) = 0`` for
     the flowing groups (scaled coordinates), from ``u`` (overwritten with the answer). Returns the flowing
-    groups' scaled wrenches and the iterations (stopping, as the reference does, when the residual stalls at
-    the law's jumps: :data:`rft_mujoco.physics.implicit.NEWTON_STALL`). The law's derivative is taken only at
-    the points a step starts from (:data:`~rft_mujoco.compiled.implicit_law.DERIVATIVE_OF_LAST`), not at trial
-    points of the line search nor at the answer: the iterates of a derivative at every evaluation, bit for
-    bit."""
+    groups' scaled wrenches and the iterations. The law's derivative is taken only at the points a step
+    starts from (:data:`~rft_mujoco.compiled.implicit_law.DERIVATIVE_OF_LAST`), not at trial points of the
+    line search nor at the answer: the iterates of a derivative at every evaluation, bit for bit."""
     kf = 0
     for g in range(ng):
         if flow[g]:
@@ -145,10 +142,6 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
         scale = max(scale, abs(v_eff[p] - u[p]))
     scale = max(scale, st[sc.ST_SPEED_SCALE]) * st[sc.ST_NEWTON_RTOL]
     its = 0
-    lowest = 0.0
-    for p in range(n):
-        lowest = max(lowest, abs(res[p]))
-    since = 0
     mat = np.empty((n, n))
     step = np.empty(n)
     u_try = np.empty(n)
@@ -193,16 +186,6 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
         u[:] = u_try                           # the accepted step (or the last, shortest, one tried): the law
         wf[:] = wf_try                         # evaluated last
         res[:] = res_try
-        top = 0.0
-        for p in range(n):
-            top = max(top, abs(res[p]))
-        if top < st[sc.ST_NEWTON_STALL] * lowest:
-            lowest = top
-            since = 0
-        else:
-            since += 1
-            if since >= st[sc.ST_NEWTON_STALL_ITERATIONS]:   # stalled at the law's jumps (physics.implicit)
-                break
     return wf, its
 
 

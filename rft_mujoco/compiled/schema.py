@@ -117,11 +117,11 @@ REGISTRY_ENTRY = ("model", "data", "table", "time", "timestep", "integrator", "d
 the addresses of ``data.time``, ``opt.timestep``, ``opt.integrator`` and ``opt.disableflags``, the table's
 length."""
 IMPLICIT_SETTINGS = ("speed_scale", "rest_retry", "newton_iterations", "newton_rtol", "fd_step", "dependent_tol",
-                     "weight_floor", "capacity_tol", "tiny", "zone_passes", "newton_stall", "newton_stall_iterations")
+                     "weight_floor", "capacity_tol", "tiny", "zone_passes")
 """Entries of the implicit solve's ``st``: :data:`rft_mujoco.physics.implicit.SPEED_SCALE` (m/s), ``REST_RETRY``,
 ``NEWTON_ITERATIONS``, ``NEWTON_RTOL``, :data:`rft_mujoco.physics.elements.FD_STEP`,
-:data:`rft_mujoco.physics.rest.DEPENDENT_TOL`, ``WEIGHT_FLOOR``, ``CAPACITY_TOL``, :data:`rft_mujoco.tol.TINY`,
-``ZONE_PASSES``, ``NEWTON_STALL`` and ``NEWTON_STALL_ITERATIONS`` (:func:`rft_mujoco.compiled.implicit.settings`)."""
+:data:`rft_mujoco.physics.rest.DEPENDENT_TOL`, ``WEIGHT_FLOOR``, ``CAPACITY_TOL``, :data:`rft_mujoco.tol.TINY`
+and ``ZONE_PASSES`` (:func:`rft_mujoco.compiled.implicit.settings`)."""
 
 (M_XPOS, M_XMAT, M_XIPOS, M_CVEL, M_SUBTREE_COM, M_QPOS, M_QVEL, M_CDOF, M_QFRC_PASSIVE, M_QFRC_BIAS,
  M_QFRC_ACTUATOR, M_QFRC_APPLIED, M_QFRC_CONSTRAINT, M_QLD, M_QLDIAGINV, M_GEOM_XPOS,
@@ -157,4 +157,4 @@ IMPLICIT_SETTINGS = ("speed_scale", "rest_retry", "newton_iterations", "newton_r
 (E_MODEL, E_DATA, E_TABLE, E_TIME, E_TIMESTEP, E_INTEGRATOR, E_DISABLEFLAGS, E_LENGTH) = range(len(REGISTRY_ENTRY))
 
 (ST_SPEED_SCALE, ST_REST_RETRY, ST_NEWTON_ITERATIONS, ST_NEWTON_RTOL, ST_FD_STEP, ST_DEPENDENT_TOL, ST_WEIGHT_FLOOR,
- ST_CAPACITY_TOL, ST_TINY, ST_ZONE_PASSES, ST_NEWTON_STALL, ST_NEWTON_STALL_ITERATIONS) = range(len(IMPLICIT_SETTINGS))
+ ST_CAPACITY_TOL, ST_TINY, ST_ZONE_PASSES) = range(len(IMPLICIT_SETTINGS))

@@ -37,14 +37,6 @@ NEWTON_RTOL = 1e-3
 """The implicit flow solve stops when the residual of the end-of-step twists is below this fraction of the
 twist change that the step makes (twist speeds), or below ``SPEED_SCALE * NEWTON_RTOL``."""
 
-NEWTON_STALL, NEWTON_STALL_ITERATIONS = 0.9, 5
-"""The flow solve also stops when its residual (largest entry) has not fallen below NEWTON_STALL times the
-lowest one seen for NEWTON_STALL_ITERATIONS iterations. The law on a finite surface jumps where an element
-enters or leaves the leading set (the published stress at grazing motion is not zero), and a residual at
-the level of such a jump cannot be lowered: SandAnt-v0's torso landing spent all 40 iterations, with up to
-10 trial evaluations each (200-260 law evaluations in one solve). Solves that converge (the random stiff
-problems of tests/test_compiled_implicit.py: 6-16 iterations, with plateaus of up to 3) are unchanged."""
-
 
 def rest_operator(block: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """(m, m) the linear map ``rhs -> x`` of :func:`rft_mujoco.physics.rest.pivoted_solve` on ``block`` (its columns: the solves of
@@ -168,7 +160,6 @@ def _newton_flow(law, flow, a_eff, v_eff, start, sv, sw, n):
     res = u - v_eff - a_eff @ wf
     scale = max(float(np.abs(v_eff - u).max()), SPEED_SCALE) * NEWTON_RTOL
     its = 0
-    lowest, since = float(np.abs(res).max()), 0
     for its in range(1, NEWTON_ITERATIONS + 1):
         if float(np.abs(res).max()) <= scale:
             break
@@ -183,14 +174,7 @@ def _newton_flow(law, flow, a_eff, v_eff, start, sv, sw, n):
                 best = (u_try, wf_try, jac_try, res_try)
                 break
             t *= 0.5
-        if best is None:                     # no decrease: the last, shortest, step tried
+        if best is None:
             best = (u_try, wf_try, jac_try, res_try)
         u, wf, jac, res = best
-        top = float(np.abs(res).max())
-        if top < NEWTON_STALL * lowest:
-            lowest, since = top, 0
-        else:
-            since += 1
-            if since >= NEWTON_STALL_ITERATIONS:   # stalled at the law's jumps: see NEWTON_STALL
-                break
     return u, wf, its
