@@ -83,3 +83,18 @@ def test_implicit_cost_times_the_quadruped_and_the_swimmer_side_by_side():
             assert math.isfinite(q[key]) and q[key] > 0.0, key
     (s,) = r["swimmer"]
     assert s["steps"] == 1000 and math.isfinite(s["s_per_step"]) and s["s_per_step"] > 0.0
+
+
+def test_env_rates_measure_each_solve_side_by_side(capsys):
+    """``python -m rft_mujoco bench --solves``: every sand env once per solve in the same rounds, Ant-v5 once,
+    and the implicit / explicit table (no speed asserted)."""
+    pytest.importorskip("gymnasium")
+    rates = bench.coupling.env_rates(5, 1, solves=("explicit", "implicit"))
+    keys = {(r["env"], r["solve"]) for r in rates}
+    assert ("Ant-v5", "default") in keys
+    for env in ("rft_mujoco/SandAnt-v0", "rft_mujoco/SandQuadruped-v0", "rft_mujoco/SandQuadruped-v1"):
+        assert {(env, "explicit"), (env, "implicit")} <= keys, env
+    assert all(r["zero_sps"] > 0 and r["random_sps"] > 0 for r in rates)
+    bench._print_solves(rates)
+    text = capsys.readouterr().out
+    assert "implicit / explicit steps per second" in text and "rft_mujoco/SandQuadruped-v1" in text
