@@ -238,3 +238,35 @@ def test_a_heavy_body_on_light_slanted_shins_stops_instead_of_gliding():
     assert z > -0.05                                    # the trunk stays above the sand (shins carry it)
     xs_explicit, _, _ = _glide("explicit")
     assert xs_explicit[-1] > xs[-1] + 0.05
+
+
+STEADY = ("<mujoco><option timestep='0.002'/><worldbody><body name='b' gravcomp='1'><freejoint/>"
+          "<geom type='{geom}' size='{size}' mass='1e6'/></body></worldbody></mujoco>")
+
+
+@pytest.mark.parametrize("geom,size", [("sphere", "0.05"), ("box", "0.05 0.04 0.03"), ("capsule", "0.02 0.03")])
+def test_steady_flow_gets_the_published_force(geom, size):
+    """Issue 26's keep: in steady flow (a body whose motion the step does not change: gravity compensated,
+    too heavy for the sand to slow) the implicit solve gives the published force, within 1% at 10x its
+    regularization speed (the regularization alone: 1 - 1/sqrt(1.01) = 0.5%) and 1e-4 at 100x. (A free body's
+    single evaluation would not do: the law is taken at the twist the step ends with, which gravity turns.)"""
+    from rft_mujoco.studies.stability import published_wrench
+    model = mujoco.MjModel.from_xml_string(STEADY.format(geom=geom, size=size))
+    data = mujoco.MjData(model)
+    sand = rft_mujoco.attach(model, rft_mujoco.MPM_VALIDATION, monitor=False, solve="implicit")
+    rng = np.random.default_rng(1)
+    data.qpos[2] = -0.05
+    q = rng.normal(size=4)
+    data.qpos[3:7] = q / np.linalg.norm(q)
+    for direction in ([1.0, 0.0, 0.0], [0.3, -0.2, -1.0], [1.0, 0.5, -0.4], [0.0, 1.0, 0.2]):
+        u = np.array(direction) / np.linalg.norm(direction)
+        for ratio, bound in ((10.0, 0.01), (100.0, 1e-4)):
+            data.qvel[:] = 0.0
+            data.qvel[:3] = ratio * implicit.SPEED_SCALE * u
+            mujoco.mj_forward(model, data)
+            pub, _ = published_wrench(sand, data)
+            force = sand.diagnostics(data).force[0]
+            assert np.linalg.norm(pub[:3]) > 0.1                 # the body is in the sand and loaded
+            err = np.linalg.norm(force - pub[:3]) / np.linalg.norm(pub[:3])
+            assert err < bound, f"{geom} at {ratio:g} c along {direction}: force off by {err:.2%}"
+    sand.detach()
