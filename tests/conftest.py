@@ -31,3 +31,17 @@ def numpy_rollout(xml, media, bodies, terrain, steps, speed, seed=0, **attach_kw
             mujoco.mj_getState(model, data, state, spec)
             states.append(state)
     return model, states
+
+
+FLOW_DIRECTIONS = ([1.0, 0.0, 0.0], [0.3, -0.2, -1.0], [1.0, 0.5, -0.4], [0.0, 1.0, 0.2])
+"""Directions (not normalized) in which the flow tests move a free body through the sand."""
+
+
+def buried_free_body(data, seed: int = 1):
+    """Put the free body of ``data`` (its first joint) 50 mm below the surface at a random orientation; return the
+    unit directions of :data:`FLOW_DIRECTIONS` to move it in."""
+    rng = np.random.default_rng(seed)
+    data.qpos[2] = -0.05
+    q = rng.normal(size=4)
+    data.qpos[3:7] = q / np.linalg.norm(q)
+    return [np.array(d) / np.linalg.norm(d) for d in FLOW_DIRECTIONS]
