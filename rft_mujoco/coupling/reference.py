@@ -536,10 +536,10 @@ def evaluate_implicit(handle, data, user_xfrc, work, touch, dt, g_hat, lagged, s
         now = constraint_zones(handle.model, data, constraint_rows(handle.model, data), end_qacc(applied_g), zones)
         if np.array_equal(now[0], zones[0]) and np.array_equal(now[1], zones[1]):
             break
-        start = np.where(resting_g[:, None], 0.0, end)  # a group that flowed starts from its last answer
+        last_end, last_rest = end, resting_g
         jac, free, twist, mobility, end_qacc, zones = implicit_free(handle, data, user_xfrc, ref, dt,
                                                                      handle.constraints, now, lagged)
-        start = np.where(resting_g[:, None], twist, start)
+        start = np.where(last_rest[:, None], twist, last_end)   # a group that flowed starts from its last answer
         applied_g, resting_g, end, its = implicit.implicit_wrenches(free, mobility, law, twist, radius, dt,
                                                                     flowing, start)
     work.flowing = (active, ~resting_g)

@@ -310,7 +310,7 @@ def main(argv: list[str] | None = None, command: str = "bench") -> int:
                              "per interval (s), e.g. --intervals 0 0.01 0.02 0.05")
     parser.add_argument("--solves", action="store_true",
                         help="section 2b alone, each sand env with the explicit and the implicit solve, interleaved "
-                             "(env steps per second, zero and random actions; ~3 min, --quick ~1 min)")
+                             "(env steps per second, zero and random actions; ~1 min, --quick ~30 s)")
     parser.add_argument("--seconds", type=float, default=1.0,
                         help="with --deformable: s of trot timed per run (default 1.0; numpy: a fifth, once)")
     args = parser.parse_args(argv)
