@@ -119,6 +119,41 @@ def test_element_jacobian_matches_finite_differences_of_the_law():
     np.testing.assert_allclose(jac[0], num, rtol=0, atol=2e-2 * np.abs(num).max())
 
 
+@pytest.mark.parametrize("normal", [(1.0, 0.0, 0.0), (0.6, -0.3, 0.74)])
+def test_the_implicit_law_ramps_the_leading_edge(normal):
+    """The implicit solve's law is continuous where an element leaves the leading side (the published law
+    jumps there, and Newton's iterates cycled on the jump) and is the published law wherever that loads."""
+    n = np.array(normal) / np.linalg.norm(normal)
+    t = np.cross(n, [0.0, 1.0, 0.0])
+    t /= np.linalg.norm(t)
+    theta = np.linspace(-2.0, 0.5, 401) * elements.LEADING_RAMP    # c = n.v/|v| = sin(theta), 400 steps
+    media, flat = get_media("li_loose_glass_beads"), terrains.as_terrain(0.05)
+    g, grav = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, -9.81])
+    args = (np.zeros((1, 3)), n[None], np.array([1e-4]), np.zeros(1, dtype=np.int64), 1, np.zeros((1, 3)),
+            np.eye(3)[None], np.zeros((1, 3)))
+    speed, c = 0.05, 1e-3
+    reg, pub = [], []
+    for th in theta:
+        v = speed * (np.cos(th) * t + np.sin(th) * n)
+        w, _, _, _ = elements.body_wrench_jacobians(*args, v[None], np.zeros((1, 3)), flat, g, grav, media,
+                                                   rft_mujoco.PUBLISHED, c)
+        p, _, _ = elements.body_wrenches(*args, v[None], np.zeros((1, 3)), flat, g, grav, media, rft_mujoco.PUBLISHED)
+        reg.append(w[0, :3])
+        pub.append(p[0, :3])
+    reg, pub, cos = np.array(reg), np.array(pub), np.sin(theta)
+    phi = speed / np.sqrt(speed ** 2 + c ** 2)
+    lead = cos >= -elements.law.LEADING_TOL
+    np.testing.assert_allclose(reg[lead], phi * pub[lead], rtol=1e-12, atol=0.0)
+    assert np.all(reg[cos <= -elements.LEADING_RAMP] == 0.0) and np.all(pub[~lead] == 0.0)
+    edge = np.linalg.norm(pub[lead][0])
+    assert edge > 1e-3                                             # the element is loaded at the edge
+    # behind the edge and across it (steps of LEADING_RAMP / 160 in c): the published law drops the whole edge force
+    # in one step; the ramp 1/160 of it per step, plus the law's own slope at the edge
+    behind = cos[1:] < 0.0
+    assert np.linalg.norm(np.diff(pub, axis=0), axis=1)[behind].max() > 0.9 * edge
+    assert np.linalg.norm(np.diff(reg, axis=0), axis=1)[behind].max() < 0.02 * edge
+
+
 SCENES = {
     "joint_limit": ("<mujoco><option timestep='0.002'/><worldbody><body name='trunk' pos='0 0 0.12'>"
                     "<joint type='slide' axis='0 0 1'/><geom type='box' size='0.05 0.05 0.02' mass='3'/>"
@@ -250,20 +285,28 @@ STEADY = ("<mujoco><option timestep='0.002'/><worldbody><body name='b' gravcomp=
 def test_steady_flow_gets_the_published_force(geom, size):
     """Issue 26's keep: in steady flow (a body whose motion the step does not change: gravity compensated,
     too heavy for the sand to slow) the implicit solve gives the published force, within 1% at 10x its
-    regularization speed (the regularization alone: 1 - 1/sqrt(1.01) = 0.5%) and 1e-4 at 100x. (A free body's
-    single evaluation would not do: the law is taken at the twist the step ends with, which gravity turns.)"""
+    regularization speed (the regularization alone: 1 - 1/sqrt(1.01) = 0.5%), over 15 random orientations
+    in four directions each. The leading-edge ramp (``elements.LEADING_RAMP``) adds force where a flat face is
+    within 0.3 degrees behind its tangent plane (the published law jumps by that face's tangential force
+    there): a few of the orientations, bounded by 5%. (A free body's single evaluation would not do: the law
+    is taken at the twist the step ends with, which gravity turns.)"""
     from rft_mujoco.studies.stability import published_wrench
     model = mujoco.MjModel.from_xml_string(STEADY.format(geom=geom, size=size))
     data = mujoco.MjData(model)
     sand = rft_mujoco.attach(model, rft_mujoco.MPM_VALIDATION, monitor=False, solve="implicit")
-    for u in buried_free_body(data):
-        for ratio, bound in ((10.0, 0.01), (100.0, 1e-4)):
-            data.qvel[:] = 0.0
-            data.qvel[:3] = ratio * implicit.SPEED_SCALE * u
-            mujoco.mj_forward(model, data)
-            pub, _ = published_wrench(sand, data)
-            force = sand.diagnostics(data).force[0]
-            assert np.linalg.norm(pub[:3]) > 0.1                 # the body is in the sand and loaded
-            err = np.linalg.norm(force - pub[:3]) / np.linalg.norm(pub[:3])
-            assert err < bound, f"{geom} at {ratio:g} c along {u}: force off by {err:.2%}"
+    errors = {10.0: [], 100.0: []}
+    for seed in range(15):
+        for u in buried_free_body(data, seed):
+            for ratio, err in errors.items():
+                data.qvel[:] = 0.0
+                data.qvel[:3] = ratio * implicit.SPEED_SCALE * u
+                mujoco.mj_forward(model, data)
+                pub, _ = published_wrench(sand, data)
+                force = sand.diagnostics(data).force[0]
+                assert np.linalg.norm(pub[:3]) > 0.1                 # the body is in the sand and loaded
+                err.append(np.linalg.norm(force - pub[:3]) / np.linalg.norm(pub[:3]))
     sand.detach()
+    e10, e100 = np.array(errors[10.0]), np.array(errors[100.0])
+    assert e10.size == 60
+    assert np.quantile(e10, 0.9) < 0.01 and e10.max() < 0.05, f"{geom} at 10 c: {np.sort(e10)[-5:]}"
+    assert np.median(e100) < 1e-3 and e100.max() < 0.05, f"{geom} at 100 c: {np.sort(e100)[-5:]}"

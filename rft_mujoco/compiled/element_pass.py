@@ -21,13 +21,11 @@ temporaries.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from rft_mujoco.compiled.elements import CLUSTER_SIZE, LANES, _inside, _nearest_face, _outside_ball, pack
 from rft_mujoco.compiled.jit import INLINE, JIT_LAW, njit
-from rft_mujoco.compiled.law import _coef, _stress
+from rft_mujoco.compiled.law import _coef, _law_direction, _stress
 from rft_mujoco.compiled.terrain import ABOVE, DEFORMABLE, FLAT, _depth, deformed_range
 from rft_mujoco.geometry.occlusion import Occluders
 from rft_mujoco.physics import terrain_spec as ts
@@ -90,13 +88,14 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
     world frame), ``count`` (loaded elements), ``max_depth`` (m, deepest loaded element), ``occluded`` (m^2,
     submerged area inside occluders). ``scratch``: (SCRATCH_ROWS, >= cluster size) float, ``index``: (2, >= cluster
     size) int. ``speed_scale`` (m/s): 0 for the published law; c > 0 for the implicit solve's regularized law,
-    each element's stress times ``|v| / sqrt(|v|^2 + c^2)``
+    each element's stress times ``|v| / sqrt(|v|^2 + c^2)`` on the ramped leading edge
     (:func:`rft_mujoco.compiled.implicit_law.body_law`).
     """
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
-    lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
-    zs2, lt2 = zero_speed * zero_speed, lead_tol * lead_tol
+    lead_tol, vert_tol, zero_speed, ramp = tol[0], tol[1], tol[2], tol[3]
+    edge = ramp if speed_scale > 0.0 else lead_tol                     # the regularized law's leading edge
+    zs2, lt2 = zero_speed * zero_speed, edge * edge
     flat = kind == FLAT and tp[ts.TP_REGION] == 0.0
     deformed = kind == DEFORMABLE and g2 < 0.0
     h0 = tp[ts.TP_HEIGHT]
@@ -233,14 +232,11 @@ def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_cen
                 vx = ub0 + (wb1 * l2 - wb2 * l1)
                 vy = ub1 + (wb2 * l0 - wb0 * l2)
                 vz = ub2 + (wb0 * l1 - wb1 * l0)
-                inv = 1.0 / math.sqrt(vx * vx + vy * vy + vz * vz)
-                rx, ry, rz = _stress(scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i], vx * inv,
-                                     vy * inv, vz * inv, gb0, gb1, gb2, c, mu_surf, no_tension, no_forward,
+                n0, n1, n2 = scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i]
+                dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, speed_scale, lead_tol, ramp)  # (unswitched)
+                rx, ry, rz = _stress(n0, n1, n2, dx, dy, dz, gb0, gb1, gb2, c, mu_surf, no_tension, no_forward,
                                      no_power, lead_tol, vert_tol)
-                sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i])
-                if speed_scale > 0.0:                        # (loop-invariant: unswitched)
-                    sp = math.sqrt(vx * vx + vy * vy + vz * vz)
-                    sa *= sp / math.sqrt(sp * sp + speed_scale * speed_scale)
+                sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i]) * reg
                 fx, fy, fz = rx * sa, ry * sa, rz * sa
                 scratch[_P_F, i] = fx
                 scratch[_P_F + 1, i] = fy

@@ -24,7 +24,7 @@ import numpy as np
 
 from rft_mujoco.compiled.elements import _inside, _outside_ball
 from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
-from rft_mujoco.compiled.law import _coef, _stress
+from rft_mujoco.compiled.law import _coef, _ramped, _stress
 from rft_mujoco.compiled.terrain import _depth
 
 
@@ -128,21 +128,22 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
     """The regularized wrench of bodies 0..k-1 (rows of ``lin`` (3, m/s, the COM's velocity), ``ang`` (3,
     rad/s)) on the elements of :func:`loaded_candidates`, for the bodies with ``on[j]`` (other rows untouched).
 
-    Each moving, leading element (speed above ``tol[2]``, ``n.v >= -tol[0] |v|``) carries the published
-    stress at its direction times ``xi_n depth area phi(|v|)``, ``phi = |v| / sqrt(|v|^2 + c^2)``,
-    ``c = speed_scale`` (m/s). Outputs rows j with ``on[j]``: ``wrench`` (6: N, N m about the COM, world),
-    ``count`` (loaded elements), ``max_depth`` (m); with ``derivative``, ``jac`` (6, 6) d wrench /
-    d (lin, ang): per element the law's 3x3 derivative by forward differences (a step of ``fd_step`` times
-    the element's speed or ``c``, whichever is larger), moved to the body twist through the lever arm.
+    Each moving element on or near the leading side (speed above ``tol[2]``, ``n.v >= -tol[3] |v|``) carries
+    the published stress at its ramped direction times ``xi_n depth area phi(|v|)`` times the ramp's weight
+    (:func:`rft_mujoco.compiled.law._ramped`), ``phi = |v| / sqrt(|v|^2 + c^2)``, ``c = speed_scale`` (m/s).
+    Outputs rows j with ``on[j]``: ``wrench`` (6: N, N m about the COM, world), ``count`` (loaded elements),
+    ``max_depth`` (m); with ``derivative``, ``jac`` (6, 6) d wrench / d (lin, ang): per element the law's 3x3
+    derivative by forward differences (a step of ``fd_step`` times the element's speed or ``c``, whichever is
+    larger), moved to the body twist through the lever arm.
     ``derivative``: :data:`LAW`, :data:`LAW_AND_DERIVATIVE` or :data:`DERIVATIVE_OF_LAST` (``True``/``False`` read
     as the first two). ``scr`` (:data:`SCRATCH_ROWS`, >= n_e) float and ``pk`` (> n_e,) int: work space; the
     last slot of ``pk`` keeps the number of loaded elements for :data:`DERIVATIVE_OF_LAST`. As the element pass,
     the loaded elements are packed first and the law runs on them without branches (vectorized)."""
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
-    lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
+    lead_tol, vert_tol, zero_speed, ramp = tol[0], tol[1], tol[2], tol[3]
     cc = speed_scale * speed_scale
-    law = (g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)
+    law = (g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol, ramp)
     last = derivative == DERIVATIVE_OF_LAST
     for j in range(k):
         if on[j]:
@@ -173,7 +174,7 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
         scr[_V + 1, m] = vy
         scr[_V + 2, m] = vz
         scr[_SP, m] = sp
-        m += on[j] and sp > zero_speed and (n0 * vx + n1 * vy + n2 * vz) / sp >= -lead_tol
+        m += on[j] and sp > zero_speed and (n0 * vx + n1 * vy + n2 * vz) / sp >= -ramp
     pk[pk.shape[0] - 1] = m
     for i in range(m):
         e = pk[i]
@@ -183,9 +184,11 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
         scr[_SA, i] = xi_n * (e_depth[e] * e_area[e])
     for i in range(m):                           # 2. the law (no branches)
         vx, vy, vz, sp = scr[_V, i], scr[_V + 1, i], scr[_V + 2, i], scr[_SP, i]
-        sx, sy, sz = _stress(scr[_N, i], scr[_N + 1, i], scr[_N + 2, i], vx / sp, vy / sp, vz / sp, g0, g1, g2, c,
-                             mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)
-        ph = scr[_SA, i] * (sp / math.sqrt(sp * sp + cc))
+        n0, n1, n2 = scr[_N, i], scr[_N + 1, i], scr[_N + 2, i]
+        dx, dy, dz, w = _ramped(n0, n1, n2, vx / sp, vy / sp, vz / sp, lead_tol, ramp)
+        sx, sy, sz = _stress(n0, n1, n2, dx, dy, dz, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power,
+                             lead_tol, vert_tol)
+        ph = scr[_SA, i] * (sp / math.sqrt(sp * sp + cc)) * w
         scr[_F, i] = sx * ph
         scr[_F + 1, i] = sy * ph
         scr[_F + 2, i] = sz * ph
@@ -211,7 +214,7 @@ def _derivative_sums(m, e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, j
     """:func:`body_law`'s derivative on its ``m`` packed loaded elements (``scr``, ``pk`` as it left them), added
     to ``jac`` (rows zeroed by the caller); ``law``: the arguments of :func:`rft_mujoco.compiled.law._stress`
     after the direction (gravity, coefficients, medium and guards, tolerances)."""
-    g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol = law
+    g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol, ramp = law
     ee = np.empty((3, 3))
     for q in range(3):                           # the law at v + h e_q
         for i in range(m):
@@ -221,9 +224,11 @@ def _derivative_sums(m, e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, j
             uy = scr[_V + 1, i] + (h if q == 1 else 0.0)
             uz = scr[_V + 2, i] + (h if q == 2 else 0.0)
             s = math.sqrt(ux * ux + uy * uy + uz * uz)
-            tx, ty, tz = _stress(scr[_N, i], scr[_N + 1, i], scr[_N + 2, i], ux / s, uy / s, uz / s, g0, g1, g2,
-                                 c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)
-            p = scr[_SA, i] * (s / math.sqrt(s * s + cc))
+            n0, n1, n2 = scr[_N, i], scr[_N + 1, i], scr[_N + 2, i]
+            dx, dy, dz, w = _ramped(n0, n1, n2, ux / s, uy / s, uz / s, lead_tol, ramp)
+            tx, ty, tz = _stress(n0, n1, n2, dx, dy, dz, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power,
+                                 lead_tol, vert_tol)
+            p = scr[_SA, i] * (s / math.sqrt(s * s + cc)) * w
             scr[_D + q, i] = (tx * p - scr[_F, i]) / h           # d[i_, q] = d f_i_ / d v_q, row-major
             scr[_D + 3 + q, i] = (ty * p - scr[_F + 1, i]) / h
             scr[_D + 6 + q, i] = (tz * p - scr[_F + 2, i]) / h

@@ -14,7 +14,7 @@ import threading
 import numpy as np
 
 from rft_mujoco.compiled.jit import INLINE, JIT_LAW, njit
-from rft_mujoco.physics import law
+from rft_mujoco.physics import elements, law
 from rft_mujoco.physics.law import Guards
 from rft_mujoco.physics.media import Media
 
@@ -23,8 +23,9 @@ CHUNK = 256
 
 
 def tolerances() -> np.ndarray:
-    """(3,) [LEADING_TOL, VERTICAL_TOL, ZERO_SPEED] of :mod:`rft_mujoco.physics.law`, for the kernels."""
-    return np.array([law.LEADING_TOL, law.VERTICAL_TOL, law.ZERO_SPEED])
+    """(4,) [LEADING_TOL, VERTICAL_TOL, ZERO_SPEED] of :mod:`rft_mujoco.physics.law` and the implicit solve's
+    :data:`rft_mujoco.physics.elements.LEADING_RAMP`, for the kernels."""
+    return np.array([law.LEADING_TOL, law.VERTICAL_TOL, law.ZERO_SPEED, elements.LEADING_RAMP])
 
 
 _TOLERANCES = tolerances()   # element_forces passes it every call (writable: numba types read-only arrays apart)
@@ -53,6 +54,30 @@ def _cubic(c, o, x1, x2, x3, x11, x22, x33, x12, x23, x31):
     p4 = c[o + 13] * (x1 * x22) + c[o + 14] * (x2 * x11) + c[o + 15] * (x2 * x33)
     p5 = c[o + 16] * (x3 * x22) + c[o + 17] * (x3 * x11) + c[o + 18] * (x1 * x33)
     return (p0 + p1) + (p2 + p3) + (p4 + p5)
+
+
+@njit(**INLINE)
+def _ramped(n0, n1, n2, vx, vy, vz, lead_tol, ramp):
+    """:func:`rft_mujoco.physics.elements.ramped_directions` of one element (unit normal, unit direction): the
+    direction the stress is taken at and its weight (``lead_tol``, ``ramp``: ``tol[0]``, ``tol[3]``)."""
+    c = n0 * vx + n1 * vy + n2 * vz
+    b = c if c < -lead_tol else 0.0
+    inv = 1.0 / math.sqrt(1.0 - b * b)
+    return (vx - b * n0) * inv, (vy - b * n1) * inv, (vz - b * n2) * inv, min(1.0, (c + ramp) / (ramp - lead_tol))
+
+
+@njit(**INLINE)
+def _law_direction(n0, n1, n2, vx, vy, vz, speed_scale, lead_tol, ramp):
+    """The unit direction at which an element moving with ``v`` (m/s) takes its stress, and the factor the stress
+    carries: the published law's ``(v/|v|, 1)`` with ``speed_scale`` 0; with ``speed_scale = c > 0`` the implicit
+    solve's regularized law's (:func:`_ramped`, the weight times ``|v| / sqrt(|v|^2 + c^2)``)."""
+    sp = math.sqrt(vx * vx + vy * vy + vz * vz)
+    inv = 1.0 / sp
+    dx, dy, dz = vx * inv, vy * inv, vz * inv
+    if speed_scale > 0.0:
+        dx, dy, dz, w = _ramped(n0, n1, n2, dx, dy, dz, lead_tol, ramp)
+        return dx, dy, dz, w * (sp / math.sqrt(sp * sp + speed_scale * speed_scale))
+    return dx, dy, dz, 1.0
 
 
 @njit(**INLINE)

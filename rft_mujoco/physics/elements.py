@@ -18,6 +18,17 @@ FD_STEP = 1e-7
 speed (or of the regularization speed, whichever is larger). Newton's method only needs the derivative to a
 few digits; the wrench itself is exact."""
 
+LEADING_RAMP = 0.005
+"""The leading edge of the implicit solve's regularized law (:func:`body_wrench_jacobians`), on ``c = n . v/|v|``:
+an element just past the published leading edge (``-LEADING_RAMP <= c < -LEADING_TOL``, up to 0.3 degrees behind
+its tangent plane) carries the stress of its direction projected onto that plane, times a weight that falls
+linearly from 1 at ``c = -LEADING_TOL`` to 0 at ``c = -LEADING_RAMP``. The published law jumps where an element
+enters or leaves the leading set, and on a finite surface the jumps made Newton's iterates cycle (docs/rest.md,
+"Moving robots"). Elements the law loads (``c >= -LEADING_TOL``) carry the published stress; the ramp only adds
+force behind the edge: within 1% of the published force in steady flow except where a flat face is within the
+ramp of its tangent plane, where the published law itself jumps by that face's tangential force
+(tests/test_implicit.py::test_steady_flow_gets_the_published_force)."""
+
 
 def element_states(local_centroids, local_normals, elem_body, body_pos, body_mat, body_com, v_com, omega):
     """World positions, unit normals and velocities of elements attached to rigid bodies.
@@ -42,17 +53,29 @@ def element_states(local_centroids, local_normals, elem_body, body_pos, body_mat
     return pos, nrm, arm, vel
 
 
-def loaded_elements(depth, normals, velocities, active=None):
+def loaded_elements(depth, normals, velocities, active=None, lead=law.LEADING_TOL):
     """The elements that carry stress: submerged (``depth`` (E,) m > 0), ``active`` (E,) bool or None, moving
-    (speed above :data:`rft_mujoco.physics.law.ZERO_SPEED`) and leading (``n . v >= -LEADING_TOL``).
-    Returns their indices (n,) and speeds (n,) m/s."""
+    (speed above :data:`rft_mujoco.physics.law.ZERO_SPEED`) and leading (``n . v >= -lead |v|``: the published
+    edge; the implicit solve's law passes :data:`LEADING_RAMP`). Returns their indices (n,) and speeds (n,) m/s."""
     live = depth > 0.0 if active is None else (depth > 0.0) & active
     sub = np.flatnonzero(live)
     speed = np.linalg.norm(velocities[sub], axis=1)
     moving = speed > law.ZERO_SPEED
     sub, speed = sub[moving], speed[moving]
-    leading = np.einsum("ij,ij->i", normals[sub], velocities[sub] / speed[:, None]) >= -law.LEADING_TOL
+    leading = np.einsum("ij,ij->i", normals[sub], velocities[sub] / speed[:, None]) >= -lead
     return sub[leading], speed[leading]
+
+
+def ramped_directions(normals: np.ndarray, v_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The directions at which the implicit solve's law takes each element's stress, and the weights it carries
+    (:data:`LEADING_RAMP`). ``normals``, ``v_hat``: (n, 3) unit. Returns (n, 3) unit directions (``v_hat`` itself
+    on the leading side, ``c >= -LEADING_TOL``; behind it, ``v_hat`` projected onto the element's tangent plane)
+    and (n,) weights in [0, 1] (1 on the leading side)."""
+    c = np.einsum("ij,ij->i", normals, v_hat)
+    behind = np.where(c < -law.LEADING_TOL, c, 0.0)
+    u = v_hat - behind[:, None] * normals
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    return u, np.minimum(1.0, (c + LEADING_RAMP) / (LEADING_RAMP - law.LEADING_TOL))
 
 
 def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, body_pos, body_mat, body_com,
@@ -97,7 +120,8 @@ def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bo
     The implicit sand solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`) evaluates the law at the
     motion a step ends with, by Newton's method; it needs the law as a continuous function of the twist. Each
     element's stress is the published one at its direction times ``phi(|v|) = |v| / sqrt(|v|^2 + c^2)``,
-    ``c = speed_scale``: the published force above ``10 c`` to within 0.5%, zero at rest.
+    ``c = speed_scale``: the published force above ``10 c`` to within 0.5%, zero at rest; its leading edge is a
+    ramp (:data:`LEADING_RAMP`, :func:`ramped_directions`), so that the wrench is continuous in the twist.
 
     Args:
         (as :func:`body_wrenches`), speed_scale: ``c`` in m/s (> 0).
@@ -114,7 +138,7 @@ def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bo
     jac = np.zeros((n_bodies, 6, 6))
     count = np.zeros(n_bodies, dtype=np.int64)
     max_depth = np.zeros(n_bodies)
-    sub, speed = loaded_elements(depth, nrm, vel, active)
+    sub, speed = loaded_elements(depth, nrm, vel, active, LEADING_RAMP)
     if sub.size == 0:
         return wrench, jac, count, max_depth
     n, v, scale = nrm[sub], vel[sub], (depth[sub] * areas[sub])
@@ -128,8 +152,10 @@ def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bo
     vv = vv.reshape(-1, 3)
     s = np.linalg.norm(vv, axis=1)
     phi = s / np.sqrt(s * s + speed_scale * speed_scale)
-    forces = (law.stress_per_depth(np.tile(n, (4, 1)), vv / s[:, None], media, gravity, guards)
-              * (np.tile(scale, 4) * phi)[:, None]).reshape(4, e, 3)
+    nn = np.tile(n, (4, 1))
+    u, weight = ramped_directions(nn, vv / s[:, None])
+    forces = (law.stress_per_depth(nn, u, media, gravity, guards)
+              * (np.tile(scale, 4) * phi * weight)[:, None]).reshape(4, e, 3)
     f = forces[0]
     dfdv = np.empty((e, 3, 3))
     for k in range(3):
