@@ -48,8 +48,8 @@ class Problem:
 
     def lw(self):
         n_e, es, ea, en, ed, ear = self.e
-        return (self.k, self.slot, self.arm, n_e, es, ea, en, ed, ear, G_HAT, self.xi_n, plaw.COEFFICIENTS,
-                MEDIA.mu_surf, False, False, False, tolerances()) + self.work
+        return ((self.k, self.slot, self.arm), (n_e, es, ea, en, ed, ear),
+                (G_HAT, self.xi_n, plaw.COEFFICIENTS, MEDIA.mu_surf, False, False, False, tolerances()), self.work)
 
     def numpy_law(self, u, groups=None):
         shift = reference._shift(self.arm)

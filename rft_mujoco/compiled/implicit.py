@@ -28,11 +28,10 @@ from rft_mujoco.compiled.rest import min_norm_apply, min_norm_factor
 
 SETTINGS = sc.IMPLICIT_SETTINGS
 """Entries of ``st`` (:data:`rft_mujoco.compiled.schema.IMPLICIT_SETTINGS`, indexed as ``st[sc.ST_TINY]``)."""
-LAW_FIELDS = ("k", "slot", "arm", "n_e", "e_slot", "e_arm", "e_nrm", "e_depth", "e_area", "g_hat", "xi_n", "coef",
-              "mu_surf", "no_tension", "no_forward", "no_power", "tol", "lin", "ang", "on", "scr", "pk", "wrench", "jac",
-              "count", "max_depth")
-"""The ``lw`` tuple: the arguments of :func:`rft_mujoco.compiled.implicit_law.group_law` that stay fixed
-within one evaluation, in its order."""
+LAW_FIELDS = ("bodies", "els", "lawc", "work")
+"""The ``lw`` tuple: the ``law`` argument of :func:`rft_mujoco.compiled.implicit_law.group_law`, fixed within one
+evaluation: the bodies (``k``, ``slot``, ``arm``), the elements (``implicit_law.ELEMENTS``), the law's constants
+(``implicit_law.LAW_CONSTANTS``) and the bodies' work space and outputs (``implicit_law.BODY_WORK``)."""
 
 def settings() -> np.ndarray:
     """``st`` (:data:`SETTINGS`) from the reference modules' constants now."""
@@ -49,9 +48,7 @@ def settings() -> np.ndarray:
 @njit(**JIT)
 def _law(lw, u, groups_on, ng, st, derivative, f, df):
     """:func:`rft_mujoco.compiled.implicit_law.group_law` with the fixed arguments of ``lw``."""
-    group_law(u, groups_on, ng, lw[0], lw[1], lw[2], lw[3], lw[4], lw[5], lw[6], lw[7], lw[8], lw[9], lw[10], lw[11],
-              lw[12], lw[13], lw[14], lw[15], lw[16], st[sc.ST_SPEED_SCALE], st[sc.ST_FD_STEP], derivative, lw[17],
-              lw[18], lw[19], lw[20], lw[21], lw[22], lw[23], lw[24], lw[25], f, df)
+    group_law(u, groups_on, ng, lw, st[sc.ST_SPEED_SCALE], st[sc.ST_FD_STEP], derivative, f, df)
 
 
 @njit(**JIT)

@@ -62,14 +62,15 @@ def _elements(md, hc, ws, k, g_hat, e_slot, e_arm, e_nrm, e_depth, e_area):
     """:func:`rft_mujoco.compiled.implicit_law.loaded_candidates` of the ``k`` touching bodies into the element
     rows ``e_*`` (and the bodies' occluded area into ``ws``); returns their number."""
     params = hc[sc.H_PARAMS]
-    return loaded_candidates(ws[sc.W_TOUCH], k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS],
-                             hc[sc.H_CLUSTER_START], hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS],
-                             hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM], g_hat,
-                             params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]), hc[sc.H_TP], hc[sc.H_HEIGHTS],
-                             hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE],
-                             hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], params[sc.P_MARGIN],
-                             md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT], e_slot, e_arm, e_nrm, e_depth, e_area,
-                             ws[sc.W_OCCLUDED])
+    return loaded_candidates(ws[sc.W_TOUCH], k,
+                             (hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
+                              hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_BODY_CLUSTERS]),
+                             (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM]),
+                             (g_hat, params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]), hc[sc.H_TP], hc[sc.H_HEIGHTS]),
+                             (hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE],
+                              hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], params[sc.P_MARGIN],
+                              md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT]),
+                             (e_slot, e_arm, e_nrm, e_depth, e_area, ws[sc.W_OCCLUDED]))
 
 
 @njit(**JIT)
@@ -102,6 +103,9 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     g_hat[1] = g1
     g_hat[2] = g2
     xi_n = params[sc.P_XI_PER_G] * g_mag
+    lawc = (g_hat, xi_n, hc[sc.H_COEF], params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0,
+            params[sc.P_NO_FORWARD] != 0.0, params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL])   # implicit_law.LAW_CONSTANTS
+    work = (lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)                        # implicit_law.BODY_WORK
     # 1. the touching groups, in increasing group order, and each touching body's row among them
     ng_all = group_ref.shape[0]
     ng = touching_groups(k, touch, group_of, ng_all, rest, active, slot)
@@ -173,9 +177,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
             if ready and not have_elements:
                 have_elements = True
                 n_e = _elements(md, hc, ws, k, g_hat, e_slot, e_arm, e_nrm, e_depth, e_area)
-            lw = (k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, hc[sc.H_COEF],
-                  params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0,
-                  params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)
+            lw = ((k, slot, arm), (n_e, e_slot, e_arm, e_nrm, e_depth, e_area), lawc, work)
             for r in range(ng):
                 flowing[r] = prev_flow[active[r]]
             its = solve_from_probe(free, mob, lw, start, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
@@ -210,10 +212,8 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         for c in range(6):
             end[r, c] = probe[r, c] if resting[r] else end[r, c]
     if again:
-        group_law(end, flowing, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n,
-                  hc[sc.H_COEF], params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0,
-                  params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], st[sc.ST_SPEED_SCALE], st[sc.ST_FD_STEP], LAW, lin,
-                  ang, on, scr, pk, wrench, jac_b, count, depth_max, gf, gdf)
+        group_law(end, flowing, ng, ((k, slot, arm), (n_e, e_slot, e_arm, e_nrm, e_depth, e_area), lawc, work),
+                  st[sc.ST_SPEED_SCALE], st[sc.ST_FD_STEP], LAW, gf, gdf)
     # 7. each body's part (reference.share) and the diagnostics (reference.commit)
     return _share_and_commit(k, ng, slot, wrench, rad_g, gf, w, resting, arm, size, cap, applied, ws, touch,
                              bound_radius, count, depth_max, occluded, ids, sand_out)

@@ -29,18 +29,27 @@ from rft_mujoco.compiled.terrain import _depth
 
 
 @njit(**JIT)
-def loaded_candidates(touch, k, centroids, normals, areas, cluster_start, cluster_center, cluster_radius,
-                      body_clusters, body_pos, body_mat, body_com, g_hat, max_height, kind, tp, heights, occ_start,
-                      occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin, geom_xpos, geom_xmat,
-                      e_slot, e_arm, e_nrm, e_depth, e_area, occluded):
-    """The submerged, unculled elements of the bodies ``touch[:k]`` (packed layout of
-    :func:`rft_mujoco.compiled.elements.pack`; body j's pose in rows j of ``body_pos`` (3), ``body_mat`` (9),
-    ``body_com`` (3)), written to the front of ``e_slot`` (E,) int (the body row j), ``e_arm`` (E, 3) m (from
-    the COM, world), ``e_nrm`` (E, 3) unit (world), ``e_depth`` (E,) m, ``e_area`` (E,) m^2; ``occluded`` (k,)
-    m^2: the submerged area inside another body's geom (rows ``occ_start[b]:occ_start[b + 1]``). Returns
-    their number. As the element pass (:func:`rft_mujoco.compiled.element_pass.wrenches`), a cluster above
-    ``max_height`` (m) is skipped whole, and an occluder is tested only on the clusters its bounding sphere
-    reaches and that none of its faces separates from it."""
+def loaded_candidates(touch, k, surface, poses, terrain, occluders, out):
+    """The submerged, unculled elements of the bodies ``touch[:k]``, written to the front of the rows of ``out``;
+    returns their number.
+
+    ``surface`` = (``centroids``, ``normals``, ``areas``, ``cluster_start``, ``cluster_center``,
+    ``cluster_radius``, ``body_clusters``): the packed layout of :func:`rft_mujoco.compiled.elements.pack`.
+    ``poses`` = (``body_pos`` (3), ``body_mat`` (9), ``body_com`` (3)): body j's pose in rows j. ``terrain`` =
+    (``g_hat``, ``max_height`` (m), ``kind``, ``tp``, ``heights``): gravity's unit direction and the terrain's
+    kernel form. ``occluders`` = (``occ_start``, ``occ_geom``, ``occ_kind``, ``occ_size``, ``occ_rbound``,
+    ``occ_hs_start``, ``occ_hs``, ``margin``, ``geom_xpos``, ``geom_xmat``): the geoms of other bodies that hide
+    elements (rows ``occ_start[b]:occ_start[b + 1]`` for body b) and their poses. ``out`` = (``e_slot`` (E,) int
+    (the body row j), ``e_arm`` (E, 3) m (from the COM, world), ``e_nrm`` (E, 3) unit (world), ``e_depth`` (E,)
+    m, ``e_area`` (E,) m^2, ``occluded`` (k,) m^2: the submerged area inside another body's geom). As the
+    element pass (:func:`rft_mujoco.compiled.element_pass.wrenches`), a cluster above ``max_height`` is skipped
+    whole, and an occluder is tested only on the clusters its bounding sphere reaches and that none of its faces
+    separates from it."""
+    centroids, normals, areas, cluster_start, cluster_center, cluster_radius, body_clusters = surface
+    body_pos, body_mat, body_com = poses
+    g_hat, max_height, kind, tp, heights = terrain
+    occ_start, occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin, geom_xpos, geom_xmat = occluders
+    e_slot, e_arm, e_nrm, e_depth, e_area, occluded = out
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     near = np.empty(max(occ_geom.shape[0], 1), np.int64)
     n_e = 0
@@ -122,11 +131,23 @@ of one LAW_AND_DERIVATIVE call, bit for bit."""
 _V, _SP, _N, _SA, _F, _D = 0, 3, 4, 7, 8, 11
 
 
+ELEMENTS = ("n_e", "e_slot", "e_arm", "e_nrm", "e_depth", "e_area")
+"""The ``els`` bundle of :func:`body_law` and :func:`group_law`: the candidate elements of
+:func:`loaded_candidates` (their number, then per element: body row (int), lever arm from the COM (3, m, world),
+unit normal (3, world), depth (m), area (m^2))."""
+LAW_CONSTANTS = ("g_hat", "xi_n", "coef", "mu_surf", "no_tension", "no_forward", "no_power", "tol")
+"""The ``lawc`` bundle: unit gravity (3,), ``xi_n`` (N/m^3), the (20, 3) coefficient table, the medium's surface
+friction, the three guards (bool) and the tolerances (:func:`rft_mujoco.compiled.law.tolerances`)."""
+BODY_WORK = ("lin", "ang", "on", "scr", "pk", "wrench", "jac", "count", "max_depth")
+"""The ``work`` bundle of :func:`group_law`: the bodies' twists (k, 3) and flags (k,) that it writes, the work space
+of :func:`body_law` (``scr``, ``pk``) and its per-body outputs (``wrench``, ``jac``, ``count``, ``max_depth``)."""
+
+
 @njit(**JIT_LAW)
-def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat, xi_n, coef, mu_surf, no_tension,
-             no_forward, no_power, tol, speed_scale, fd_step, derivative, scr, pk, wrench, jac, count, max_depth):
+def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, pk, out):
     """The regularized wrench of bodies 0..k-1 (rows of ``lin`` (3, m/s, the COM's velocity), ``ang`` (3,
-    rad/s)) on the elements of :func:`loaded_candidates`, for the bodies with ``on[j]`` (other rows untouched).
+    rad/s)) on the elements ``els`` (:data:`ELEMENTS`) with the law ``lawc`` (:data:`LAW_CONSTANTS`), for the
+    bodies with ``on[j]`` (other rows untouched); ``out`` = (``wrench``, ``jac``, ``count``, ``max_depth``).
 
     Each moving element on or near the leading side (speed above ``tol[2]``, ``n.v >= -tol[3] |v|``) carries
     the published stress at its ramped direction times ``xi_n depth area phi(|v|)`` times the ramp's weight
@@ -139,6 +160,9 @@ def body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat,
     as the first two). ``scr`` (:data:`SCRATCH_ROWS`, >= n_e) float and ``pk`` (> n_e,) int: work space; the
     last slot of ``pk`` keeps the number of loaded elements for :data:`DERIVATIVE_OF_LAST`. As the element pass,
     the loaded elements are packed first and the law runs on them without branches (vectorized)."""
+    n_e, e_slot, e_arm, e_nrm, e_depth, e_area = els
+    g_hat, xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol = lawc
+    wrench, jac, count, max_depth = out
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed, ramp = tol[0], tol[1], tol[2], tol[3]
@@ -261,19 +285,20 @@ def _derivative_sums(m, e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, j
 
 
 @njit(**JIT)
-def group_law(u, groups_on, ng, k, slot, arm, n_e, e_slot, e_arm, e_nrm, e_depth, e_area, g_hat, xi_n, coef, mu_surf,
-              no_tension, no_forward, no_power, tol, speed_scale, fd_step, derivative, lin, ang, on, scr, pk, wrench,
-              jac, count, max_depth, f, df):
+def group_law(u, groups_on, ng, law, speed_scale, fd_step, derivative, f, df):
     """The law of :func:`body_law` for groups 0..ng-1 moving with twists ``u`` (ng, 6) at their reference
-    points (m/s, rad/s), for the groups with ``groups_on[g]``: body j (of group ``slot[j]``, its COM at
-    ``arm[j]`` (3, m) from the reference point) moves with ``(v + w x arm, w)``. Outputs: ``f`` (ng, 6) the
+    points (m/s, rad/s), for the groups with ``groups_on[g]``. ``law`` = (``bodies``, ``els``, ``lawc``, ``work``):
+    ``bodies`` = (``k``, ``slot``, ``arm``), body j (of group ``slot[j]``, its COM at ``arm[j]`` (3, m) from the
+    reference point) moving with ``(v + w x arm, w)``; ``els`` (:data:`ELEMENTS`) and ``lawc``
+    (:data:`LAW_CONSTANTS`) as :func:`body_law`'s; ``work`` (:data:`BODY_WORK`). Outputs: ``f`` (ng, 6) the
     groups' wrenches about their reference points (N, N m), with ``derivative`` ``df`` (ng, 6, 6) their
-    derivative in ``u``; the bodies' own (``wrench``, ``jac``, ``count``, ``max_depth``) of :func:`body_law`.
-    Rows of groups without ``groups_on`` are left as they were (``f``, ``df`` and the bodies' rows).
-    ``lin``, ``ang`` (k, 3) float, ``on`` (k,) bool, ``scr``, ``pk``: work space (:func:`body_law`)."""
+    derivative in ``u``; the bodies' own (``wrench``, ``jac``, ``count``, ``max_depth`` of ``work``) of
+    :func:`body_law`. Rows of groups without ``groups_on`` are left as they were (``f``, ``df`` and the bodies'
+    rows)."""
+    (k, slot, arm), els, lawc, work = law
+    lin, ang, on, scr, pk, wrench, jac, count, max_depth = work
     group_twists(u, groups_on, k, slot, arm, lin, ang, on)
-    body_law(n_e, e_slot, e_arm, e_nrm, e_depth, e_area, k, lin, ang, on, g_hat, xi_n, coef, mu_surf, no_tension,
-             no_forward, no_power, tol, speed_scale, fd_step, derivative, scr, pk, wrench, jac, count, max_depth)
+    body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, pk, (wrench, jac, count, max_depth))
     group_sums(ng, groups_on, k, slot, arm, on, wrench, f)
     if not derivative:
         return
