@@ -125,7 +125,6 @@ OVER_THE_LIMITS = {
     "compiled.element_pass.wrenches": (43, 170), "compiled.element_pass.body_wrenches": (15, 3),
     "compiled.elements.touching": (27, 82), "compiled.elements.finish_naive": (19, 42),
     "compiled.evaluate._mobility": (26, 84), "compiled.evaluate._rest": (11, 142),
-    "compiled.implicit.implicit_wrenches": (16, 5), "compiled.implicit.solve_from_probe": (17, 174),
     "compiled.implicit_eval.evaluate_implicit": (13, 137),
     "compiled.law._stress": (16, 42), "compiled.law._element_forces": (15, 58), "compiled.locks.stuck_dofs": (17, 26),
     "compiled.locks.lock_matrices": (13, 32), "compiled.locks._lock_needed": (17, 46),

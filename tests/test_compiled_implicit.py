@@ -136,9 +136,9 @@ def test_implicit_wrenches_match_the_numpy_solve(seed):
                                                                        prior)
         w, rest, end, probe = (np.zeros((p.ng, 6)), np.zeros(p.ng, dtype=np.bool_), np.zeros((p.ng, 6)),
                                np.zeros((p.ng, 6)))
-        its = cimp.implicit_wrenches(free, mob, p.lw(), twist, radius, dt, p.ng,
+        its = cimp.implicit_wrenches((free, mob, radius, dt, p.ng), p.lw(), twist,
                                      np.zeros(p.ng, np.bool_) if prior is None else prior, prior is not None,
-                                     cimp.settings(), w, rest, end, probe, np.zeros((p.ng, 6)),
+                                     cimp.settings(), (w, rest, end), probe, np.zeros((p.ng, 6)),
                                      np.zeros((p.ng, 6, 6)))
         np.testing.assert_array_equal(rest, rest_ref)
         assert its == its_ref

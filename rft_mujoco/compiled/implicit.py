@@ -206,35 +206,33 @@ def _blend(twist, free, radius, ng, out):
 
 
 @njit(**JIT)
-def implicit_wrenches(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w_out, rest, end, probe, f, df):
-    """:func:`rft_mujoco.physics.implicit.implicit_wrenches` of groups 0..ng-1: ``free``, ``twist`` (ng, 6)
-    (m/s, rad/s), ``mob`` (6 ng, 6 ng), ``radius`` (ng,) m, ``dt`` s, ``flowing`` (ng,) bool the groups
-    that flowed at the last evaluation (used with ``prior``), the law ``lw`` (:data:`LAW_FIELDS`).
-    Outputs: ``w_out`` (ng, 6) wrenches (N, N m), ``rest`` (ng,) bool, ``end`` (ng, 6) end twists, ``probe``
-    (ng, 6) the blended twists of the capacity test, ``flowing`` (overwritten): the groups solved in flow at
-    some point. ``f``, ``df``: the law's outputs; the rows of the groups never in flow (and their bodies' rows
-    in ``lw``) hold the law at the probe. Returns the Newton iterations."""
+def implicit_wrenches(system, lw, twist, flowing, prior, st, out, probe, f, df):
+    """:func:`rft_mujoco.physics.implicit.implicit_wrenches` of groups 0..ng-1. ``system`` = (``free`` (ng, 6)
+    m/s, rad/s, ``mob`` (6 ng, 6 ng), ``radius`` (ng,) m, ``dt`` s, ``ng``): the groups' free twists and
+    mobility (:data:`SYSTEM`); ``twist`` (ng, 6) the twists now, ``flowing`` (ng,) bool the groups that flowed
+    at the last evaluation (used with ``prior``), the law ``lw`` (:data:`LAW_FIELDS`). Outputs: ``out`` =
+    (``w_out`` (ng, 6) wrenches (N, N m), ``rest`` (ng,) bool, ``end`` (ng, 6) end twists), ``probe`` (ng, 6)
+    the blended twists of the capacity test, ``flowing`` (overwritten): the groups solved in flow at some
+    point. ``f``, ``df``: the law's outputs; the rows of the groups never in flow (and their bodies' rows in
+    ``lw``) hold the law at the probe. Returns the Newton iterations."""
+    free, _, radius, _, ng = system
     _blend(twist, free, radius, ng, probe)
     on = np.ones(ng, np.bool_)
     _law(lw, probe, on, ng, st, LAW, f, df)
-    return solve_from_probe(free, mob, lw, twist, radius, dt, ng, flowing, prior, st, w_out, rest, end, probe, f, df,
-                            True)
+    return solve_from_probe(system, lw, twist, flowing, prior, st, out, probe, f, df, True)
 
 
+SYSTEM = ("free", "mob", "radius", "dt", "ng")
+"""The ``system`` bundle of :func:`implicit_wrenches` and :func:`solve_from_probe`."""
 NEED_ELEMENTS = -1
 """:func:`solve_from_probe`: a group is to be solved in flow and ``lw`` does not hold the elements yet."""
 
 
 @njit(**JIT)
-def solve_from_probe(free, mob, lw, start, radius, dt, ng, flowing, prior, st, w_out, rest, end, probe, f, df,
-                     ready):
-    """:func:`implicit_wrenches` from its capacity test on: ``probe`` (ng, 6) holds the blended twists
-    (:func:`_blend`) and ``f`` (ng, 6) the groups' law at them; a flowing group's Newton solve starts from its
-    row of ``start`` (ng, 6) (the twists now, or an earlier zone pass's answer). Without ``ready`` (``lw`` does not hold the
-    evaluation's elements: the probe's law came from the element pass), returns :data:`NEED_ELEMENTS` before
-    the first Newton solve, having written nothing but ``flowing`` (the caller restores it, fills ``lw`` and
-    calls again with ``ready``); a solve that keeps every group at rest never needs them."""
-    n6, retry = 6 * ng, st[sc.ST_REST_RETRY] * st[sc.ST_SPEED_SCALE]
+def _scaled(free, mob, radius, dt, ng):
+    """The solve's scaled coordinates (:func:`rft_mujoco.physics.rest._scales`): ``sv``, ``sw`` (6 ng,) and the
+    scaled ``a = dt S_v mob S_v`` (6 ng, 6 ng) and ``v = S_v free`` (6 ng,)."""
+    n6 = 6 * ng
     sv = np.empty(n6)
     sw = np.empty(n6)
     for g in range(ng):
@@ -247,11 +245,19 @@ def solve_from_probe(free, mob, lw, start, radius, dt, ng, flowing, prior, st, w
         v[p] = free[p // 6, p % 6] * sv[p]
         for q in range(n6):
             a[p, q] = dt * (sv[p] * mob[p, q] * sv[q])
+    return sv, sw, a, v
+
+
+@njit(**JIT)
+def _capacities(f, probe, sv, sw, ng, prior, flowing, rest, flow, untried):
+    """The capacity test's quantities of each group from the law ``f`` at the ``probe`` twists: ``capacity``
+    (ng,) (the power the sand can take along the probe, scaled), ``weight_all`` (ng,) (the rest operator's
+    weights) and ``u_probe`` (6 ng,) (the scaled probe). Sets ``rest`` (a group with sand under it), and with
+    ``prior`` starts in flow (``flow``, ``untried``) the groups that flowed last (``flowing``, overwritten with
+    ``flow``)."""
     capacity = np.empty(ng)
     weight_all = np.empty(ng)
-    u_probe = np.empty(n6)
-    flow = np.zeros(ng, np.bool_)
-    untried = np.zeros(ng, np.bool_)
+    u_probe = np.empty(6 * ng)
     for g in range(ng):
         cp = 0.0
         wa = 0.0
@@ -271,85 +277,155 @@ def solve_from_probe(free, mob, lw, start, radius, dt, ng, flowing, prior, st, w
             rest[g] = False
             untried[g] = True
         flowing[g] = flow[g]                   # from here on: whether the group was solved in flow
+    return capacity, weight_all, u_probe
+
+
+@njit(**JIT)
+def _indices(ng, rest, flow):
+    """The scaled coordinates of the resting groups and of the flowing ones: ``r_idx`` (6 nr,), ``f_idx`` (6 nf,)."""
+    nr = 0
+    nf = 0
+    for g in range(ng):
+        if rest[g]:
+            nr += 1
+        if flow[g]:
+            nf += 1
+    r_idx, f_idx = np.empty(6 * nr, np.int64), np.empty(6 * nf, np.int64)
+    ir = jf = 0
+    for g in range(ng):
+        for c in range(6):
+            if rest[g]:
+                r_idx[ir] = 6 * g + c
+                ir += 1
+            if flow[g]:
+                f_idx[jf] = 6 * g + c
+                jf += 1
+    return r_idx, f_idx
+
+
+@njit(**JIT)
+def _rest_factor(a, r_idx, weight_all, st, lin, perm):
+    """The rest operator of the resting coordinates ``r_idx`` (:func:`rft_mujoco.physics.implicit.rest_operator`),
+    factored by :func:`rft_mujoco.compiled.rest.min_norm_factor` into ``lin``, ``perm``: returns the block of
+    ``a``, the capacity weights and the factor's rank."""
+    mr = r_idx.shape[0]
+    block = np.empty((mr, mr))
+    weight = np.empty(mr)
+    if mr == 0:
+        return block, weight, 0
+    top = 0.0
+    for i in range(mr):
+        weight[i] = weight_all[r_idx[i] // 6]
+        top = max(top, weight[i])
+    for i in range(mr):
+        weight[i] = max(weight[i], st[sc.ST_WEIGHT_FLOOR] * top)
+    for i in range(mr):
+        for j in range(mr):
+            block[i, j] = a[r_idx[i], r_idx[j]]
+    return block, weight, min_norm_factor(block, weight, mr, st[sc.ST_DEPENDENT_TOL], st[sc.ST_TINY], lin, perm)
+
+
+@njit(**JIT)
+def _flow_system(a, v, r_idx, f_idx, start, sv, rest_op):
+    """The flowing coordinates' system with the resting groups' wrenches following them, ``-P (v_r + a_rf w_f)``
+    (P the rest operator ``rest_op`` = (block, weight, rank, lin, perm, x) applied to the vectors it meets rather
+    than formed): ``a_eff``, ``v_eff`` and the Newton solve's start ``u_flow`` (scaled ``start`` rows)."""
+    block, weight, kf, lin, perm, x = rest_op
+    mr, mf = r_idx.shape[0], f_idx.shape[0]
+    pa = np.zeros((mr, mf))                    # P a_rf
+    col = np.empty(mr)
+    for j in range(mf):
+        if mr == 0:
+            break
+        for l in range(mr):
+            col[l] = a[r_idx[l], f_idx[j]]
+        min_norm_apply(block, col, weight, mr, kf, lin, perm, x)
+        for l in range(mr):
+            pa[l, j] = x[l]
+    pv = np.zeros(mr)                          # P v_r
+    if mr:
+        for l in range(mr):
+            col[l] = v[r_idx[l]]
+        min_norm_apply(block, col, weight, mr, kf, lin, perm, pv)
+    a_eff = np.empty((mf, mf))
+    v_eff = np.empty(mf)
+    u_flow = np.empty(mf)
+    for i in range(mf):
+        for j in range(mf):
+            s = 0.0
+            for l in range(mr):
+                s += a[f_idx[i], r_idx[l]] * pa[l, j]
+            a_eff[i, j] = a[f_idx[i], f_idx[j]] - s
+        s = 0.0
+        for l in range(mr):
+            s += a[f_idx[i], r_idx[l]] * pv[l]
+        v_eff[i] = v[f_idx[i]] - s
+        u_flow[i] = start[f_idx[i] // 6, f_idx[i] % 6] * sv[f_idx[i]]
+    return a_eff, v_eff, u_flow
+
+
+@njit(**JIT)
+def _passive_finish(w, v, a, sv, sw, end, w_out):
+    """The passivity guard (:func:`rft_mujoco.physics.rest.passive_scale`) on the scaled wrenches ``w``, then the
+    end twists ``end`` and the wrenches ``w_out`` (ng, 6) unscaled."""
+    n6 = w.shape[0]
+    hh = 0.0
+    q = 0.0
+    for i in range(n6):
+        hh += w[i] * v[i]
+        s = 0.0
+        for j in range(n6):
+            s += a[i, j] * w[j]
+        q += w[i] * s
+    scale = 1.0
+    if hh + 0.5 * q > 0.0:
+        scale = 0.0 if hh >= 0.0 else (1.0 if q <= 0.0 else min(1.0, -hh / q))
+    for i in range(n6):
+        w[i] *= scale
+    for i in range(n6):
+        s = v[i]
+        for j in range(n6):
+            s += a[i, j] * w[j]
+        end[i // 6, i % 6] = s / sv[i]
+        w_out[i // 6, i % 6] = w[i] / sw[i]
+
+
+@njit(**JIT)
+def solve_from_probe(system, lw, start, flowing, prior, st, out, probe, f, df, ready):
+    """:func:`implicit_wrenches` from its capacity test on: ``probe`` (ng, 6) holds the blended twists
+    (:func:`_blend`) and ``f`` (ng, 6) the groups' law at them; a flowing group's Newton solve starts from its
+    row of ``start`` (ng, 6) (the twists now, or an earlier zone pass's answer). Without ``ready`` (``lw`` does
+    not hold the evaluation's elements: the probe's law came from the element pass), returns
+    :data:`NEED_ELEMENTS` before the first Newton solve, having written nothing but ``flowing`` (the caller
+    restores it, fills ``lw`` and calls again with ``ready``); a solve that keeps every group at rest never needs
+    them. ``system``, ``out``: as :func:`implicit_wrenches`'s."""
+    free, mob, radius, dt, ng = system
+    w_out, rest, end = out
+    n6, retry = 6 * ng, st[sc.ST_REST_RETRY] * st[sc.ST_SPEED_SCALE]
+    sv, sw, a, v = _scaled(free, mob, radius, dt, ng)
+    flow = np.zeros(ng, np.bool_)
+    untried = np.zeros(ng, np.bool_)
+    capacity, weight_all, u_probe = _capacities(f, probe, sv, sw, ng, prior, flowing, rest, flow, untried)
     w = np.zeros(n6)
     full = np.empty((ng, 6))
     lin, perm, x = np.empty((3 * n6 + 5, n6)), np.empty(2 * n6, np.int64), np.empty(n6)  # min_norm_factor's
     its = 0
     while True:
-        nr = 0
-        nf = 0
-        for g in range(ng):
-            if rest[g]:
-                nr += 1
-            if flow[g]:
-                nf += 1
-        r_idx, f_idx = np.empty(6 * nr, np.int64), np.empty(6 * nf, np.int64)
-        ir = jf = 0
-        for g in range(ng):
-            for c in range(6):
-                if rest[g]:
-                    r_idx[ir] = 6 * g + c
-                    ir += 1
-                if flow[g]:
-                    f_idx[jf] = 6 * g + c
-                    jf += 1
-        mr, mf = 6 * nr, 6 * nf
-        block = np.empty((mr, mr))
-        weight = np.empty(mr)
-        kf = 0                                 # the rank of the rest operator's factor (in lin, perm)
-        if mr:
-            top = 0.0
-            for i in range(mr):
-                weight[i] = weight_all[r_idx[i] // 6]
-                top = max(top, weight[i])
-            for i in range(mr):
-                weight[i] = max(weight[i], st[sc.ST_WEIGHT_FLOOR] * top)
-            for i in range(mr):
-                for j in range(mr):
-                    block[i, j] = a[r_idx[i], r_idx[j]]
-            kf = min_norm_factor(block, weight, mr, st[sc.ST_DEPENDENT_TOL], st[sc.ST_TINY], lin, perm)
+        r_idx, f_idx = _indices(ng, rest, flow)
+        mr, mf = r_idx.shape[0], f_idx.shape[0]
+        block, weight, kf = _rest_factor(a, r_idx, weight_all, st, lin, perm)
         for i in range(n6):
             w[i] = 0.0
         if mf and not ready:
             return NEED_ELEMENTS
         if mf:
-            # the resting groups' wrenches follow the flowing ones: -P (v_r + a_rf w_f), P the rest operator
-            # (physics.implicit.rest_operator) applied to the vectors it meets rather than formed
-            pa = np.zeros((mr, mf))            # P a_rf
-            col = np.empty(mr)
-            for j in range(mf):
-                if mr == 0:
-                    break
-                for l in range(mr):
-                    col[l] = a[r_idx[l], f_idx[j]]
-                min_norm_apply(block, col, weight, mr, kf, lin, perm, x)
-                for l in range(mr):
-                    pa[l, j] = x[l]
-            pv = np.zeros(mr)                  # P v_r
-            if mr:
-                for l in range(mr):
-                    col[l] = v[r_idx[l]]
-                min_norm_apply(block, col, weight, mr, kf, lin, perm, pv)
-            a_eff = np.empty((mf, mf))
-            v_eff = np.empty(mf)
-            u_flow = np.empty(mf)
-            for i in range(mf):
-                for j in range(mf):
-                    s = 0.0
-                    for l in range(mr):
-                        s += a[f_idx[i], r_idx[l]] * pa[l, j]
-                    a_eff[i, j] = a[f_idx[i], f_idx[j]] - s
-                s = 0.0
-                for l in range(mr):
-                    s += a[f_idx[i], r_idx[l]] * pv[l]
-                v_eff[i] = v[f_idx[i]] - s
-                u_flow[i] = start[f_idx[i] // 6, f_idx[i] % 6] * sv[f_idx[i]]
+            a_eff, v_eff, u_flow = _flow_system(a, v, r_idx, f_idx, start, sv, (block, weight, kf, lin, perm, x))
             w_f, it = _newton_flow(lw, flow, ng, a_eff, v_eff, u_flow, sv, sw, st, full, f, df)
             its += it
             for i in range(mf):
                 w[f_idx[i]] = w_f[i]
             slow = False
-            for i in range(nf):                # a group started in flow that the step brings to (near) rest
+            for i in range(mf // 6):           # a group started in flow that the step brings to (near) rest
                 g = f_idx[6 * i] // 6
                 sl = sa = 0.0
                 for c in range(3):
@@ -387,24 +463,5 @@ def solve_from_probe(free, mob, lw, start, radius, dt, ng, flowing, prior, st, w
             if over:
                 continue
         break
-    # passivity guard (rest.passive_scale)
-    hh = 0.0
-    q = 0.0
-    for i in range(n6):
-        hh += w[i] * v[i]
-        s = 0.0
-        for j in range(n6):
-            s += a[i, j] * w[j]
-        q += w[i] * s
-    scale = 1.0
-    if hh + 0.5 * q > 0.0:
-        scale = 0.0 if hh >= 0.0 else (1.0 if q <= 0.0 else min(1.0, -hh / q))
-    for i in range(n6):
-        w[i] *= scale
-    for i in range(n6):
-        s = v[i]
-        for j in range(n6):
-            s += a[i, j] * w[j]
-        end[i // 6, i % 6] = s / sv[i]
-        w_out[i // 6, i % 6] = w[i] / sw[i]
+    _passive_finish(w, v, a, sv, sw, end, w_out)
     return its

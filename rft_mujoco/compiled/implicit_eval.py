@@ -180,8 +180,8 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
             lw = ((k, slot, arm), (n_e, e_slot, e_arm, e_nrm, e_depth, e_area), lawc, work)
             for r in range(ng):
                 flowing[r] = prev_flow[active[r]]
-            its = solve_from_probe(free, mob, lw, start, rad_g, dt, ng, flowing, prior, st, w, resting, end, probe, gf,
-                                   gdf, ready)
+            its = solve_from_probe((free, mob, rad_g, dt, ng), lw, start, flowing, prior, st, (w, resting, end), probe,
+                                   gf, gdf, ready)
             if its != NEED_ELEMENTS:
                 break
             ready = True
