@@ -12,6 +12,7 @@ import rft_mujoco
 from rft_mujoco.compiled import implicit as cimp
 from rft_mujoco.compiled import implicit_law
 from rft_mujoco.compiled import system as csys
+from rft_mujoco.compiled.implicit_eval import efc_arrays
 from rft_mujoco.compiled.law import tolerances
 from rft_mujoco.coupling import reference
 from rft_mujoco.physics import elements, implicit
@@ -173,12 +174,10 @@ def test_constrained_system_matches_the_numpy_linearization(name, jacobian):
     h_ref = h_ref + dt * np.diag(damping)
     h, f = np.zeros((m.nv, m.nv)), qfrc.copy()
     zones = np.empty(d.nefc, np.int64)
-    csys.row_zones(m.nv, d.nefc, jacobian == "sparse", d.efc_J, d.efc_J_rowadr, d.efc_J_rownnz, d.efc_J_colind,
-                   d.efc_type, d.efc_id, d.efc_D, d.efc_aref, d.efc_frictionloss, d.qacc, zones, False, zones)
-    csys.constrained_system(m.nv, m.M_rowadr.astype(np.int64), m.M_rownnz.astype(np.int64),
-                            m.M_colind.astype(np.int64), d.M, d.nefc, jacobian == "sparse", d.efc_J, d.efc_J_rowadr,
-                            d.efc_J_rownnz, d.efc_J_colind, d.efc_D, d.efc_aref, d.efc_frictionloss, zones, True,
-                            damping, dt, h, f)
+    efc = efc_arrays(d)
+    mass = (m.M_rowadr.astype(np.int64), m.M_rownnz.astype(np.int64), m.M_colind.astype(np.int64), d.M)
+    csys.row_zones(m.nv, jacobian == "sparse", efc, d.qacc, zones, False, zones)
+    csys.constrained_system(m.nv, mass, jacobian == "sparse", efc, zones, True, damping, dt, h, f)
     np.testing.assert_allclose(h, h_ref, rtol=1e-12, atol=1e-12 * np.abs(h_ref).max())
     np.testing.assert_allclose(f, f_ref, rtol=1e-12, atol=1e-12 * np.abs(f_ref).max())
     # the zones again at other accelerations, from zones with every dry friction saturated one way or the other
@@ -192,17 +191,13 @@ def test_constrained_system_matches_the_numpy_linearization(name, jacobian):
         prev_ref = (prev == 1, np.where(prev >= 2, np.where(prev == 2, 1.0, -1.0) * d.efc_frictionloss[:d.nefc], 0.0))
         qacc = d.qacc + rng.normal(scale=10.0 ** (trial // 2 - 1), size=m.nv)
         got = np.empty(d.nefc, np.int64)
-        csys.row_zones(m.nv, d.nefc, jacobian == "sparse", d.efc_J, d.efc_J_rowadr, d.efc_J_rownnz, d.efc_J_colind,
-                       d.efc_type, d.efc_id, d.efc_D, d.efc_aref, d.efc_frictionloss, qacc, prev, True, got)
+        csys.row_zones(m.nv, jacobian == "sparse", efc, qacc, prev, True, got)
         quad, const = reference.constraint_zones(m, d, rows, qacc, prev_ref)
         np.testing.assert_array_equal(got == 1, quad)
         np.testing.assert_array_equal(np.where(got == 2, 1.0, np.where(got == 3, -1.0, 0.0)) * d.efc_frictionloss[
             :d.nefc], const)
     h2, f2 = np.zeros((m.nv, m.nv)), qfrc.copy()       # lagged: the mass matrix alone
-    csys.constrained_system(m.nv, m.M_rowadr.astype(np.int64), m.M_rownnz.astype(np.int64),
-                            m.M_colind.astype(np.int64), d.M, d.nefc, jacobian == "sparse", d.efc_J, d.efc_J_rowadr,
-                            d.efc_J_rownnz, d.efc_J_colind, d.efc_D, d.efc_aref, d.efc_frictionloss, zones, False,
-                            damping, dt, h2, f2)
+    csys.constrained_system(m.nv, mass, jacobian == "sparse", efc, zones, False, damping, dt, h2, f2)
     full = np.zeros((m.nv, m.nv))
     mujoco.mj_fullM(m, d, full)
     np.testing.assert_array_equal(h2, full)

@@ -114,8 +114,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     nefc = efc[4].shape[0]
     zones, zones_end, qacc_end = np.empty(nefc, np.int64), np.empty(nefc, np.int64), np.empty(nv)
     if linearized:
-        row_zones(nv, nefc, sparse, efc[0], efc[1], efc[2], efc[3], efc[4], efc[5], efc[6], efc[7], efc[8], efc[9],
-                  zones, False, zones)
+        row_zones(nv, sparse, efc, efc[9], zones, False, zones)
     prior = istate[0] != 0.0 and state[sc.S_LAGGED] != 0.0      # the last evaluation was of this motion
     for g in range(ng_all):
         prior = prior and prev_active[g] == rest[g]
@@ -142,13 +141,13 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
                           dof_parentid, jrows, f)
         # 3. H (this step's constraints linearized), its factor, the free motion and mobility of the groups
-        constrained_system(nv, rowadr, rownnz, colind, m_val, nefc, sparse, efc[0], efc[1], efc[2], efc[3],
-                           efc[6], efc[7], efc[8], zones, linearized, damping, dt, h, f)
+        constrained_system(nv, (rowadr, rownnz, colind, m_val), sparse, efc, zones, linearized, damping, dt, h, f)
         if not cholesky(nv, h):
             return BAD_ACCELERATION
         mob = np.empty((6 * ng, 6 * ng))
-        free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
-                    body_parentid, dof_parentid, qvel, h, f, dt, jrows, y, twist, free, mob)
+        free_motion((ng, active, ids, group_ref), (xipos, cdof, subtree_com, qvel),
+                    (body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid), h, f, dt,
+                    (jrows, y, twist, free, mob))
         for i in range(nv):
             if not math.isfinite(f[i]):
                 return BAD_ACCELERATION
@@ -188,8 +187,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         if not linearized or nefc == 0 or zone_pass == int(st[sc.ST_ZONE_PASSES]) - 1:
             break
         end_acceleration(nv, h, jrows, ng, w, f, qacc_end)
-        row_zones(nv, nefc, sparse, efc[0], efc[1], efc[2], efc[3], efc[4], efc[5], efc[6], efc[7], efc[8], qacc_end,
-                  zones, True, zones_end)
+        row_zones(nv, sparse, efc, qacc_end, zones, True, zones_end)
         same = True
         for e in range(nefc):
             same = same and zones[e] == zones_end[e]

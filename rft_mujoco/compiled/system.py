@@ -26,15 +26,18 @@ TRN_JOINT, BIAS_AFFINE = 0, 1
 
 # --- this step's constraints, linearized ---------------------------------------------------------------
 @njit(**JIT)
-def row_zones(nv, nefc, sparse, efc_j, efc_rowadr, efc_rownnz, efc_colind, efc_type, efc_id, efc_d, efc_aref,
-              efc_frictionloss, qacc, prev, use_prev, zones):
-    """``zones`` (nefc,) := each constraint row's zone at the accelerations ``qacc`` (nv,), as
+def row_zones(nv, sparse, efc, qacc, prev, use_prev, zones):
+    """``zones`` (nefc,) := each constraint row's zone at the accelerations ``qacc`` (nv,), for the rows of ``efc``
+    (MjData's ``efc_J``, ``efc_J_rowadr``, ``efc_J_rownnz``, ``efc_J_colind``, ``efc_type``, ``efc_id``,
+    ``efc_D``, ``efc_aref``, ``efc_frictionloss`` and more: :data:`rft_mujoco.compiled.implicit_eval.EFC_FIELDS`), as
     :func:`rft_mujoco.coupling.reference.constraint_zones`: 0 none, 1 quadratic, 2 / 3 a saturated dry friction
     at +/- its bound. A row's zone is that of the force it would carry at ``qacc``, ``-D (J qacc - aref)``:
     equality rows quadratic; dry friction quadratic inside its bound, a constant force at it; limits and
     contacts quadratic while pushing; an elliptic contact's rows all quadratic while its first (normal) row is.
     With ``use_prev``, ``qacc`` was solved in the zones ``prev`` (nefc,): a dry friction saturated there stays
     saturated while its force keeps its sign and bound, and sticks (quadratic) otherwise."""
+    efc_j, efc_rowadr, efc_rownnz, efc_colind, efc_type, efc_id, efc_d, efc_aref, efc_frictionloss = efc[:9]
+    nefc = efc_type.shape[0]
     first = 0.0
     for e in range(nefc):
         a0 = efc_rowadr[e] if sparse else e * nv
@@ -67,13 +70,16 @@ def row_zones(nv, nefc, sparse, efc_j, efc_rowadr, efc_rownnz, efc_colind, efc_t
 
 
 @njit(**JIT)
-def constrained_system(nv, m_rowadr, m_rownnz, m_colind, m_val, nefc, sparse, efc_j, efc_rowadr, efc_rownnz,
-                       efc_colind, efc_d, efc_aref, efc_frictionloss, zones, linearized, damping, dt, h, f):
-    """``h`` (nv, nv) := ``M`` (from MuJoCo's CSR lower triangle ``m_val``) and, with ``linearized``,
+def constrained_system(nv, mass, sparse, efc, zones, linearized, damping, dt, h, f):
+    """``h`` (nv, nv) := ``M`` (``mass`` = (``M_rowadr``, ``M_rownnz``, ``M_colind``, MjData's ``M``): MuJoCo's CSR
+    lower triangle) and, with ``linearized``,
     ``+ Jq^T D Jq + dt diag(damping)``; ``f`` (nv,) (the smooth force on entry) ``+= Jq^T D aref + Js^T f_s``:
     :func:`rft_mujoco.coupling.reference.constrained_free_motion` with the rows in their ``zones`` (nefc,)
     (:func:`row_zones`). Row i of the constraint Jacobian is dense (``efc_j[i nv:(i + 1) nv]``) or, with
-    ``sparse``, CSR (``efc_rowadr``, ``efc_rownnz``, ``efc_colind``)."""
+    ``sparse``, CSR (``efc_rowadr``, ``efc_rownnz``, ``efc_colind``); ``efc`` as :func:`row_zones`'s."""
+    m_rowadr, m_rownnz, m_colind, m_val = mass
+    efc_j, efc_rowadr, efc_rownnz, efc_colind, _, _, efc_d, efc_aref, efc_frictionloss = efc[:9]
+    nefc = efc_d.shape[0]
     for i in range(nv):
         for j in range(nv):
             h[i, j] = 0.0
@@ -157,12 +163,19 @@ def _forward4(n, low, x0, x1, x2, x3):
 
 
 @njit(**JIT)
-def free_motion(ng, active, ids, group_ref, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
-                body_parentid, dof_parentid, qvel, low, f, dt, jrows, y, twist, free, mob):
-    """For the reference bodies (COMs) of groups ``active[:ng]``: their Jacobians into ``jrows`` (6 ng, nv),
-    twists now (``twist`` (ng, 6)), free twists ``twist + dt J H^-1 f`` (``free``) and the mobility
-    ``mob`` (6 ng, 6 ng) ``= J H^-1 J^T = Y^T Y``, ``Y = L^-1 J^T`` (``y`` (6 ng, nv): ``Y^T``, rows
-    contiguous), for the lower Cholesky factor ``low`` of ``H``. ``f`` (nv,) is overwritten with ``H^-1 f``."""
+def free_motion(groups, kinematics, tree, low, f, dt, out):
+    """For the reference bodies (COMs) of the groups ``groups`` = (``ng``, ``active``, ``ids``, ``group_ref``), group
+    r's body ``ids[group_ref[active[r]]]``: their Jacobians into ``jrows`` (6 ng, nv), twists now (``twist``
+    (ng, 6)), free twists ``twist + dt J H^-1 f`` (``free``) and the mobility ``mob`` (6 ng, 6 ng)
+    ``= J H^-1 J^T = Y^T Y``, ``Y = L^-1 J^T`` (``y`` (6 ng, nv): ``Y^T``, rows contiguous), for the lower
+    Cholesky factor ``low`` of ``H``; ``out`` = (``jrows``, ``y``, ``twist``, ``free``, ``mob``). ``kinematics`` =
+    MjData's (``xipos``, ``cdof``, ``subtree_com``, ``qvel``), ``tree`` = MjModel's (``body_rootid``,
+    ``body_dofnum``, ``body_dofadr``, ``body_parentid``, ``dof_parentid``). ``f`` (nv,) is overwritten with
+    ``H^-1 f``."""
+    ng, active, ids, group_ref = groups
+    xipos, cdof, subtree_com, qvel = kinematics
+    body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid = tree
+    jrows, y, twist, free, mob = out
     nv = qvel.shape[0]
     n6 = 6 * ng
     for r in range(ng):
