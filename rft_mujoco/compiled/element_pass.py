@@ -24,7 +24,8 @@ from __future__ import annotations
 import numpy as np
 
 from rft_mujoco.compiled.elements import CLUSTER_SIZE, LANES, _inside, _nearest_face, _outside_ball, pack
-from rft_mujoco.compiled.jit import INLINE, JIT_LAW, njit
+from rft_mujoco.compiled import schema as sc
+from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
 from rft_mujoco.compiled.law import _coef, _law_direction, _stress
 from rft_mujoco.compiled.terrain import ABOVE, DEFORMABLE, FLAT, _depth, deformed_range
 from rft_mujoco.geometry.occlusion import Occluders
@@ -73,24 +74,76 @@ def _loaded(l0, l1, l2, n0, n1, n2, depth, ub0, ub1, ub2, wb0, wb1, wb2, zero_sp
     return (depth > 0.0) & (sp2 > zero_speed2) & ((nv >= 0.0) | (nv * nv <= lead_tol2 * sp2))
 
 
-@njit(**JIT_LAW)
-def wrenches(bodies, n_on, centroids, normals, areas, cluster_start, cluster_center, cluster_radius, body_clusters,
-             body_pos, body_mat, body_com, lin, ang, g_hat, max_height, kind, tp, heights, xi_n, coef, mu_surf,
-             no_tension, no_forward, no_power, tol, occ_start, occ_geom, occ_kind, occ_size, occ_rbound,
-             occ_hs_start, occ_hs, margin, geom_xpos, geom_xmat, scratch, index, wrench, count, max_depth,
-             occluded, speed_scale):
-    """The RFT wrench about each COM of the bodies ``bodies[:n_on]`` moving with twists (``lin``, ``ang``).
+SURFACE = ("centroids", "normals", "areas", "cluster_start", "cluster_center", "cluster_radius", "body_clusters")
+"""The ``surface`` bundle: the packed elements of :func:`rft_mujoco.compiled.elements.pack` (``handle_constants``'
+``H_CENTROIDS`` ... ``H_BODY_CLUSTERS``)."""
+TERRAIN = ("g_hat", "max_height", "kind", "tp", "heights")
+"""The ``terrain`` bundle: unit gravity (3,), the surface's highest point (m) and its kernel form
+(:func:`rft_mujoco.physics.terrain_spec.terrain_spec`)."""
+LAW = ("xi_n", "coef", "mu_surf", "no_tension", "no_forward", "no_power", "tol")
+"""The ``law`` bundle: ``xi_n`` (N/m^3), the (20, 3) coefficients, the surface friction, the three guards (bool) and
+the tolerances (:func:`rft_mujoco.compiled.law.tolerances`)."""
+OCCLUDERS = ("occ_start", "occ_geom", "occ_kind", "occ_size", "occ_rbound", "occ_hs_start", "occ_hs", "margin",
+             "geom_xpos", "geom_xmat")
+"""The ``occluders`` bundle: the geoms that hide a body's elements (:class:`rft_mujoco.geometry.occlusion.Occluders`,
+rows ``occ_start[b]:occ_start[b + 1]`` for body b), the margin (m) and MjData's geom poses."""
 
-    Row j < n_on of ``body_pos`` (3), ``body_mat`` (9), ``body_com`` (3), ``lin`` (3, m/s, linear velocity of
-    the COM), ``ang`` (3, rad/s) belongs to body ``b = bodies[j]`` (clusters ``body_clusters[b]:...[b + 1]``).
-    Elements inside an occluder of body b (rows ``occ_start[b]:occ_start[b + 1]``, posed by ``geom_xpos`` /
-    ``geom_xmat``) carry nothing. Outputs, rows 0..n_on-1: ``wrench`` (6: force N, torque N m about the COM,
-    world frame), ``count`` (loaded elements), ``max_depth`` (m, deepest loaded element), ``occluded`` (m^2,
-    submerged area inside occluders). ``scratch``: (SCRATCH_ROWS, >= cluster size) float, ``index``: (2, >= cluster
-    size) int. ``speed_scale`` (m/s): 0 for the published law; c > 0 for the implicit solve's regularized law,
-    each element's stress times ``|v| / sqrt(|v|^2 + c^2)`` on the ramped leading edge
-    (:func:`rft_mujoco.compiled.implicit_law.body_law`).
+
+@njit(**JIT)
+def surface_of(hc):
+    """:data:`SURFACE` of the handle constants ``hc`` (:data:`rft_mujoco.compiled.schema.HANDLE_FIELDS`)."""
+    return (hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START], hc[sc.H_CLUSTER_CENTER],
+            hc[sc.H_CLUSTER_RADIUS], hc[sc.H_BODY_CLUSTERS])
+
+
+@njit(**JIT)
+def terrain_of(hc, g_hat):
+    """:data:`TERRAIN` of ``hc`` under the unit gravity ``g_hat``."""
+    params = hc[sc.H_PARAMS]
+    return g_hat, params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]), hc[sc.H_TP], hc[sc.H_HEIGHTS]
+
+
+@njit(**JIT)
+def law_of(hc, xi_n):
+    """:data:`LAW` of ``hc`` with ``xi_n`` (N/m^3, at this gravity)."""
+    params = hc[sc.H_PARAMS]
+    return (xi_n, hc[sc.H_COEF], params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0,
+            params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL])
+
+
+@njit(**JIT)
+def occluders_of(hc, md):
+    """:data:`OCCLUDERS` of ``hc`` posed by MjData's ``md`` (:data:`rft_mujoco.compiled.schema.MJDATA_FIELDS`)."""
+    return (hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE], hc[sc.H_OCC_RBOUND],
+            hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], hc[sc.H_PARAMS][sc.P_MARGIN], md[sc.M_GEOM_XPOS],
+            md[sc.M_GEOM_XMAT])
+
+
+@njit(**JIT_LAW)
+def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work, out, speed_scale):
+    """The RFT wrench about each COM of the bodies ``bodies[:n_on]`` moving with twists ``twists`` = (``lin``,
+    ``ang``).
+
+    Row j < n_on of ``poses`` = (``body_pos`` (3), ``body_mat`` (9), ``body_com`` (3)) and of ``lin`` (3, m/s,
+    linear velocity of the COM), ``ang`` (3, rad/s) belongs to body ``b = bodies[j]`` (clusters
+    ``body_clusters[b]:...[b + 1]`` of ``surface``, :data:`SURFACE`). ``terrain``, ``law``, ``occluders``:
+    :data:`TERRAIN`, :data:`LAW`, :data:`OCCLUDERS`; elements inside an occluder of body b carry nothing.
+    Outputs, ``out`` = (``wrench``, ``count``, ``max_depth``, ``occluded``), rows 0..n_on-1: ``wrench`` (6: force
+    N, torque N m about the COM, world frame), ``count`` (loaded elements), ``max_depth`` (m, deepest loaded
+    element), ``occluded`` (m^2, submerged area inside occluders). ``work`` = (``scratch`` (SCRATCH_ROWS, >=
+    cluster size) float, ``index`` (2, >= cluster size) int). ``speed_scale`` (m/s): 0 for the published law;
+    c > 0 for the implicit solve's regularized law, each element's stress times ``|v| / sqrt(|v|^2 + c^2)`` on
+    the ramped leading edge (:func:`rft_mujoco.compiled.implicit_law.body_law`).
     """
+    centroids, normals, areas, cluster_start, cluster_center, cluster_radius, body_clusters = surface
+    body_pos, body_mat, body_com = poses
+    lin, ang = twists
+    g_hat, max_height, kind, tp, heights = terrain
+    xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol = law
+    occ_start, occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin = occluders[:8]
+    geom_xpos, geom_xmat = occluders[8], occluders[9]
+    scratch, index = work
+    wrench, count, max_depth, occluded = out
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed, ramp = tol[0], tol[1], tol[2], tol[3]
@@ -292,15 +345,17 @@ class ElementPass:
         occ = Occluders.none(self.n_bodies)
         g_mag = float(np.linalg.norm(gravity))
         kind, tp, heights = spec
-        self._before = (np.arange(self.n_bodies, dtype=np.int64), self.n_bodies, *self.packed.arrays())
-        self._after = (self.g_hat, float(terrain.max_height), kind, tp, heights, media.xi_n_at(g_mag),
-                       law.COEFFICIENTS, float(media.mu_surf), guards.no_tension, guards.no_forward_tangential,
-                       guards.no_positive_power, tolerances(), *occ.arrays(), occ.margin, np.zeros((0, 3)),
-                       np.zeros((0, 9)), np.zeros((SCRATCH_ROWS, CLUSTER_SIZE)), np.zeros((2, CLUSTER_SIZE), np.int64))
+        self._bodies = np.arange(self.n_bodies, dtype=np.int64)
+        self._surface = tuple(self.packed.arrays())
+        self._terrain = (self.g_hat, float(terrain.max_height), kind, tp, heights)
+        self._law = (media.xi_n_at(g_mag), law.COEFFICIENTS, float(media.mu_surf), guards.no_tension,
+                     guards.no_forward_tangential, guards.no_positive_power, tolerances())
+        self._occluders = (*occ.arrays(), occ.margin, np.zeros((0, 3)), np.zeros((0, 9)))
+        self._work = (np.zeros((SCRATCH_ROWS, CLUSTER_SIZE)), np.zeros((2, CLUSTER_SIZE), np.int64))
         self.wrench = np.zeros((self.n_bodies, 6))
         self.count = np.zeros(self.n_bodies, np.int64)
         self.max_depth = np.zeros(self.n_bodies)
-        self._occluded = np.zeros(self.n_bodies)
+        self._out = (self.wrench, self.count, self.max_depth, np.zeros(self.n_bodies))
 
     def __call__(self, body_pos, body_mat, body_com, v_com, omega):
         """(wrench (B, 6) [N, N m about the COM], loaded element count (B,), max depth (B,) m) of bodies at
@@ -308,9 +363,10 @@ class ElementPass:
         (B, 3) m/s and ``omega`` (B, 3) rad/s; the arrays are this object's buffers (overwritten per call)."""
         b = self.n_bodies
         f = np.ascontiguousarray
-        wrenches(*self._before, f(body_pos, float), f(np.reshape(body_mat, (b, 9)), float), f(body_com, float),
-                 f(v_com, float), f(omega, float), *self._after, self.wrench, self.count, self.max_depth,
-                 self._occluded, 0.0)
+        wrenches(self._bodies, b, self._surface,
+                 (f(body_pos, float), f(np.reshape(body_mat, (b, 9)), float), f(body_com, float)),
+                 (f(v_com, float), f(omega, float)), self._terrain, self._law, self._occluders, self._work, self._out,
+                 0.0)
         return self.wrench, self.count, self.max_depth
 
 

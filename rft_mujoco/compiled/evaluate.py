@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from rft_mujoco import tol
-from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, wrenches
+from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, law_of, occluders_of, surface_of, terrain_of, wrenches
 from rft_mujoco.compiled.elements import finish_naive, touching
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled.locks import lock_matrices, locked_rest, stuck_dofs
@@ -146,14 +146,10 @@ def evaluate_naive(md, hc, ws, sand_out):
     g_hat = np.array((g0, g1, g2))
     params = hc[sc.H_PARAMS]
     xi_n = params[sc.P_XI_PER_G] * g_mag
-    wrenches(ws[sc.W_TOUCH], k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
-             hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS],
-             ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM], ws[sc.W_V_COM], ws[sc.W_OMEGA], g_hat, params[sc.P_MAX_HEIGHT],
-             int(params[sc.P_KIND]), hc[sc.H_TP], hc[sc.H_HEIGHTS], xi_n, hc[sc.H_COEF], params[sc.P_MU_SURF],
-             params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0, params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL],
-             hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE], hc[sc.H_OCC_RBOUND],
-             hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], params[sc.P_MARGIN], md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT],
-             ws[sc.W_SCRATCH], ws[sc.W_INDEX], ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_OCCLUDED], 0.0)
+    wrenches(ws[sc.W_TOUCH], k, surface_of(hc), (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM]),
+             (ws[sc.W_V_COM], ws[sc.W_OMEGA]), terrain_of(hc, g_hat), law_of(hc, xi_n), occluders_of(hc, md),
+             (ws[sc.W_SCRATCH], ws[sc.W_INDEX]), (ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_OCCLUDED]),
+             0.0)
     return finish_naive(ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_V_COM], ws[sc.W_OMEGA],
                         params[sc.P_PASSIVE] != 0.0, ws[sc.W_TOUCH], k, hc[sc.H_IDS], ws[sc.W_FORCE], ws[sc.W_TORQUE],
                         ws[sc.W_SUBMERGED], ws[sc.W_MAX_DEPTH], ws[sc.W_SCALE], ws[sc.W_RFT_FORCE], ws[sc.W_RESTING],
@@ -355,14 +351,9 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
         u_lin[j, 1] = u[r, 1] + (wz * ax - wx * az)
         u_lin[j, 2] = u[r, 2] + (wx * ay - wy * ax)
     # 5. RFT wrenches at the blended twists; the groups' wrenches about their reference points
-    wrenches(touch, k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
-             hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS],
-             ws[sc.W_BODY_MAT], body_com, u_lin, u_ang, g_hat, params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]),
-             hc[sc.H_TP], hc[sc.H_HEIGHTS], xi_n, hc[sc.H_COEF], params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0,
-             params[sc.P_NO_FORWARD] != 0.0, params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL], hc[sc.H_OCC_START],
-             hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE], hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START],
-             hc[sc.H_OCC_HS], params[sc.P_MARGIN], md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT], ws[sc.W_SCRATCH],
-             ws[sc.W_INDEX], wrench, count, depth_max, occluded, 0.0)
+    wrenches(touch, k, surface_of(hc), (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com), (u_lin, u_ang),
+             terrain_of(hc, g_hat), law_of(hc, xi_n), occluders_of(hc, md), (ws[sc.W_SCRATCH], ws[sc.W_INDEX]),
+             (wrench, count, depth_max, occluded), 0.0)
     for r in range(ng):
         for c in range(6):
             rft_g[r, c] = 0.0

@@ -19,7 +19,7 @@ import numpy as np
 
 from rft_mujoco.compiled.evaluate import _gravity
 from rft_mujoco.compiled.share import BAD_ACCELERATION, NOT_FINITE, _share_and_commit, touching_groups
-from rft_mujoco.compiled.element_pass import wrenches
+from rft_mujoco.compiled.element_pass import law_of, occluders_of, surface_of, terrain_of, wrenches
 from rft_mujoco.compiled.implicit import NEED_ELEMENTS, _blend, solve_from_probe
 from rft_mujoco.compiled.implicit_law import LAW, SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
@@ -62,14 +62,9 @@ def _elements(md, hc, ws, k, g_hat, e_slot, e_arm, e_nrm, e_depth, e_area):
     """:func:`rft_mujoco.compiled.implicit_law.loaded_candidates` of the ``k`` touching bodies into the element
     rows ``e_*`` (and the bodies' occluded area into ``ws``); returns their number."""
     params = hc[sc.H_PARAMS]
-    return loaded_candidates(ws[sc.W_TOUCH], k,
-                             (hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
-                              hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_BODY_CLUSTERS]),
-                             (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM]),
-                             (g_hat, params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]), hc[sc.H_TP], hc[sc.H_HEIGHTS]),
-                             (hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE],
-                              hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], params[sc.P_MARGIN],
-                              md[sc.M_GEOM_XPOS], md[sc.M_GEOM_XMAT]),
+    return loaded_candidates(ws[sc.W_TOUCH], k, surface_of(hc),
+                             (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM]), terrain_of(hc, g_hat),
+                             occluders_of(hc, md),
                              (e_slot, e_arm, e_nrm, e_depth, e_area, ws[sc.W_OCCLUDED]))
 
 
@@ -155,15 +150,9 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         #    the element pass
         _blend(twist, free, rad_g, ng, probe)
         group_twists(probe, all_on, k, slot, arm, lin, ang, on)
-        wrenches(touch, k, hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
-                 hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_BODY_CLUSTERS], ws[sc.W_BODY_POS],
-                 ws[sc.W_BODY_MAT], body_com, lin, ang, g_hat, params[sc.P_MAX_HEIGHT], int(params[sc.P_KIND]),
-                 hc[sc.H_TP], hc[sc.H_HEIGHTS], xi_n, hc[sc.H_COEF], params[sc.P_MU_SURF],
-                 params[sc.P_NO_TENSION] != 0.0, params[sc.P_NO_FORWARD] != 0.0, params[sc.P_NO_POWER] != 0.0,
-                 hc[sc.H_TOL], hc[sc.H_OCC_START], hc[sc.H_OCC_GEOM], hc[sc.H_OCC_KIND], hc[sc.H_OCC_SIZE],
-                 hc[sc.H_OCC_RBOUND], hc[sc.H_OCC_HS_START], hc[sc.H_OCC_HS], params[sc.P_MARGIN], md[sc.M_GEOM_XPOS],
-                 md[sc.M_GEOM_XMAT], ws[sc.W_SCRATCH], ws[sc.W_INDEX], wrench, count, depth_max, occluded,
-                 st[sc.ST_SPEED_SCALE])
+        wrenches(touch, k, surface_of(hc), (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com), (lin, ang),
+                 terrain_of(hc, g_hat), law_of(hc, xi_n), occluders_of(hc, md), (ws[sc.W_SCRATCH], ws[sc.W_INDEX]),
+                 (wrench, count, depth_max, occluded), st[sc.ST_SPEED_SCALE])
         group_sums(ng, all_on, k, slot, arm, on, wrench, gf)
         # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
         #    this motion: not after a state restore); the elements that may carry stress are found (in the world
