@@ -124,13 +124,10 @@ OVER_THE_LIMITS = {
     "compiled.deform.press_touching": (28, 30), "compiled.element_pass._loaded": (15, 6),
     "compiled.element_pass.wrenches": (11, 179), "compiled.element_pass.body_wrenches": (15, 3),
     "compiled.elements.touching": (27, 82), "compiled.elements.finish_naive": (19, 42),
-    "compiled.evaluate._mobility": (26, 84), "compiled.evaluate._rest": (11, 137),
+    "compiled.evaluate._mobility": (26, 84), "compiled.evaluate._rest": (11, 134),
     "compiled.implicit_eval.evaluate_implicit": (13, 129),
-    "compiled.law._stress": (16, 42), "compiled.law._element_forces": (15, 58), "compiled.locks.stuck_dofs": (17, 26),
-    "compiled.locks.lock_matrices": (13, 32), "compiled.locks._lock_needed": (17, 46),
-    "compiled.locks.locked_rest": (41, 57), "compiled.rest.jacobian": (13, 18),
-    "compiled.rest.rest_wrenches": (28, 120),
-    "compiled.share._share_and_commit": (20, 70),
+    "compiled.law._stress": (16, 42), "compiled.law._element_forces": (15, 58), "compiled.rest.jacobian": (13, 18),
+    "compiled.share._share_and_commit": (20, 71),
     "physics.elements.body_wrenches": (16, 19), "physics.elements.body_wrench_jacobians": (17, 47),
 }
 """The functions over the limits when the check was written (2026-12-03: numba kernels that take their arrays one

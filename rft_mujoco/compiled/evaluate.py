@@ -298,8 +298,8 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     lock_i, lock_f = ws[sc.W_LOCK_I], ws[sc.W_LOCK_F]
     nl = 0
     if lagged:
-        nl = stuck_dofs(fr[0], fr[1], fr[2], fr[3], fr[4], fr[5], ng, active, ids, group_ref, body_dofnum,
-                        body_dofadr, body_parentid, dof_parentid, lock_i, lock_f, ws[sc.W_GROUP_TREE])
+        nl = stuck_dofs(fr, ng, active, ids, group_ref, (body_dofnum, body_dofadr, body_parentid, dof_parentid),
+                        lock_i, lock_f, ws[sc.W_GROUP_TREE])
     state = ws[sc.W_STATE]
     keep_active, keep_rest = ws[sc.W_KEEP_ACTIVE], ws[sc.W_KEEP_REST]
     frozen = state[sc.S_RK4_STAGE] >= 2.0 and state[sc.S_KEPT_GROUPS] == ng and nl == 0
@@ -315,9 +315,10 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum, body_dofadr,
               body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[sc.W_CHAIN], zt, twist,
               free, mob, not frozen)
+    lock = (lock_i, lock_f, ws[sc.W_LOCK_Z], ws[sc.W_LOCK_CHAIN], ws[sc.W_LOCK_S], ws[sc.W_LOCK_C], ws[sc.W_LOCK_R],
+            ws[sc.W_LOCK_X], ws[sc.W_LOCK_MOB], ws[sc.W_LOCK_FREE], ws[sc.W_LOCK_W], ws[sc.W_LOCK_REST])  # locks.LOCK
     if nl > 0:
-        lock_matrices(nl, rowadr, rownnz, colind, qld, qld_diag_inv, qacc, dof_parentid, lock_i, lock_f,
-                      ws[sc.W_LOCK_Z], ws[sc.W_LOCK_CHAIN], ws[sc.W_LOCK_S])
+        lock_matrices(nl, (rownnz, rowadr, colind, qld, qld_diag_inv), qacc, dof_parentid, lock)
     # 4. blended twists (rest.blend), moved to each touching body's COM
     for r in range(ng):
         rad = group_radius[active[r]]
@@ -378,21 +379,17 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
         sticky = sticky or lock_prev[lock_i[0, l]]
     for j in range(lock_prev.shape[0]):
         lock_prev[j] = False
+    groups, out = (free, mob, rft_g, u, rad_g), (w, rest)                        # rest.REST_GROUPS, REST_OUT
+    work = (a, v, cap, flow, idx, block, rhs, size, weight, ws[sc.W_LIN], ws[sc.W_PERM], ws[sc.W_X])  # REST_WORK
     if nl > 0:
-        state[sc.S_LOCKED_DOFS] = locked_rest(nl, free, mob, rft_g, u, rad_g, dt, ng, settings, a, v, cap, w, rest,
-                                              flow, idx, block, rhs, size, weight, ws[sc.W_LIN], ws[sc.W_PERM],
-                                              ws[sc.W_X], keep_rest, state, twist, ws[sc.W_CHAIN], zt, lock_i, lock_f,
-                                              ws[sc.W_LOCK_Z], ws[sc.W_LOCK_CHAIN], ws[sc.W_LOCK_S], ws[sc.W_LOCK_C],
-                                              ws[sc.W_LOCK_R], ws[sc.W_LOCK_X], ws[sc.W_LOCK_MOB], ws[sc.W_LOCK_FREE],
-                                              ws[sc.W_LOCK_W], ws[sc.W_LOCK_REST], not sticky)
+        state[sc.S_LOCKED_DOFS] = locked_rest(nl, groups, dt, ng, settings, out, work, (keep_rest, state),
+                                              (twist, ws[sc.W_CHAIN], zt), lock, not sticky)
         for l in range(nl):
             if lock_i[1, l] != 0:
                 lock_prev[lock_i[0, l]] = True
         state[sc.S_LOCKED_EVALUATIONS] += 1.0 if state[sc.S_LOCKED_DOFS] > 0.0 else 0.0
     else:
-        rest_wrenches(free, mob, rft_g, u, rad_g, dt, ng, settings[0], settings[1], settings[2], settings[3], a, v, cap,
-                      w, rest, flow, idx, block, rhs, size, weight, ws[sc.W_LIN], ws[sc.W_PERM], ws[sc.W_X], keep_rest,
-                      state, frozen)
+        rest_wrenches(groups, dt, ng, settings, out, work, (keep_rest, state), frozen)
     # 7. each body's part (coupling._share); 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
     return _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap, applied, ws, touch,
                              bound_radius, count, depth_max, occluded, ids, sand_out)

@@ -16,6 +16,26 @@ from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled.rest import _chain_dof, _cholesky, _cholesky_solve, rest_wrenches
 from rft_mujoco.physics import rest as _rest
 
+TREE = ("body_dofnum", "body_dofadr", "body_parentid", "dof_parentid")
+"""The ``tree`` bundle: the model's kinematic tree (``mjModel`` arrays of those names, int64): each body's dof
+count and first dof, its parent body, each dof's parent dof."""
+FACTOR = ("rownnz", "rowadr", "colind", "qld", "qld_diag_inv")
+"""The ``factor`` bundle: MuJoCo's sparse factor ``M = L^T D L`` (``M_rownnz``, ``M_rowadr``, ``M_colind`` of the
+model, ``qLD``, ``qLDiagInv`` of the data; :func:`rft_mujoco.compiled.rest.solve_m`)."""
+MOTION = ("twist", "chain", "zt")
+"""The ``motion`` bundle: the groups' twists now (G, 6) [m/s, rad/s] and their scaled Jacobians
+``W = D^-1/2 L^-T J^T`` along their chains (``zt`` (nv, 6 G), ``chain`` (G, 1 + nv) int: length, then the
+dofs) of :func:`rft_mujoco.compiled.evaluate._mobility`."""
+LOCK = ("lock_i", "lock_f", "lock_z", "lock_chain", "lock_s", "lock_c", "lock_r", "lock_x", "lock_mob", "lock_free",
+        "lock_w", "lock_rest")
+"""The ``lock`` bundle: the locks' work space for L <= nv stuck dofs (the workspace's arrays of those names).
+``lock_i`` (3, >= L) int: the stuck dofs, whether each is held, the held ones' indices; ``lock_f`` (5, nv):
+their friction forces [N or N m], frictionloss, ``y = E qacc``, the held ones' ``z`` / ``lam``, an nv-vector;
+``lock_z`` (nv, >= L) their columns ``W_E``, ``lock_chain`` (>= L, 1 + nv) int their chains; ``lock_s``,
+``lock_r`` (>= L, >= L) ``S`` and ``R``, ``lock_c``, ``lock_x`` (>= L, 6 G) ``C^T`` and ``X``; ``lock_mob``
+(6 G, 6 G), ``lock_free`` (G, 6) the locked solve's mobility and free twists, ``lock_w`` (G, 6), ``lock_rest``
+(G,) bool the unlocked solve's wrenches and rest flags."""
+
 FRICTION_DOF = 1
 """MuJoCo's ``mjCNSTR_FRICTION_DOF`` (checked against the bindings by tests/test_compiled_rest.py)."""
 LOCK_TOL = _rest.LOCK_TOL
@@ -31,11 +51,14 @@ def _tree_dof(j, dof_parentid):
 
 
 @njit(**JIT)
-def stuck_dofs(efc_type, efc_id, efc_d, efc_aref, efc_frictionloss, qacc_prev, ng, active, ids, group_ref,
-               body_dofnum, body_dofadr, body_parentid, dof_parentid, lock_i, lock_f, group_tree):
-    """:func:`rft_mujoco.coupling.reference.stuck_dofs`: the dofs into ``lock_i[0]``, their friction forces
-    and frictionloss into ``lock_f[0]``, ``lock_f[1]``; returns their number L. ``group_tree`` (G,): work
-    space (the groups' tree dofs, found at the first friction row)."""
+def stuck_dofs(fr, ng, active, ids, group_ref, tree, lock_i, lock_f, group_tree):
+    """:func:`rft_mujoco.coupling.reference.stuck_dofs` from MuJoCo's last constraint solve ``fr``
+    (:data:`rft_mujoco.compiled.evaluate.FRICTION_FIELDS`) for the ``ng`` groups ``active`` (bodies
+    ``ids[group_ref[active]]``; ``tree``: :data:`TREE`): the dofs into ``lock_i[0]``, their friction forces and
+    frictionloss into ``lock_f[0]``, ``lock_f[1]``; returns their number L. ``group_tree`` (G,): work space (the
+    groups' tree dofs, found at the first friction row)."""
+    efc_type, efc_id, efc_d, efc_aref, efc_frictionloss, qacc_prev = fr
+    body_dofnum, body_dofadr, body_parentid, dof_parentid = tree
     n = 0
     trees = False
     for e in range(efc_type.shape[0]):
@@ -65,12 +88,14 @@ def stuck_dofs(efc_type, efc_id, efc_d, efc_aref, efc_frictionloss, qacc_prev, n
 
 
 @njit(**JIT)
-def lock_matrices(nl, rowadr, rownnz, colind, qld, qld_diag_inv, qacc, dof_parentid, lock_i, lock_f, lock_z,
-                  lock_chain, lock_s):
-    """For the ``nl`` dofs of :func:`stuck_dofs` (``lock_i[0]``): ``S = E M^-1 E^T`` into ``lock_s`` (L, L)
-    and ``y = E qacc`` into ``lock_f[2]``. A dof's column ``W_E = D^-1/2 L^-T e_j`` (``lock_z[:, l]``; the
-    factor ``M = L^T D L`` as in :func:`rft_mujoco.compiled.evaluate._mobility`) lies on its chain
-    (``lock_chain``); products sum over the dofs two chains share (next to the root)."""
+def lock_matrices(nl, factor, qacc, dof_parentid, lock):
+    """For the ``nl`` dofs of :func:`stuck_dofs` (``lock_i[0]`` of ``lock``, :data:`LOCK`): ``S = E M^-1 E^T``
+    into ``lock_s`` (L, L) and ``y = E qacc`` into ``lock_f[2]``. A dof's column ``W_E = D^-1/2 L^-T e_j``
+    (``lock_z[:, l]``; the factor ``M = L^T D L``, :data:`FACTOR`, as in
+    :func:`rft_mujoco.compiled.evaluate._mobility`) lies on its chain (``lock_chain``); products sum over the
+    dofs two chains share (next to the root)."""
+    rownnz, rowadr, colind, qld, qld_diag_inv = factor
+    lock_i, lock_f, lock_z, lock_chain, lock_s = lock[0], lock[1], lock[2], lock[3], lock[4]
     for l in range(nl):
         j = lock_i[0, l]
         n = 0
@@ -154,12 +179,14 @@ def _lock_factor(m, n6, lock_i, lock_f, lock_s, lock_c, lock_r, lock_x, tiny):
 
 
 @njit(**JIT)
-def _lock_needed(nl, ng, nv, dt, chain, zt, free, twist, radius, w, lock_i, lock_f, lock_z, lock_chain, lock_s,
-                 lock_r, tiny):
+def _lock_needed(nl, ng, nv, dt, motion, free, radius, w, lock, tiny):
     """Step 1 of :func:`rft_mujoco.physics.rest.locked_rest`: whether the groups' motion ``dt C lam_u``
     from the friction that would hold every dof under the unlocked wrenches ``w`` exceeds LOCK_TOL of their
-    twist change. Without ``C``: ``C^T w = W_E^T (W w)`` and ``C lam = W^T (W_E lam)`` through nv-vectors
-    (``lock_f[4]``); ``lam_u`` in ``lock_f[3]``."""
+    twist change (``motion``: :data:`MOTION`; ``free``, ``radius``: those of the rest solve). Without ``C``:
+    ``C^T w = W_E^T (W w)`` and ``C lam = W^T (W_E lam)`` through nv-vectors (``lock_f[4]`` of ``lock``,
+    :data:`LOCK`); ``lam_u`` in ``lock_f[3]``."""
+    twist, chain, zt = motion
+    lock_i, lock_f, lock_z, lock_chain, lock_s, lock_r = lock[0], lock[1], lock[2], lock[3], lock[4], lock[6]
     q = lock_f[4]
     for j in range(nv):
         q[j] = 0.0
@@ -219,24 +246,23 @@ def _plus_xw(m, n6, w, lock_x, lock_f):
 
 
 @njit(**JIT)
-def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, cap, w, rest, flow, idx, block, rhs,
-                capacity, v_w, lin, perm, sol, keep_rest, state, twist, chain, zt, lock_i, lock_f, lock_z, lock_chain,
-                lock_s, lock_c, lock_r, lock_x, lock_mob, lock_free, lock_w, lock_rest, check):
+def locked_rest(nl, groups, dt, ng, settings, out, work, kept, motion, lock, check):
     """:func:`rft_mujoco.physics.rest.locked_rest` on the matrices of :func:`lock_matrices`, with
-    :func:`rest_wrenches` (its arguments as there; ``settings`` = dependent_tol, weight_floor,
-    capacity_tol, tiny; no factor is kept: ``state[KEPT_GROUPS]`` is 0); ``twist`` (G, 6) the groups'
-    twists now; ``chain``, ``zt``: the scaled Jacobians of ``_mobility``; ``check``: whether step 1 runs.
-    Returns the number of dofs held
-    in the final solve; which: ``lock_i[1]`` (1/0); the other ``lock_*`` are work space."""
+    :func:`rest_wrenches` (``groups``, ``dt``, ``ng``, ``settings``, ``out``, ``work``, ``kept``: its arguments;
+    no factor is kept: ``state[KEPT_GROUPS]`` is 0); ``motion`` (:data:`MOTION`): the groups' twists now and the
+    scaled Jacobians of ``_mobility``; ``check``: whether step 1 runs. Returns the number of dofs held in the
+    final solve; which: ``lock_i[1]`` (1/0); the other arrays of ``lock`` (:data:`LOCK`) are work space."""
+    free, mob, rft, direction, radius = groups
+    w, rest = out
+    chain, zt = motion[1], motion[2]
+    lock_i, lock_f, lock_z, lock_chain, lock_s, lock_c, lock_r, lock_x, lock_mob, lock_free, lock_w, lock_rest = lock
     n6 = 6 * ng
     tiny = settings[3]
     if check:                                        # step 1 needs the unlocked solve; without it (a dof held at
-        rest_wrenches(free, mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2], tiny, a, v,
-                      cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest, state, False)
+        rest_wrenches(groups, dt, ng, settings, out, work, kept, False)
         for l in range(nl):                          # the last evaluation) it is made only if every lock releases:
             lock_i[1, l] = 0                         # the same numbers, one rest solve fewer while a robot stands
-        if not _lock_needed(nl, ng, lock_f.shape[1], dt, chain, zt, free, twist, radius, w, lock_i, lock_f, lock_z,
-                            lock_chain, lock_s, lock_r, tiny):
+        if not _lock_needed(nl, ng, lock_f.shape[1], dt, motion, free, radius, w, lock, tiny):
             return 0
         for g in range(ng):
             lock_rest[g] = rest[g]
@@ -245,6 +271,7 @@ def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, c
     _lock_coupling(nl, ng, chain, zt, lock_z, lock_chain, lock_c)
     for l in range(nl):
         lock_i[1, l] = 1
+    locked = (lock_free, lock_mob, rft, direction, radius)
     while True:
         m = 0
         for l in range(nl):
@@ -253,9 +280,7 @@ def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, c
                 m += 1
         if m == 0:                                   # every lock released: the unlocked solve
             if not check:
-                rest_wrenches(free, mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2], tiny,
-                              a, v, cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest,
-                              state, False)
+                rest_wrenches(groups, dt, ng, settings, out, work, kept, False)
                 return 0
             for g in range(ng):
                 rest[g] = lock_rest[g]
@@ -274,9 +299,7 @@ def locked_rest(nl, free, mob, rft, direction, radius, dt, ng, settings, a, v, c
             for r in range(m):
                 t += lock_x[r, i] * lock_f[3, r]
             lock_free[i // 6, i % 6] = free[i // 6, i % 6] - dt * t
-        rest_wrenches(lock_free, lock_mob, rft, direction, radius, dt, ng, settings[0], settings[1], settings[2],
-                      tiny, a, v, cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest,
-                      state, False)
+        rest_wrenches(locked, dt, ng, settings, out, work, kept, False)
         _plus_xw(m, n6, w, lock_x, lock_f)           # lam = -R^-T (z + X W)
         for r in range(m - 1, -1, -1):
             t = lock_f[3, r]

@@ -302,18 +302,38 @@ def _flow_factor(h, q):
     return min(1.0, -h / q)
 
 
+REST_GROUPS = ("free", "mob", "rft", "direction", "radius")
+"""The ``groups`` bundle of :func:`rest_wrenches`: the touching groups' twists at the end of the step without
+sand (>= G, 6) [m/s, rad/s], their mobility ``J M^-1 J^T`` (>= 6 G, >= 6 G), their RFT wrenches (>= G, 6)
+[N, N m] about their reference points, the blended twists those were evaluated at (>= G, 6; only their
+directions matter) and their radii (G,) [m]."""
+REST_OUT = ("w", "rest")
+"""The ``out`` bundle of :func:`rest_wrenches`: the groups' sand wrenches (>= G, 6) [N, N m], rest flags (G,) bool."""
+REST_WORK = ("a", "v", "cap", "flow", "idx", "block", "rhs", "capacity", "v_w", "lin", "perm", "sol")
+"""The ``work`` bundle of :func:`rest_wrenches`: ``a``/``block`` (6 G, 6 G) the scaled mobility and its rows at
+rest, ``v``/``rhs``/``v_w``/``sol`` (6 G,) the scaled free twists, the solve's right-hand side, weights and
+solution, ``cap`` (G, 6) the scaled RFT wrenches, ``flow`` (G,) bool, ``idx`` (6 G,) int, ``capacity`` (G,) [W],
+and the buffers of :func:`min_norm_solve` (``lin``, ``perm``)."""
+REST_KEPT = ("keep_rest", "state")
+"""The ``kept`` bundle of :func:`rest_wrenches`: the resting groups of the kept factor (G,) bool and the
+evaluation's ``state`` (:data:`rft_mujoco.compiled.schema.STATE`: ``KEPT_GROUPS``, ``KEPT_RANK``)."""
+
+
 @njit(**JIT)
-def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weight_floor, capacity_tol, tiny, a, v,
-                  cap, w, rest, flow, idx, block, rhs, capacity, v_w, lin, perm, sol, keep_rest, state, reuse):
-    """:func:`rft_mujoco.physics.rest.rest_wrenches` for groups 0..ng-1 (rows of ``free``, ``rft``, ``displacement``:
-    (>= ng, 6), ``mob`` (>= 6 ng, >= 6 ng)); the wrenches go to ``w`` (>= ng, 6), the rest flags to ``rest``.
-    The other arguments are work buffers: ``a`` (6 ng, 6 ng), ``v``/``rhs`` (6 ng,), ``cap`` (ng, 6),
-    ``flow`` (ng,) bool, ``idx`` (6 ng,) int, ``block`` (6 ng, 6 ng), and those of :func:`min_norm_solve`
-    (``lin``, ``perm``, ``sol`` (6 ng,)). The kept factor (``keep`` and ``reuse`` of the reference): its
-    resting groups in ``keep_rest`` (G,), its rank in ``state[KEPT_RANK]`` (-1: none), made only while
-    ``state[KEPT_GROUPS] > 0`` (the caller keeps the mobility of this step); ``lin``, ``perm`` and
-    ``v_w`` hold it until the next factor, and with ``reuse`` ``a`` still holds the scaled mobility the
-    factor was made from (the same ``mob``, radii and dt), so it is not rebuilt."""
+def rest_wrenches(groups, dt, ng, settings, out, work, kept, reuse):
+    """:func:`rft_mujoco.physics.rest.rest_wrenches` for groups 0..ng-1 (``groups``: :data:`REST_GROUPS`) and
+    the step ``dt`` [s]; the wrenches and rest flags go to ``out`` (:data:`REST_OUT`). ``settings`` (>= 4,):
+    dependent_tol, weight_floor, capacity_tol, tiny (``hc.settings``). ``work`` (:data:`REST_WORK`): work
+    buffers. The kept factor (``keep`` and ``reuse`` of the reference, ``kept``: :data:`REST_KEPT`): its
+    resting groups in ``keep_rest``, its rank in ``state[KEPT_RANK]`` (-1: none), made only while
+    ``state[KEPT_GROUPS] > 0`` (the caller keeps the mobility of this step); ``lin``, ``perm`` and ``v_w``
+    hold it until the next factor, and with ``reuse`` ``a`` still holds the scaled mobility the factor was
+    made from (the same ``mob``, radii and dt), so it is not rebuilt."""
+    free, mob, rft, direction, radius = groups
+    dependent_tol, weight_floor, capacity_tol, tiny = settings[0], settings[1], settings[2], settings[3]
+    w, rest = out
+    a, v, cap, flow, idx, block, rhs, capacity, v_w, lin, perm, sol = work
+    keep_rest, state = kept
     n6 = 6 * ng
     for gi in range(ng):                             # loops over (group, component): no i // 6, i % 6
         for ci in range(6):
@@ -414,7 +434,14 @@ def rest_wrenches(free, mob, rft, direction, radius, dt, ng, dependent_tol, weig
             if over:
                 continue
         break
-    # passivity of the whole impulse (rest.passive_scale)
+    _passive_scale(ng, radius, v, a, w)
+
+
+@njit(**JIT)
+def _passive_scale(ng, radius, v, a, w):
+    """The passivity of the whole impulse (:func:`rft_mujoco.physics.rest.passive_scale`): ``w`` (>= ng, 6)
+    scaled wrenches scaled down to a passive impulse against the scaled twists ``v`` and mobility ``a``, then
+    back to [N, N m] (torques times the radii (ng,) [m])."""
     h = 0.0
     q = 0.0
     for gi in range(ng):

@@ -59,21 +59,24 @@ def rest_cached() -> bool:
     return bool(glob.glob(os.path.join(jit.cache_dir(), "compiled", "route.rest_phase-*.nbi")))
 
 
-_LOCKED_REST_WORK = ("free", "mob", "rft_g", "u", "total", "dt", "ng", "settings", "a", "v", "cap", "w", "rest", "flow",
-                     "idx", "block", "rhs", "size", "weight", "lin", "perm", "x", "keep_rest", "state", "twist", "chain",
-                     "zt", "lock_i", "lock_f", "lock_z", "lock_chain", "lock_s", "lock_c", "lock_r", "lock_x",
-                     "lock_mob", "lock_free", "lock_w", "lock_rest")
+_LOCKED_REST_ARGS = (("free", "mob", "rft_g", "u", "total"), "dt", "ng", "settings", ("w", "rest"),
+                     ("a", "v", "cap", "flow", "idx", "block", "rhs", "size", "weight", "lin", "perm", "x"),
+                     ("keep_rest", "state"), ("twist", "chain", "zt"), locks.LOCK)
 """The arguments of ``locks.locked_rest`` as ``evaluate._rest`` passes them (after ``nl``, before ``check``): the
-``ws`` / ``hc`` field passed, or ``dt`` / ``ng`` (float64 / int64 scalars)."""
+``ws`` / ``hc`` field passed, or ``dt`` / ``ng`` (float64 / int64 scalars); a tuple of names: a bundle of those
+fields (``rest.REST_GROUPS``, ``REST_OUT``, ``REST_WORK``, ``REST_KEPT``, ``locks.MOTION``, ``locks.LOCK``)."""
 
 
 def locked_rest_signature() -> tuple:
     """The numba argument types of ``locks.locked_rest`` as the rest phase calls it (arrays as the route's table
-    gives them: C layout, the schema's dtype and rank)."""
+    gives them: C layout, the schema's dtype and rank; bundles as tuples of them)."""
     kinds = dict(ev.WORK_FIELDS + ev.HANDLE_FIELDS)
-    typed = [types.float64 if name == "dt" else types.int64 if name == "ng" else table.array_type(kinds[name])
-             for name in _LOCKED_REST_WORK]
-    return (types.int64, *typed, types.boolean)
+
+    def typed(name):
+        if isinstance(name, tuple):
+            return types.Tuple([typed(n) for n in name])
+        return types.float64 if name == "dt" else types.int64 if name == "ng" else table.array_type(kinds[name])
+    return (types.int64, *(typed(name) for name in _LOCKED_REST_ARGS), types.boolean)
 
 
 def compile_rest_part() -> None:
