@@ -70,9 +70,8 @@ def test_jacobian_equals_mj_jacbodycom():
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
     for b in range(1, model.nbody):
         p = data.xipos[b]
-        fastrest.jacobian(b, p[0], p[1], p[2], data.cdof, data.subtree_com, model.body_rootid.astype(i8),
-                          model.body_dofnum.astype(i8), model.body_dofadr.astype(i8), model.body_parentid.astype(i8),
-                          model.dof_parentid.astype(i8), out, 0)
+        tree = tuple(getattr(model, name).astype(i8) for name in fastrest.JAC_TREE)
+        fastrest.jacobian(b, p[0], p[1], p[2], data.cdof, data.subtree_com, tree, out, 0)
         mujoco.mj_jacBodyCom(model, data, jacp, jacr, b)
         np.testing.assert_allclose(out[:3], jacp, atol=1e-14)
         np.testing.assert_allclose(out[3:], jacr, atol=1e-14)

@@ -286,8 +286,8 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     for i in range(nv):
         f = qfrc_passive[i] - qfrc_bias[i] + qfrc_actuator[i] + qfrc_applied[i]
         qacc[i] = f + qfrc_constraint[i] if lagged else f
-    add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
-                      dof_parentid, minv_jt, qacc)
+    add_user_wrenches(user_xfrc, xipos, cdof, subtree_com,
+                      (body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid), minv_jt, qacc)
     solve_m(rownnz, rowadr, colind, qld, qld_diag_inv, qacc)
     for i in range(nv):
         if not math.isfinite(qacc[i]):
@@ -391,8 +391,7 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     else:
         rest_wrenches(groups, dt, ng, settings, out, work, (keep_rest, state), frozen)
     # 7. each body's part (coupling._share); 8. diagnostics and the wrenches into sand_out (SandHandle._commit)
-    return _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap, applied, ws, touch,
-                             bound_radius, count, depth_max, occluded, ids, sand_out)
+    return _share_and_commit(k, ng, (rad_g, rft_g, w, rest), hc, ws, sand_out)
 
 
 def params_array(max_height: float, xi_per_g: float, mu_surf: float, guards, kind: int, stabilize: bool,

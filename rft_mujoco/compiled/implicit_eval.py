@@ -79,6 +79,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     ids, group_of, group_ref = hc[sc.H_IDS], hc[sc.H_GROUP_OF], hc[sc.H_GROUP_REF]
     body_rootid, body_dofnum, body_dofadr = hc[sc.H_BODY_ROOTID], hc[sc.H_BODY_DOFNUM], hc[sc.H_BODY_DOFADR]
     body_parentid, dof_parentid = hc[sc.H_BODY_PARENTID], hc[sc.H_DOF_PARENTID]
+    jac_tree = (body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid)    # rest.JAC_TREE
     rownnz, rowadr, colind = hc[sc.H_M_ROWNNZ], hc[sc.H_M_ROWADR], hc[sc.H_M_COLIND]
     bound_radius, group_radius, params = hc[sc.H_BOUND_RADIUS], hc[sc.H_GROUP_RADIUS], hc[sc.H_PARAMS]
     touch, body_com = ws[sc.W_TOUCH], ws[sc.W_BODY_COM]
@@ -133,15 +134,13 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
                     + md[sc.M_QFRC_APPLIED][i])
             if not linearized and state[sc.S_LAGGED] != 0.0:
                 f[i] += md[sc.M_QFRC_CONSTRAINT][i]
-        add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
-                          dof_parentid, jrows, f)
+        add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, jac_tree, jrows, f)
         # 3. H (this step's constraints linearized), its factor, the free motion and mobility of the groups
         constrained_system(nv, (rowadr, rownnz, colind, m_val), sparse, efc, zones, linearized, damping, dt, h, f)
         if not cholesky(nv, h):
             return BAD_ACCELERATION
         mob = np.empty((6 * ng, 6 * ng))
-        free_motion((ng, active, ids, group_ref), (xipos, cdof, subtree_com, qvel),
-                    (body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid), h, f, dt,
+        free_motion((ng, active, ids, group_ref), (xipos, cdof, subtree_com, qvel), jac_tree, h, f, dt,
                     (jrows, y, twist, free, mob))
         for i in range(nv):
             if not math.isfinite(f[i]):
@@ -202,5 +201,4 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
         group_law(end, flowing, ng, ((k, slot, arm), (n_e, e_slot, e_arm, e_nrm, e_depth, e_area), lawc, work),
                   st[sc.ST_SPEED_SCALE], st[sc.ST_FD_STEP], LAW, gf, gdf)
     # 7. each body's part (reference.share) and the diagnostics (reference.commit)
-    return _share_and_commit(k, ng, slot, wrench, rad_g, gf, w, resting, arm, size, cap, applied, ws, touch,
-                             bound_radius, count, depth_max, occluded, ids, sand_out)
+    return _share_and_commit(k, ng, (rad_g, gf, w, resting), hc, ws, sand_out)

@@ -70,11 +70,16 @@ def _chain_dof(b, body_dofnum, body_dofadr, body_parentid):
     return -1
 
 
+JAC_TREE = ("body_rootid", "body_dofnum", "body_dofadr", "body_parentid", "dof_parentid")
+"""The ``tree`` bundle of :func:`jacobian` and :func:`add_user_wrenches`: ``mjModel`` arrays of those names (int64)."""
+
+
 @njit(**JIT)
-def jacobian(b, px, py, pz, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
-             dof_parentid, out, row):
+def jacobian(b, px, py, pz, cdof, subtree_com, tree, out, row):
     """Rows ``row..row+5`` of ``out`` (.., nv) := the Jacobian [linear velocity of point p; angular velocity]
-    of body ``b`` (``mj_jac``), from ``cdof`` (motions about ``subtree_com`` of the root)."""
+    of body ``b`` (``mj_jac``), from ``cdof`` (motions about ``subtree_com`` of the root); ``tree``
+    (:data:`JAC_TREE`): the model's kinematic tree."""
+    body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid = tree
     nv = out.shape[1]
     for r in range(6):
         for j in range(nv):
@@ -96,8 +101,7 @@ def jacobian(b, px, py, pz, cdof, subtree_com, body_rootid, body_dofnum, body_do
 
 
 @njit(**JIT)
-def add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid,
-                      dof_parentid, rows, out):
+def add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, tree, rows, out):
     """``out`` (nv,) += the generalized force of the user's wrenches ``user_xfrc`` (nbody, 6) [N, N m] at the
     bodies' COMs (``mj_applyFT``), through the scratch rows ``rows[:6]`` (.., nv)."""
     nv = out.shape[0]
@@ -108,8 +112,7 @@ def add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, body_rootid, body_dof
                 nonzero = True
         if not nonzero:
             continue
-        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum,
-                 body_dofadr, body_parentid, dof_parentid, rows, 0)
+        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, tree, rows, 0)
         for i in range(nv):
             s = 0.0
             for c in range(6):

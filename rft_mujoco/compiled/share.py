@@ -59,11 +59,18 @@ def touching_groups(k, touch, group_of, ng_all, mark, active, slot):
 
 
 @njit(**INLINE)
-def _share_and_commit(k, ng, slot, wrench, rad_g, rft_g, w, rest, arm, size, cap, applied, ws, touch, bound_radius,
-                      count, depth_max, occluded, ids, sand_out):
+def _share_and_commit(k, ng, groups, hc, ws, sand_out):
     """Each touching body's part of its group's sand wrench (``applied``: a flowing group's law wrench scaled
     per body, a resting group's wrench shared by size), the diagnostics into ``ws`` and the wrenches added to
-    ``sand_out``; returns the evaluation's status. Shared by the explicit and the implicit evaluations."""
+    ``sand_out``; returns the evaluation's status. Shared by the explicit and the implicit evaluations.
+    ``groups`` = (``rad_g`` (ng,) m, ``rft_g`` (ng, 6) the groups' law wrenches, ``w`` (ng, 6) their sand
+    wrenches (N, N m), ``rest`` (ng,) bool); the bodies' rows are the workspace's (``ws``: ``W_SLOT``,
+    ``W_WRENCH``, ``W_ARM``, ``W_SIZE``, ``W_CAP``, ``W_APPLIED``, ``W_TOUCH``, ``W_COUNT``, ``W_DEPTH``,
+    ``W_OCCLUDED``), the bodies' radii and ids the handle's (``hc``)."""
+    rad_g, rft_g, w, rest = groups
+    slot, wrench, arm, size, cap = ws[sc.W_SLOT], ws[sc.W_WRENCH], ws[sc.W_ARM], ws[sc.W_SIZE], ws[sc.W_CAP]
+    applied, touch, count, depth_max = ws[sc.W_APPLIED], ws[sc.W_TOUCH], ws[sc.W_COUNT], ws[sc.W_DEPTH]
+    occluded, bound_radius, ids = ws[sc.W_OCCLUDED], hc[sc.H_BOUND_RADIUS], hc[sc.H_IDS]
     # 7. each body's part (coupling._share)
     for j in range(k):
         size[j] = _norm6(wrench[j], rad_g[slot[j]])

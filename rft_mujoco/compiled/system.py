@@ -174,14 +174,12 @@ def free_motion(groups, kinematics, tree, low, f, dt, out):
     ``H^-1 f``."""
     ng, active, ids, group_ref = groups
     xipos, cdof, subtree_com, qvel = kinematics
-    body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid = tree
     jrows, y, twist, free, mob = out
     nv = qvel.shape[0]
     n6 = 6 * ng
     for r in range(ng):
         b = ids[group_ref[active[r]]]
-        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, body_rootid, body_dofnum, body_dofadr,
-                 body_parentid, dof_parentid, jrows, 6 * r)
+        jacobian(b, xipos[b, 0], xipos[b, 1], xipos[b, 2], cdof, subtree_com, tree, jrows, 6 * r)
     _cholesky_solve(nv, low, f)               # f <- H^-1 f
     for r in range(ng):
         for c in range(6):
