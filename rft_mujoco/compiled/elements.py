@@ -187,10 +187,12 @@ def _nearest_face(x, y, z, kind, hs, h0, h1):
 
 # --- the broadphase --------------------------------------------------------------------------------------
 @njit(**JIT_LAW)
-def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_center, bound_radius,
-             centroids, cluster_start, cluster_center, cluster_radius, body_clusters, g_hat, max_height, kind,
-             tp, heights, touch, body_pos, body_mat, body_com, v_com, omega):
-    """Broadphase and depth pre-pass of a handle's bodies (``ids`` (B,) MuJoCo body ids) from MjData arrays.
+def touching(bodies, kinematics, surface, terrain, out):
+    """Broadphase and depth pre-pass of a handle's bodies from MjData arrays. ``bodies`` = (``ids`` (B,) MuJoCo
+    body ids, ``root`` (B,) their root bodies, ``bound_center``, ``bound_radius``); ``kinematics`` = MjData's
+    (``xpos``, ``xmat``, ``xipos``, ``cvel``, ``subtree_com``, ``qpos``, ``qvel``); ``surface`` and ``terrain``:
+    :data:`rft_mujoco.compiled.element_pass.SURFACE` and ``TERRAIN``; ``out`` = (``touch``, ``body_pos``,
+    ``body_mat``, ``body_com``, ``v_com``, ``omega``).
 
     A body is a candidate when the lowest point of its bounding sphere (centre ``bound_center`` (B, 3)
     in the body frame, radius ``bound_radius`` (B,)) is below ``max_height``; it touches the sand when
@@ -200,6 +202,12 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
     ``body_com`` (``xipos``), ``v_com`` (``cvel``'s linear part moved from ``subtree_com[root]`` to ``xipos``)
     and ``omega``. Returns their number, or -1 when some body is a candidate and qpos/qvel are not finite.
     """
+    ids, root, bound_center, bound_radius = bodies
+    xpos, xmat, xipos, cvel, subtree_com, qpos, qvel = kinematics
+    centroids, cluster_start, cluster_center, cluster_radius, body_clusters = (surface[0], surface[3], surface[4],
+                                                                               surface[5], surface[6])
+    g_hat, max_height, kind, tp, heights = terrain
+    touch, body_pos, body_mat, body_com, v_com, omega = out
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     flat = kind == FLAT and tp[ts.TP_REGION] == 0.0
     deformed = kind == DEFORMABLE and g2 < 0.0
@@ -285,11 +293,16 @@ def touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_
 
 
 @njit(**JIT)
-def finish_naive(wrench, count, depth_max, v_com, omega, passive, touch, n_touch, ids, force, torque, submerged,
-                 max_depth, scale, rft_force, resting, occluded_area, occluded, sand_out):
+def finish_naive(bodies, n_touch, ids, passive, diagnostics, sand_out):
     """``stabilize=False``: the published wrench of each touching body, dropped when ``passive`` and it would
     do positive work; diagnostics (B, ...) of every row and the wrenches added to ``sand_out`` (nbody, 6).
-    Returns 1 when a wrench is non-zero, 0 when none is, -1 (nothing written) when one is not finite."""
+    ``bodies`` = (``wrench``, ``count``, ``depth_max``, ``occluded``, ``v_com``, ``omega``, ``touch``): the
+    touching bodies' rows (``n_touch`` of them, handle indices ``touch``); ``ids``: the handle's MuJoCo body ids;
+    ``diagnostics`` = (``force``, ``torque``, ``submerged``, ``max_depth``, ``scale``, ``rft_force``,
+    ``resting``, ``occluded_area``). Returns 1 when a wrench is non-zero, 0 when none is, -1 (nothing written)
+    when one is not finite."""
+    wrench, count, depth_max, occluded, v_com, omega, touch = bodies
+    force, torque, submerged, max_depth, scale, rft_force, resting, occluded_area = diagnostics
     for i in range(force.shape[0]):
         for c in range(3):
             force[i, c] = 0.0

@@ -100,9 +100,8 @@ def broadphase(md, hc, ws, time, dt):
     state[sc.S_LAST_TIME] = time
     g0, g1, g2, _ = _gravity(gravity)
     g_hat = np.array((g0, g1, g2))
-    k = touching(ids, root, xpos, xmat, xipos, cvel, subtree_com, qpos, qvel, bound_center, bound_radius, centroids,
-                 cluster_start, cluster_center, cluster_radius, body_clusters, g_hat, params[sc.P_MAX_HEIGHT],
-                 int(params[sc.P_KIND]), tp, heights, touch, body_pos, body_mat, body_com, v_com, omega)
+    k = touching((ids, root, bound_center, bound_radius), (xpos, xmat, xipos, cvel, subtree_com, qpos, qvel),
+                 surface_of(hc), terrain_of(hc, g_hat), (touch, body_pos, body_mat, body_com, v_com, omega))
     if k < 0:
         return NOT_FINITE_STATE
     state[sc.S_TOUCHING] = k
@@ -150,18 +149,19 @@ def evaluate_naive(md, hc, ws, sand_out):
              (ws[sc.W_V_COM], ws[sc.W_OMEGA]), terrain_of(hc, g_hat), law_of(hc, xi_n), occluders_of(hc, md),
              (ws[sc.W_SCRATCH], ws[sc.W_INDEX]), (ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_OCCLUDED]),
              0.0)
-    return finish_naive(ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_V_COM], ws[sc.W_OMEGA],
-                        params[sc.P_PASSIVE] != 0.0, ws[sc.W_TOUCH], k, hc[sc.H_IDS], ws[sc.W_FORCE], ws[sc.W_TORQUE],
-                        ws[sc.W_SUBMERGED], ws[sc.W_MAX_DEPTH], ws[sc.W_SCALE], ws[sc.W_RFT_FORCE], ws[sc.W_RESTING],
-                        ws[sc.W_OCCLUDED_AREA], ws[sc.W_OCCLUDED], sand_out)
+    return finish_naive((ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_OCCLUDED], ws[sc.W_V_COM],
+                         ws[sc.W_OMEGA], ws[sc.W_TOUCH]), k, hc[sc.H_IDS], params[sc.P_PASSIVE] != 0.0,
+                        (ws[sc.W_FORCE], ws[sc.W_TORQUE], ws[sc.W_SUBMERGED], ws[sc.W_MAX_DEPTH], ws[sc.W_SCALE],
+                         ws[sc.W_RFT_FORCE], ws[sc.W_RESTING], ws[sc.W_OCCLUDED_AREA]), sand_out)
 
 
 @njit(**INLINE)
-def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum,
-              body_dofadr, body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, chain, zt,
-              twist, free, mob, blocks):
-    """For the reference bodies of the active groups 0..ng-1: twists (now, and free: after ``dt`` at ``qacc``)
-    and the mobility ``mob = J M^-1 J^T`` (6 ng, 6 ng), with the kinematic tree's sparsity.
+def _mobility(groups, kinematics, qacc, tree, factor, dt, chain, zt, out, blocks):
+    """For the reference bodies of the active groups 0..ng-1 (``groups`` = (``ng``, ``active``, ``ids``,
+    ``group_ref``)): twists (now, and free: after ``dt`` at ``qacc``) and the mobility ``mob = J M^-1 J^T``
+    (6 ng, 6 ng), with the kinematic tree's sparsity; ``out`` = (``twist``, ``free``, ``mob``). ``kinematics`` =
+    MjData's (``xipos``, ``cdof``, ``subtree_com``, ``qvel``), ``tree``: :data:`rft_mujoco.compiled.rest.JAC_TREE`,
+    ``factor``: :data:`rft_mujoco.compiled.locks.FACTOR` (MuJoCo's ``qLD``).
 
     A body's Jacobian is zero outside its chain of dofs (``chain[r, 1:1 + chain[r, 0]]``, from the body to
     the root). With MuJoCo's factor ``M = L^T D L``, ``J M^-1 J^T = Z^T D^-1 Z`` where ``Z = L^-T J^T``:
@@ -170,6 +170,11 @@ def _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, 
     ``W = D^-1/2 Z`` so that every entry is a sum of products of two W entries (exactly symmetric). A block
     (r, s) sums over the dofs the two chains share: the part of both next to the root. Without ``blocks``
     only the twists are computed (``mob`` is kept)."""
+    ng, active, ids, group_ref = groups
+    xipos, cdof, subtree_com, qvel = kinematics
+    body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid = tree
+    rownnz, rowadr, colind, qld, qld_diag_inv = factor
+    twist, free, mob = out
     for r in range(ng):
         b = ids[group_ref[active[r]]]
         rt = body_rootid[b]
@@ -312,9 +317,9 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
         state[sc.S_KEPT_RANK] = -1.0
         for r in range(ng):
             keep_active[r] = active[r]
-    _mobility(ng, active, ids, group_ref, xipos, cdof, subtree_com, qvel, qacc, body_rootid, body_dofnum, body_dofadr,
-              body_parentid, dof_parentid, rowadr, rownnz, colind, qld, qld_diag_inv, dt, ws[sc.W_CHAIN], zt, twist,
-              free, mob, not frozen)
+    _mobility((ng, active, ids, group_ref), (xipos, cdof, subtree_com, qvel), qacc,
+              (body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid), (rownnz, rowadr, colind, qld,
+              qld_diag_inv), dt, ws[sc.W_CHAIN], zt, (twist, free, mob), not frozen)
     lock = (lock_i, lock_f, ws[sc.W_LOCK_Z], ws[sc.W_LOCK_CHAIN], ws[sc.W_LOCK_S], ws[sc.W_LOCK_C], ws[sc.W_LOCK_R],
             ws[sc.W_LOCK_X], ws[sc.W_LOCK_MOB], ws[sc.W_LOCK_FREE], ws[sc.W_LOCK_W], ws[sc.W_LOCK_REST])  # locks.LOCK
     if nl > 0:
