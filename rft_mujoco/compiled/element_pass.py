@@ -21,6 +21,8 @@ temporaries.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from rft_mujoco.compiled.elements import CLUSTER_SIZE, LANES, _inside, _nearest_face, _outside_ball, pack
@@ -142,8 +144,7 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
     xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol = law
     occ_start, occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin = occluders[:8]
     geom_xpos, geom_xmat = occluders[8], occluders[9]
-    scratch, index = work
-    wrench, count, max_depth, occluded = out
+    (scratch, index), (wrench, count, max_depth, occluded) = work, out
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed, ramp = tol[0], tol[1], tol[2], tol[3]
@@ -286,7 +287,8 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
                 vy = ub1 + (wb2 * l0 - wb0 * l2)
                 vz = ub2 + (wb0 * l1 - wb1 * l0)
                 n0, n1, n2 = scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i]
-                dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, speed_scale, lead_tol, ramp)  # (unswitched)
+                sp = math.sqrt(vx * vx + vy * vy + vz * vz)
+                dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp)  # unswitched
                 rx, ry, rz = _stress(n0, n1, n2, dx, dy, dz, gb0, gb1, gb2, c, mu_surf, no_tension, no_forward,
                                      no_power, lead_tol, vert_tol)
                 sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i]) * reg

@@ -61,7 +61,6 @@ def efc_arrays(data) -> tuple:
 def _elements(md, hc, ws, k, g_hat, e_slot, e_arm, e_nrm, e_depth, e_area):
     """:func:`rft_mujoco.compiled.implicit_law.loaded_candidates` of the ``k`` touching bodies into the element
     rows ``e_*`` (and the bodies' occluded area into ``ws``); returns their number."""
-    params = hc[sc.H_PARAMS]
     return loaded_candidates(ws[sc.W_TOUCH], k, surface_of(hc),
                              (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM]), terrain_of(hc, g_hat),
                              occluders_of(hc, md),
@@ -99,8 +98,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     g_hat[1] = g1
     g_hat[2] = g2
     xi_n = params[sc.P_XI_PER_G] * g_mag
-    lawc = (g_hat, xi_n, hc[sc.H_COEF], params[sc.P_MU_SURF], params[sc.P_NO_TENSION] != 0.0,
-            params[sc.P_NO_FORWARD] != 0.0, params[sc.P_NO_POWER] != 0.0, hc[sc.H_TOL])   # implicit_law.LAW_CONSTANTS
+    lawc = (g_hat,) + law_of(hc, xi_n)                                        # implicit_law.LAW_CONSTANTS
     work = (lin, ang, on, scr, pk, wrench, jac_b, count, depth_max)                        # implicit_law.BODY_WORK
     # 1. the touching groups, in increasing group order, and each touching body's row among them
     ng_all = group_ref.shape[0]

@@ -24,7 +24,7 @@ import numpy as np
 
 from rft_mujoco.compiled.elements import _inside, _outside_ball
 from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
-from rft_mujoco.compiled.law import _coef, _ramped, _stress
+from rft_mujoco.compiled.law import _coef, _law_direction, _stress
 from rft_mujoco.compiled.terrain import _depth
 
 
@@ -151,7 +151,7 @@ def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, 
 
     Each moving element on or near the leading side (speed above ``tol[2]``, ``n.v >= -tol[3] |v|``) carries
     the published stress at its ramped direction times ``xi_n depth area phi(|v|)`` times the ramp's weight
-    (:func:`rft_mujoco.compiled.law._ramped`), ``phi = |v| / sqrt(|v|^2 + c^2)``, ``c = speed_scale`` (m/s).
+    (:func:`rft_mujoco.compiled.law._law_direction`), ``phi = |v| / sqrt(|v|^2 + c^2)``, ``c = speed_scale`` (m/s).
     Outputs rows j with ``on[j]``: ``wrench`` (6: N, N m about the COM, world), ``count`` (loaded elements),
     ``max_depth`` (m); with ``derivative``, ``jac`` (6, 6) d wrench / d (lin, ang): per element the law's 3x3
     derivative by forward differences (a step of ``fd_step`` times the element's speed or ``c``, whichever is
@@ -166,7 +166,6 @@ def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, 
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed, ramp = tol[0], tol[1], tol[2], tol[3]
-    cc = speed_scale * speed_scale
     law = (g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol, ramp)
     last = derivative == DERIVATIVE_OF_LAST
     for j in range(k):
@@ -181,7 +180,7 @@ def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, 
                     for b in range(6):
                         jac[j, a, b] = 0.0
     if last:
-        _derivative_sums(pk[pk.shape[0] - 1], e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, jac)
+        _derivative_sums(pk[pk.shape[0] - 1], e_slot, e_arm, law, speed_scale, fd_step, scr, pk, jac)
         return
     m = 0                                        # 1. the loaded elements, packed
     for e in range(n_e):
@@ -209,10 +208,10 @@ def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, 
     for i in range(m):                           # 2. the law (no branches)
         vx, vy, vz, sp = scr[_V, i], scr[_V + 1, i], scr[_V + 2, i], scr[_SP, i]
         n0, n1, n2 = scr[_N, i], scr[_N + 1, i], scr[_N + 2, i]
-        dx, dy, dz, w = _ramped(n0, n1, n2, vx / sp, vy / sp, vz / sp, lead_tol, ramp)
+        dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp)
         sx, sy, sz = _stress(n0, n1, n2, dx, dy, dz, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power,
                              lead_tol, vert_tol)
-        ph = scr[_SA, i] * (sp / math.sqrt(sp * sp + cc)) * w
+        ph = scr[_SA, i] * reg
         scr[_F, i] = sx * ph
         scr[_F + 1, i] = sy * ph
         scr[_F + 2, i] = sz * ph
@@ -230,11 +229,11 @@ def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, 
         wrench[j, 4] += r2 * fx - r0 * fz
         wrench[j, 5] += r0 * fy - r1 * fx
     if derivative:
-        _derivative_sums(m, e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, jac)
+        _derivative_sums(m, e_slot, e_arm, law, speed_scale, fd_step, scr, pk, jac)
 
 
 @njit(**JIT_LAW)
-def _derivative_sums(m, e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, jac):
+def _derivative_sums(m, e_slot, e_arm, law, speed_scale, fd_step, scr, pk, jac):
     """:func:`body_law`'s derivative on its ``m`` packed loaded elements (``scr``, ``pk`` as it left them), added
     to ``jac`` (rows zeroed by the caller); ``law``: the arguments of :func:`rft_mujoco.compiled.law._stress`
     after the direction (gravity, coefficients, medium and guards, tolerances)."""
@@ -249,10 +248,10 @@ def _derivative_sums(m, e_slot, e_arm, law, cc, speed_scale, fd_step, scr, pk, j
             uz = scr[_V + 2, i] + (h if q == 2 else 0.0)
             s = math.sqrt(ux * ux + uy * uy + uz * uz)
             n0, n1, n2 = scr[_N, i], scr[_N + 1, i], scr[_N + 2, i]
-            dx, dy, dz, w = _ramped(n0, n1, n2, ux / s, uy / s, uz / s, lead_tol, ramp)
+            dx, dy, dz, reg = _law_direction(n0, n1, n2, ux, uy, uz, s, speed_scale, lead_tol, ramp)
             tx, ty, tz = _stress(n0, n1, n2, dx, dy, dz, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power,
                                  lead_tol, vert_tol)
-            p = scr[_SA, i] * (s / math.sqrt(s * s + cc)) * w
+            p = scr[_SA, i] * reg
             scr[_D + q, i] = (tx * p - scr[_F, i]) / h           # d[i_, q] = d f_i_ / d v_q, row-major
             scr[_D + 3 + q, i] = (ty * p - scr[_F + 1, i]) / h
             scr[_D + 6 + q, i] = (tz * p - scr[_F + 2, i]) / h

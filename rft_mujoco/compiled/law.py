@@ -67,11 +67,12 @@ def _ramped(n0, n1, n2, vx, vy, vz, lead_tol, ramp):
 
 
 @njit(**INLINE)
-def _law_direction(n0, n1, n2, vx, vy, vz, speed_scale, lead_tol, ramp):
-    """The unit direction at which an element moving with ``v`` (m/s) takes its stress, and the factor the stress
-    carries: the published law's ``(v/|v|, 1)`` with ``speed_scale`` 0; with ``speed_scale = c > 0`` the implicit
-    solve's regularized law's (:func:`_ramped`, the weight times ``|v| / sqrt(|v|^2 + c^2)``)."""
-    sp = math.sqrt(vx * vx + vy * vy + vz * vz)
+def _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp):
+    """The unit direction at which an element moving with ``v`` (m/s, speed ``sp`` > 0) takes its stress, and the
+    factor the stress carries: the published law's ``(v/|v|, 1)`` with ``speed_scale`` 0; with
+    ``speed_scale = c > 0`` the implicit solve's regularized law's (:func:`_ramped`, the weight times
+    ``|v| / sqrt(|v|^2 + c^2)``). The element pass and the implicit solve's law (its forward differences too)
+    take their stress through this one function."""
     inv = 1.0 / sp
     dx, dy, dz = vx * inv, vy * inv, vz * inv
     if speed_scale > 0.0:

@@ -73,8 +73,7 @@ def ramped_directions(normals: np.ndarray, v_hat: np.ndarray) -> tuple[np.ndarra
     and (n,) weights in [0, 1] (1 on the leading side)."""
     c = np.einsum("ij,ij->i", normals, v_hat)
     behind = np.where(c < -law.LEADING_TOL, c, 0.0)
-    u = v_hat - behind[:, None] * normals
-    u /= np.linalg.norm(u, axis=1)[:, None]
+    u = (v_hat - behind[:, None] * normals) / np.sqrt(1.0 - behind * behind)[:, None]   # unit: n.v_hat = behind
     return u, np.minimum(1.0, (c + LEADING_RAMP) / (LEADING_RAMP - law.LEADING_TOL))
 
 
