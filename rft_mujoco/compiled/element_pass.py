@@ -65,13 +65,15 @@ def _lane_max(row, n, lanes):
 
 
 @njit(**INLINE)
-def _loaded(l0, l1, l2, n0, n1, n2, depth, ub0, ub1, ub2, wb0, wb1, wb2, zero_speed2, lead_tol2):
-    """Whether an element (body-frame lever arm ``l``, normal ``n``) carries stress: submerged, moving
-    (speed above ZERO_SPEED) and leading (``n.v >= -LEADING_TOL |v|``, squared: no square root)."""
-    vx = ub0 + (wb1 * l2 - wb2 * l1)
-    vy = ub1 + (wb2 * l0 - wb0 * l2)
-    vz = ub2 + (wb0 * l1 - wb1 * l0)
-    nv = n0 * vx + n1 * vy + n2 * vz
+def _loaded(arm, nrm, depth, ub, wb, zero_speed2, lead_tol2):
+    """Whether an element (body-frame lever arm ``arm``, normal ``nrm``) carries stress: submerged, moving
+    (speed above ZERO_SPEED) and leading (``n.v >= -LEADING_TOL |v|``, squared: no square root); ``ub``, ``wb``:
+    the body's twist in its frame."""
+    l0, l1, l2 = arm
+    vx = ub[0] + (wb[1] * l2 - wb[2] * l1)
+    vy = ub[1] + (wb[2] * l0 - wb[0] * l2)
+    vz = ub[2] + (wb[0] * l1 - wb[1] * l0)
+    nv = nrm[0] * vx + nrm[1] * vy + nrm[2] * vz
     sp2 = vx * vx + vy * vy + vz * vz
     return (depth > 0.0) & (sp2 > zero_speed2) & ((nv >= 0.0) | (nv * nv <= lead_tol2 * sp2))
 
@@ -121,6 +123,164 @@ def occluders_of(hc, md):
             md[sc.M_GEOM_XMAT])
 
 
+_FLAT, _DEFORMED, _GENERAL = 0, 1, 2
+"""How the element pass finds depths: affine in the body frame (flat sand), under the deformed surface's local
+maximum first (deformable sand, gravity down), or element by element (any other terrain)."""
+
+
+@njit(**INLINE)
+def _depths(dep, sub, cl, frame, gb, c0, top, mode, terrain):
+    """Step 1 of a cluster: the depth (m) of each of its elements (body-frame centroids ``cl``, padding slots NaN:
+    never submerged) into ``dep``, the indices of the submerged ones into ``sub``; returns their number.
+    ``frame`` = (``body_mat[j]``'s nine, px, py, pz); ``gb``: gravity in the body frame; ``c0``: the flat depth of the
+    body origin; ``top``: the highest deformed surface around the cluster plus ABOVE."""
+    g_hat, _, kind, tp, heights = terrain
+    g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
+    r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz = frame
+    cl0, cl1, cl2 = cl
+    n = cl0.shape[0]
+    if mode == _FLAT:
+        for i in range(n):
+            dep[i] = c0 + (gb[0] * cl0[i] + gb[1] * cl1[i] + gb[2] * cl2[i])
+    elif mode == _DEFORMED:                              # the surface around is nowhere above ``top``: the
+        for i in range(n):                               # depth where an element is below it, else <= 0
+            dep[i] = top - (pz + (r6 * cl0[i] + r7 * cl1[i] + r8 * cl2[i]))
+        for i in range(n):
+            if dep[i] > 0.0:
+                l0, l1, l2 = cl0[i], cl1[i], cl2[i]
+                dep[i] = _depth(px + (r0 * l0 + r1 * l1 + r2 * l2), py + (r3 * l0 + r4 * l1 + r5 * l2),
+                                pz + (r6 * l0 + r7 * l1 + r8 * l2), g0, g1, g2, kind, tp, heights)
+    else:
+        for i in range(n):
+            l0, l1, l2 = cl0[i], cl1[i], cl2[i]
+            dep[i] = _depth(px + (r0 * l0 + r1 * l1 + r2 * l2), py + (r3 * l0 + r4 * l1 + r5 * l2),
+                            pz + (r6 * l0 + r7 * l1 + r8 * l2), g0, g1, g2, kind, tp, heights)
+    ms = 0
+    for i in range(n):
+        sub[ms] = i
+        ms += dep[i] > 0.0
+    return ms
+
+
+@njit(**INLINE)
+def _occlude(dep, sub, ms, cl, cluster, frame, surface, occluders, hidden):
+    """Step 2 of a cluster: its submerged elements (``sub[:ms]``) inside a geom that hides them (``occluders``,
+    :data:`OCCLUDERS` rows ``o0:o1``) get depth -inf; returns ``hidden`` (m^2) plus their area. ``cluster`` =
+    (q, its first element s, o0, o1, its centre in the world qx, qy, qz)."""
+    cluster_center, cluster_radius, areas = surface[4], surface[5], surface[2]
+    occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin = occluders[1:8]
+    geom_xpos, geom_xmat = occluders[8], occluders[9]
+    q, s, o0, o1, qx, qy, qz = cluster
+    r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz = frame
+    cl0, cl1, cl2 = cl
+    q0, q1, q2 = cluster_center[q, 0], cluster_center[q, 1], cluster_center[q, 2]
+    for o in range(o0, o1):
+        gid = occ_geom[o]
+        ox, oy, oz = geom_xpos[gid, 0], geom_xpos[gid, 1], geom_xpos[gid, 2]
+        reach = occ_rbound[o] + cluster_radius[q]
+        if (qx - ox) ** 2 + (qy - oy) ** 2 + (qz - oz) ** 2 >= reach * reach:
+            continue
+        gm = geom_xmat[gid]                              # the element in the geom frame: M l + t
+        m00, m01, m02 = gm[0] * r0 + gm[3] * r3 + gm[6] * r6, gm[0] * r1 + gm[3] * r4 + gm[6] * r7, \
+            gm[0] * r2 + gm[3] * r5 + gm[6] * r8
+        m10, m11, m12 = gm[1] * r0 + gm[4] * r3 + gm[7] * r6, gm[1] * r1 + gm[4] * r4 + gm[7] * r7, \
+            gm[1] * r2 + gm[4] * r5 + gm[7] * r8
+        m20, m21, m22 = gm[2] * r0 + gm[5] * r3 + gm[8] * r6, gm[2] * r1 + gm[5] * r4 + gm[8] * r7, \
+            gm[2] * r2 + gm[5] * r5 + gm[8] * r8
+        ex, ey, ez = px - ox, py - oy, pz - oz
+        t0, t1, t2 = gm[0] * ex + gm[3] * ey + gm[6] * ez, gm[1] * ex + gm[4] * ey + gm[7] * ez, \
+            gm[2] * ex + gm[5] * ey + gm[8] * ez
+        s0, s1, s2 = occ_size[o, 0], occ_size[o, 1], occ_size[o, 2]
+        hs0, hs1, ok = occ_hs_start[o], occ_hs_start[o + 1], occ_kind[o]
+        x0, x1, x2 = t0 + (m00 * q0 + m01 * q1 + m02 * q2), t1 + (m10 * q0 + m11 * q1 + m12 * q2), \
+            t2 + (m20 * q0 + m21 * q1 + m22 * q2)
+        if _outside_ball(x0, x1, x2, cluster_radius[q], ok, s0, s1, s2, occ_hs, hs0, hs1, margin):
+            continue                                     # a face of the geom separates the whole cluster
+        kf = _nearest_face(x0, x1, x2, ok, occ_hs, hs0, hs1)
+        for jj in range(ms):
+            i = sub[jj]
+            if not dep[i] > 0.0:
+                continue
+            l0, l1, l2 = cl0[i], cl1[i], cl2[i]
+            e0, e1, e2 = t0 + (m00 * l0 + m01 * l1 + m02 * l2), t1 + (m10 * l0 + m11 * l1 + m12 * l2), \
+                t2 + (m20 * l0 + m21 * l1 + m22 * l2)
+            if kf >= 0 and not occ_hs[kf, 0] * e0 + occ_hs[kf, 1] * e1 + occ_hs[kf, 2] * e2 < occ_hs[kf, 3] - margin:
+                continue                                 # outside the face nearest the cluster (as _inside)
+            if _inside(e0, e1, e2, ok, s0, s1, s2, occ_hs, hs0, hs1, margin):
+                hidden += areas[s + i]
+                dep[i] = -np.inf
+    return hidden
+
+
+@njit(**INLINE)
+def _pack_loaded(scratch, index, ms, cl, nr, area, cb, twist, edges):
+    """Step 3 of a cluster: the elements that carry stress (:func:`_loaded`), in increasing index, packed to the
+    front of ``scratch`` (lever arm about the COM ``cb``, normal, depth, area ``area[i]``, m^2); returns their
+    number. ``twist`` = (``ub``, ``wb``) in the body frame; ``edges`` = (zero speed^2, leading edge^2)."""
+    dep, keep = scratch[_DEPTH], scratch[_KEEP]
+    sub, load = index[0], index[1]
+    cl0, cl1, cl2 = cl
+    nr0, nr1, nr2 = nr
+    cb0, cb1, cb2 = cb
+    ub, wb = twist
+    zs2, lt2 = edges
+    n = cl0.shape[0]
+    ml = 0
+    if SPARSE * ms < n:
+        for jj in range(ms):
+            i = sub[jj]
+            load[ml] = i
+            ml += _loaded((cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2), (nr0[i], nr1[i], nr2[i]), dep[i], ub, wb,
+                          zs2, lt2)
+    else:
+        for i in range(n):
+            keep[i] = 1.0 if _loaded((cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2), (nr0[i], nr1[i], nr2[i]), dep[i],
+                                     ub, wb, zs2, lt2) else 0.0
+        for i in range(n):
+            load[ml] = i
+            ml += keep[i] != 0.0
+    for jj in range(ml):
+        i = load[jj]
+        scratch[_P_ARM, jj] = cl0[i] - cb0
+        scratch[_P_ARM + 1, jj] = cl1[i] - cb1
+        scratch[_P_ARM + 2, jj] = cl2[i] - cb2
+        scratch[_P_NRM, jj] = nr0[i]
+        scratch[_P_NRM + 1, jj] = nr1[i]
+        scratch[_P_NRM + 2, jj] = nr2[i]
+        scratch[_P_DEPTH, jj] = dep[i]
+        scratch[_P_AREA, jj] = area[i]
+    return ml
+
+
+@njit(**INLINE)
+def _law_forces(scratch, ml, twist, gb, law, c, speed_scale):
+    """Step 4 of a cluster: the law on its ``ml`` packed elements (body frame: vectorized, no branches), their
+    forces (N) and torques (N m about the COM) into ``scratch``. ``c``: ``_coef`` of the law's coefficients. (The
+    sums stay in :func:`wrenches`: as a tuple carried through here, LLVM fuses their multiply-adds differently.)"""
+    xi_n, _, mu_surf, no_tension, no_forward, no_power, tol = law
+    lead_tol, vert_tol, ramp = tol[0], tol[1], tol[3]
+    (ub0, ub1, ub2), (wb0, wb1, wb2) = twist
+    gb0, gb1, gb2 = gb
+    for i in range(ml):
+        l0, l1, l2 = scratch[_P_ARM, i], scratch[_P_ARM + 1, i], scratch[_P_ARM + 2, i]
+        vx = ub0 + (wb1 * l2 - wb2 * l1)
+        vy = ub1 + (wb2 * l0 - wb0 * l2)
+        vz = ub2 + (wb0 * l1 - wb1 * l0)
+        n0, n1, n2 = scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i]
+        sp = math.sqrt(vx * vx + vy * vy + vz * vz)
+        dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp)  # unswitched
+        rx, ry, rz = _stress(n0, n1, n2, dx, dy, dz, gb0, gb1, gb2, c, mu_surf, no_tension, no_forward,
+                             no_power, lead_tol, vert_tol)
+        sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i]) * reg
+        fx, fy, fz = rx * sa, ry * sa, rz * sa
+        scratch[_P_F, i] = fx
+        scratch[_P_F + 1, i] = fy
+        scratch[_P_F + 2, i] = fz
+        scratch[_P_T, i] = l1 * fz - l2 * fy
+        scratch[_P_T + 1, i] = l2 * fx - l0 * fz
+        scratch[_P_T + 2, i] = l0 * fy - l1 * fx
+
+
 @njit(**JIT_LAW)
 def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work, out, speed_scale):
     """The RFT wrench about each COM of the bodies ``bodies[:n_on]`` moving with twists ``twists`` = (``lin``,
@@ -141,21 +301,17 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
     body_pos, body_mat, body_com = poses
     lin, ang = twists
     g_hat, max_height, kind, tp, heights = terrain
-    xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol = law
-    occ_start, occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin = occluders[:8]
-    geom_xpos, geom_xmat = occluders[8], occluders[9]
+    occ_start = occluders[0]
     (scratch, index), (wrench, count, max_depth, occluded) = work, out
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
-    c = _coef(coef)
-    lead_tol, vert_tol, zero_speed, ramp = tol[0], tol[1], tol[2], tol[3]
-    edge = ramp if speed_scale > 0.0 else lead_tol                     # the regularized law's leading edge
-    zs2, lt2 = zero_speed * zero_speed, edge * edge
-    flat = kind == FLAT and tp[ts.TP_REGION] == 0.0
-    deformed = kind == DEFORMABLE and g2 < 0.0
+    c = _coef(law[1])
+    tol = law[6]
+    edge = tol[3] if speed_scale > 0.0 else tol[0]                 # the regularized law's leading edge
+    edges = (tol[2] * tol[2], edge * edge)
+    mode = _FLAT if kind == FLAT and tp[ts.TP_REGION] == 0.0 else _DEFORMED if kind == DEFORMABLE and g2 < 0.0 \
+        else _GENERAL
     h0 = tp[ts.TP_HEIGHT]
     lanes = np.empty(LANES)
-    dep, keep = scratch[_DEPTH], scratch[_KEEP]
-    sub, load = index[0], index[1]
     for j in range(n_on):
         b = bodies[j]
         for k in range(6):
@@ -170,12 +326,13 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
         r = body_mat[j]
         r0, r1, r2, r3, r4, r5, r6, r7, r8 = r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]
         px, py, pz = body_pos[j, 0], body_pos[j, 1], body_pos[j, 2]
+        frame = (r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz)
         # the body frame: gravity, the COM (lever arms are l - cb), the twist of the COM
-        gb0, gb1, gb2 = r0 * g0 + r3 * g1 + r6 * g2, r1 * g0 + r4 * g1 + r7 * g2, r2 * g0 + r5 * g1 + r8 * g2
+        gb = (r0 * g0 + r3 * g1 + r6 * g2, r1 * g0 + r4 * g1 + r7 * g2, r2 * g0 + r5 * g1 + r8 * g2)
         dx, dy, dz = body_com[j, 0] - px, body_com[j, 1] - py, body_com[j, 2] - pz
-        cb0, cb1, cb2 = r0 * dx + r3 * dy + r6 * dz, r1 * dx + r4 * dy + r7 * dz, r2 * dx + r5 * dy + r8 * dz
-        ub0, ub1, ub2 = r0 * ux + r3 * uy + r6 * uz, r1 * ux + r4 * uy + r7 * uz, r2 * ux + r5 * uy + r8 * uz
-        wb0, wb1, wb2 = r0 * wx + r3 * wy + r6 * wz, r1 * wx + r4 * wy + r7 * wz, r2 * wx + r5 * wy + r8 * wz
+        cb = (r0 * dx + r3 * dy + r6 * dz, r1 * dx + r4 * dy + r7 * dz, r2 * dx + r5 * dy + r8 * dz)
+        twist = ((r0 * ux + r3 * uy + r6 * uz, r1 * ux + r4 * uy + r7 * uz, r2 * ux + r5 * uy + r8 * uz),
+                 (r0 * wx + r3 * wy + r6 * wz, r1 * wx + r4 * wy + r7 * wz, r2 * wx + r5 * wy + r8 * wz))
         c0 = h0 + (px * g0 + py * g1 + pz * g2)           # flat depth of the body origin
         a0 = a1 = a2 = a3 = a4 = a5 = 0.0
         deepest = 0.0
@@ -187,119 +344,22 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
             low = -(qx * g0 + qy * g1 + qz * g2) - cluster_radius[q]
             if low > max_height:                             # the whole cluster is above the sand
                 continue
-            top = deformed_range(qx, qy, cluster_radius[q], tp, heights)[1] + ABOVE if deformed else 0.0
-            if deformed and low > top:
+            top = deformed_range(qx, qy, cluster_radius[q], tp, heights)[1] + ABOVE if mode == _DEFORMED else 0.0
+            if mode == _DEFORMED and low > top:
                 continue                                     # ... above the deformed sand around it
             s = cluster_start[q]
             n = cluster_start[q + 1] - s
-            cl0, cl1, cl2 = centroids[0, s:s + n], centroids[1, s:s + n], centroids[2, s:s + n]
-            nr0, nr1, nr2 = normals[0, s:s + n], normals[1, s:s + n], normals[2, s:s + n]
-            # 1. depths (padding slots have NaN centroids: never submerged), the submerged indices
-            if flat:
-                for i in range(n):
-                    dep[i] = c0 + (gb0 * cl0[i] + gb1 * cl1[i] + gb2 * cl2[i])
-            elif deformed:                                   # the surface around is nowhere above ``top``: the
-                for i in range(n):                           # depth where an element is below it, else <= 0
-                    dep[i] = top - (pz + (r6 * cl0[i] + r7 * cl1[i] + r8 * cl2[i]))
-                for i in range(n):
-                    if dep[i] > 0.0:
-                        l0, l1, l2 = cl0[i], cl1[i], cl2[i]
-                        dep[i] = _depth(px + (r0 * l0 + r1 * l1 + r2 * l2), py + (r3 * l0 + r4 * l1 + r5 * l2),
-                                        pz + (r6 * l0 + r7 * l1 + r8 * l2), g0, g1, g2, kind, tp, heights)
-            else:
-                for i in range(n):
-                    l0, l1, l2 = cl0[i], cl1[i], cl2[i]
-                    dep[i] = _depth(px + (r0 * l0 + r1 * l1 + r2 * l2), py + (r3 * l0 + r4 * l1 + r5 * l2),
-                                    pz + (r6 * l0 + r7 * l1 + r8 * l2), g0, g1, g2, kind, tp, heights)
-            ms = 0
-            for i in range(n):
-                sub[ms] = i
-                ms += dep[i] > 0.0
+            cl = (centroids[0, s:s + n], centroids[1, s:s + n], centroids[2, s:s + n])
+            nr = (normals[0, s:s + n], normals[1, s:s + n], normals[2, s:s + n])
+            ms = _depths(scratch[_DEPTH], index[0], cl, frame, gb, c0, top, mode, terrain)
             if ms == 0:
                 continue
-            # 2. submerged elements inside another body's geom: depth set to -inf, their area reported
-            for o in range(occ_start[b], occ_start[b + 1]):
-                gid = occ_geom[o]
-                ox, oy, oz = geom_xpos[gid, 0], geom_xpos[gid, 1], geom_xpos[gid, 2]
-                reach = occ_rbound[o] + cluster_radius[q]
-                if (qx - ox) ** 2 + (qy - oy) ** 2 + (qz - oz) ** 2 >= reach * reach:
-                    continue
-                gm = geom_xmat[gid]                          # the element in the geom frame: M l + t
-                m00, m01, m02 = gm[0] * r0 + gm[3] * r3 + gm[6] * r6, gm[0] * r1 + gm[3] * r4 + gm[6] * r7, \
-                    gm[0] * r2 + gm[3] * r5 + gm[6] * r8
-                m10, m11, m12 = gm[1] * r0 + gm[4] * r3 + gm[7] * r6, gm[1] * r1 + gm[4] * r4 + gm[7] * r7, \
-                    gm[1] * r2 + gm[4] * r5 + gm[7] * r8
-                m20, m21, m22 = gm[2] * r0 + gm[5] * r3 + gm[8] * r6, gm[2] * r1 + gm[5] * r4 + gm[8] * r7, \
-                    gm[2] * r2 + gm[5] * r5 + gm[8] * r8
-                ex, ey, ez = px - ox, py - oy, pz - oz
-                t0, t1, t2 = gm[0] * ex + gm[3] * ey + gm[6] * ez, gm[1] * ex + gm[4] * ey + gm[7] * ez, \
-                    gm[2] * ex + gm[5] * ey + gm[8] * ez
-                s0, s1, s2 = occ_size[o, 0], occ_size[o, 1], occ_size[o, 2]
-                hs0, hs1, ok = occ_hs_start[o], occ_hs_start[o + 1], occ_kind[o]
-                x0, x1, x2 = t0 + (m00 * q0 + m01 * q1 + m02 * q2), t1 + (m10 * q0 + m11 * q1 + m12 * q2), \
-                    t2 + (m20 * q0 + m21 * q1 + m22 * q2)
-                if _outside_ball(x0, x1, x2, cluster_radius[q], ok, s0, s1, s2, occ_hs, hs0, hs1, margin):
-                    continue                                 # a face of the geom separates the whole cluster
-                kf = _nearest_face(x0, x1, x2, ok, occ_hs, hs0, hs1)
-                for jj in range(ms):
-                    i = sub[jj]
-                    if not dep[i] > 0.0:
-                        continue
-                    l0, l1, l2 = cl0[i], cl1[i], cl2[i]
-                    e0, e1, e2 = t0 + (m00 * l0 + m01 * l1 + m02 * l2), t1 + (m10 * l0 + m11 * l1 + m12 * l2), \
-                        t2 + (m20 * l0 + m21 * l1 + m22 * l2)
-                    if kf >= 0 and not occ_hs[kf, 0] * e0 + occ_hs[kf, 1] * e1 + occ_hs[kf, 2] * e2 < occ_hs[kf, 3] - margin:
-                        continue                             # outside the face nearest the cluster (as _inside)
-                    if _inside(e0, e1, e2, ok, s0, s1, s2, occ_hs, hs0, hs1, margin):
-                        occluded[j] += areas[s + i]
-                        dep[i] = -np.inf
-            # 3. the loaded elements (submerged, moving, leading), in increasing index
-            ml = 0
-            if SPARSE * ms < n:
-                for jj in range(ms):
-                    i = sub[jj]
-                    load[ml] = i
-                    ml += _loaded(cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2, nr0[i], nr1[i], nr2[i], dep[i], ub0,
-                                  ub1, ub2, wb0, wb1, wb2, zs2, lt2)
-            else:
-                for i in range(n):
-                    keep[i] = 1.0 if _loaded(cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2, nr0[i], nr1[i], nr2[i],
-                                             dep[i], ub0, ub1, ub2, wb0, wb1, wb2, zs2, lt2) else 0.0
-                for i in range(n):
-                    load[ml] = i
-                    ml += keep[i] != 0.0
+            occluded[j] = _occlude(scratch[_DEPTH], index[0], ms, cl, (q, s, occ_start[b], occ_start[b + 1], qx, qy,
+                                   qz), frame, surface, occluders, occluded[j])
+            ml = _pack_loaded(scratch, index, ms, cl, nr, areas[s:s + n], cb, twist, edges)
             if ml == 0:
                 continue
-            for jj in range(ml):                             # packed to the front
-                i = load[jj]
-                scratch[_P_ARM, jj] = cl0[i] - cb0
-                scratch[_P_ARM + 1, jj] = cl1[i] - cb1
-                scratch[_P_ARM + 2, jj] = cl2[i] - cb2
-                scratch[_P_NRM, jj] = nr0[i]
-                scratch[_P_NRM + 1, jj] = nr1[i]
-                scratch[_P_NRM + 2, jj] = nr2[i]
-                scratch[_P_DEPTH, jj] = dep[i]
-                scratch[_P_AREA, jj] = areas[s + i]
-            # 4. the law on the packed elements (body frame): vectorized, no branches
-            for i in range(ml):
-                l0, l1, l2 = scratch[_P_ARM, i], scratch[_P_ARM + 1, i], scratch[_P_ARM + 2, i]
-                vx = ub0 + (wb1 * l2 - wb2 * l1)
-                vy = ub1 + (wb2 * l0 - wb0 * l2)
-                vz = ub2 + (wb0 * l1 - wb1 * l0)
-                n0, n1, n2 = scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i]
-                sp = math.sqrt(vx * vx + vy * vy + vz * vz)
-                dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp)  # unswitched
-                rx, ry, rz = _stress(n0, n1, n2, dx, dy, dz, gb0, gb1, gb2, c, mu_surf, no_tension, no_forward,
-                                     no_power, lead_tol, vert_tol)
-                sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i]) * reg
-                fx, fy, fz = rx * sa, ry * sa, rz * sa
-                scratch[_P_F, i] = fx
-                scratch[_P_F + 1, i] = fy
-                scratch[_P_F + 2, i] = fz
-                scratch[_P_T, i] = l1 * fz - l2 * fy
-                scratch[_P_T + 1, i] = l2 * fx - l0 * fz
-                scratch[_P_T + 2, i] = l0 * fy - l1 * fx
-            # 5. sums (body frame)
+            _law_forces(scratch, ml, twist, gb, law, c, speed_scale)    # 4. the law on them; 5. the sums:
             for i in range(ml):
                 a0 += scratch[_P_F, i]
                 a1 += scratch[_P_F + 1, i]

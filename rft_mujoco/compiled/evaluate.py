@@ -34,7 +34,7 @@ from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled.locks import lock_matrices, locked_rest, stuck_dofs
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.schema import HANDLE_FIELDS, MJDATA_FIELDS, PARAMS, STATE, WORK_FIELDS  # noqa: F401
-from rft_mujoco.compiled.rest import _chain_dof, add_user_wrenches, rest_wrenches, solve_m
+from rft_mujoco.compiled.rest import _chain_dof, add_user_wrenches, blend, rest_wrenches, solve_m
 from rft_mujoco.compiled.share import (BAD_ACCELERATION, NOT_FINITE, NOT_FINITE_STATE,  # noqa: F401
                                        _clear, _share_and_commit, touching_groups)
 
@@ -262,6 +262,50 @@ def _mobility(groups, kinematics, qacc, tree, factor, dt, chain, zt, out, blocks
 
 
 @njit(**INLINE)
+def _body_twists(k, groups, u, xipos, body_com, out):
+    """Step 4 of :func:`_rest`: the touching bodies' twists at their COMs from their groups' ``u`` (G, 6: m/s, rad/s
+    about the reference points). ``groups`` = (``active``, ``slot``, ``ids``, ``group_ref``); ``out`` = (``arm``
+    (K, 3) m: each COM from its group's reference point, ``u_lin`` (K, 3) m/s, ``u_ang`` (K, 3) rad/s)."""
+    active, slot, ids, group_ref = groups
+    arm, u_lin, u_ang = out
+    for j in range(k):
+        r = slot[j]
+        b_ref = ids[group_ref[active[r]]]
+        ax = body_com[j, 0] - xipos[b_ref, 0]
+        ay = body_com[j, 1] - xipos[b_ref, 1]
+        az = body_com[j, 2] - xipos[b_ref, 2]
+        arm[j, 0] = ax
+        arm[j, 1] = ay
+        arm[j, 2] = az
+        wx, wy, wz = u[r, 3], u[r, 4], u[r, 5]
+        u_ang[j, 0] = wx
+        u_ang[j, 1] = wy
+        u_ang[j, 2] = wz
+        u_lin[j, 0] = u[r, 0] + (wy * az - wz * ay)
+        u_lin[j, 1] = u[r, 1] + (wz * ax - wx * az)
+        u_lin[j, 2] = u[r, 2] + (wx * ay - wy * ax)
+
+
+@njit(**INLINE)
+def _group_wrenches(ng, k, slot, arm, wrench, rft_g):
+    """Step 5 of :func:`_rest`: the sum into ``rft_g`` (G, 6) of the touching bodies' wrenches ``wrench`` (K, 6: N,
+    N m about each COM) about their groups' reference points (``arm``: each COM from its reference point, m)."""
+    for r in range(ng):
+        for c in range(6):
+            rft_g[r, c] = 0.0
+    for j in range(k):
+        r = slot[j]
+        fx, fy, fz = wrench[j, 0], wrench[j, 1], wrench[j, 2]
+        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
+        rft_g[r, 0] += fx
+        rft_g[r, 1] += fy
+        rft_g[r, 2] += fz
+        rft_g[r, 3] += wrench[j, 3] + (ay * fz - az * fy)
+        rft_g[r, 4] += wrench[j, 4] + (az * fx - ax * fz)
+        rft_g[r, 5] += wrench[j, 5] + (ax * fy - ay * fx)
+
+
+@njit(**INLINE)
 def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     """The rest treatment of the ``k`` touching bodies: ``SandHandle._evaluate_rest``."""
     xipos, cdof, subtree_com, qvel = md[sc.M_XIPOS], md[sc.M_CDOF], md[sc.M_SUBTREE_COM], md[sc.M_QVEL]
@@ -272,15 +316,14 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     body_rootid, body_dofnum, body_dofadr = hc[sc.H_BODY_ROOTID], hc[sc.H_BODY_DOFNUM], hc[sc.H_BODY_DOFADR]
     body_parentid, dof_parentid = hc[sc.H_BODY_PARENTID], hc[sc.H_DOF_PARENTID]
     rownnz, rowadr, colind = hc[sc.H_M_ROWNNZ], hc[sc.H_M_ROWADR], hc[sc.H_M_COLIND]
-    bound_radius, group_radius, settings = hc[sc.H_BOUND_RADIUS], hc[sc.H_GROUP_RADIUS], hc[sc.H_SETTINGS]
-    params = hc[sc.H_PARAMS]
+    group_radius, settings = hc[sc.H_GROUP_RADIUS], hc[sc.H_SETTINGS]
     touch, body_com = ws[sc.W_TOUCH], ws[sc.W_BODY_COM]
     count, depth_max, occluded = ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_OCCLUDED]
     active, slot, idx, rest, flow = ws[sc.W_ACTIVE], ws[sc.W_SLOT], ws[sc.W_IDX], ws[sc.W_REST], ws[sc.W_FLOW]
     zt, minv_jt, mob, a, block = ws[sc.W_ZT], ws[sc.W_MINV_JT], ws[sc.W_MOB], ws[sc.W_A], ws[sc.W_BLOCK]
     qacc, v, rhs, weight = ws[sc.W_QACC], ws[sc.W_V], ws[sc.W_RHS], ws[sc.W_WEIGHT]
     twist, free, u, rft_g, w, cap = ws[sc.W_TWIST], ws[sc.W_FREE], ws[sc.W_U], ws[sc.W_RFT_G], ws[sc.W_W], ws[sc.W_CAP]
-    u_lin, u_ang, arm, applied, size = ws[sc.W_U_LIN], ws[sc.W_U_ANG], ws[sc.W_ARM], ws[sc.W_APPLIED], ws[sc.W_SIZE]
+    u_lin, u_ang, arm, size = ws[sc.W_U_LIN], ws[sc.W_U_ANG], ws[sc.W_ARM], ws[sc.W_SIZE]
     total = ws[sc.W_TOTAL]
     wrench = ws[sc.W_WRENCH]
     nv = qvel.shape[0]
@@ -325,58 +368,17 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     if nl > 0:
         lock_matrices(nl, (rownnz, rowadr, colind, qld, qld_diag_inv), qacc, dof_parentid, lock)
     # 4. blended twists (rest.blend), moved to each touching body's COM
+    rad_g = total                                   # (G,) reuses ``total`` as the active groups' radii
     for r in range(ng):
-        rad = group_radius[active[r]]
-        sl = sa = vl = va = 0.0
-        for c in range(3):
-            d0 = free[r, c] - twist[r, c]
-            d1 = free[r, 3 + c] - twist[r, 3 + c]
-            sl += d0 * d0
-            sa += d1 * d1
-            vl += twist[r, c] * twist[r, c]
-            va += twist[r, 3 + c] * twist[r, 3 + c]
-        s = math.sqrt(sl) + rad * math.sqrt(sa)
-        vv = math.sqrt(vl) + rad * math.sqrt(va)
-        wgt = s * s / (vv * vv + s * s) if s > 0.0 else 0.0
-        for c in range(6):
-            u[r, c] = twist[r, c] + wgt * (free[r, c] - twist[r, c])
-    for j in range(k):
-        r = slot[j]
-        b_ref = ids[group_ref[active[r]]]
-        ax = body_com[j, 0] - xipos[b_ref, 0]
-        ay = body_com[j, 1] - xipos[b_ref, 1]
-        az = body_com[j, 2] - xipos[b_ref, 2]
-        arm[j, 0] = ax
-        arm[j, 1] = ay
-        arm[j, 2] = az
-        wx, wy, wz = u[r, 3], u[r, 4], u[r, 5]
-        u_ang[j, 0] = wx
-        u_ang[j, 1] = wy
-        u_ang[j, 2] = wz
-        u_lin[j, 0] = u[r, 0] + (wy * az - wz * ay)
-        u_lin[j, 1] = u[r, 1] + (wz * ax - wx * az)
-        u_lin[j, 2] = u[r, 2] + (wx * ay - wy * ax)
+        rad_g[r] = group_radius[active[r]]
+    blend(twist, free, rad_g, ng, u)
+    _body_twists(k, (active, slot, ids, group_ref), u, xipos, body_com, (arm, u_lin, u_ang))
     # 5. RFT wrenches at the blended twists; the groups' wrenches about their reference points
     wrenches(touch, k, surface_of(hc), (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com), (u_lin, u_ang),
              terrain_of(hc, g_hat), law_of(hc, xi_n), occluders_of(hc, md), (ws[sc.W_SCRATCH], ws[sc.W_INDEX]),
              (wrench, count, depth_max, occluded), 0.0)
-    for r in range(ng):
-        for c in range(6):
-            rft_g[r, c] = 0.0
-    for j in range(k):
-        r = slot[j]
-        fx, fy, fz = wrench[j, 0], wrench[j, 1], wrench[j, 2]
-        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-        rft_g[r, 0] += fx
-        rft_g[r, 1] += fy
-        rft_g[r, 2] += fz
-        rft_g[r, 3] += wrench[j, 3] + (ay * fz - az * fy)
-        rft_g[r, 4] += wrench[j, 4] + (az * fx - ax * fz)
-        rft_g[r, 5] += wrench[j, 5] + (ax * fy - ay * fx)
+    _group_wrenches(ng, k, slot, arm, wrench, rft_g)
     # 6. the rest solve (rest.rest_wrenches), in the groups' radii
-    rad_g = total                                   # (G,) reuses ``total`` as the active groups' radii
-    for r in range(ng):
-        rad_g[r] = group_radius[active[r]]
     state[sc.S_LOCKED_DOFS] = 0.0
     lock_prev = ws[sc.W_LOCK_PREV]                               # the dofs locked in the last evaluation
     sticky = False

@@ -24,7 +24,7 @@ import numpy as np
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.implicit_law import DERIVATIVE_OF_LAST, LAW, group_law
 from rft_mujoco.compiled.jit import JIT, njit
-from rft_mujoco.compiled.rest import min_norm_apply, min_norm_factor
+from rft_mujoco.compiled.rest import blend, min_norm_apply, min_norm_factor
 
 SETTINGS = sc.IMPLICIT_SETTINGS
 """Entries of ``st`` (:data:`rft_mujoco.compiled.schema.IMPLICIT_SETTINGS`, indexed as ``st[sc.ST_TINY]``)."""
@@ -187,25 +187,6 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
 
 
 @njit(**JIT)
-def _blend(twist, free, radius, ng, out):
-    """:func:`rft_mujoco.physics.rest.blend` into ``out`` (ng, 6)."""
-    for r in range(ng):
-        sl = sa = vl = va = 0.0
-        for c in range(3):
-            d0 = free[r, c] - twist[r, c]
-            d1 = free[r, 3 + c] - twist[r, 3 + c]
-            sl += d0 * d0
-            sa += d1 * d1
-            vl += twist[r, c] * twist[r, c]
-            va += twist[r, 3 + c] * twist[r, 3 + c]
-        s = math.sqrt(sl) + radius[r] * math.sqrt(sa)
-        v = math.sqrt(vl) + radius[r] * math.sqrt(va)
-        w = s * s / (v * v + s * s) if s > 0.0 else 0.0
-        for c in range(6):
-            out[r, c] = twist[r, c] + w * (free[r, c] - twist[r, c])
-
-
-@njit(**JIT)
 def implicit_wrenches(system, lw, twist, flowing, prior, st, out, probe, f, df):
     """:func:`rft_mujoco.physics.implicit.implicit_wrenches` of groups 0..ng-1. ``system`` = (``free`` (ng, 6)
     m/s, rad/s, ``mob`` (6 ng, 6 ng), ``radius`` (ng,) m, ``dt`` s, ``ng``): the groups' free twists and
@@ -216,7 +197,7 @@ def implicit_wrenches(system, lw, twist, flowing, prior, st, out, probe, f, df):
     point. ``f``, ``df``: the law's outputs; the rows of the groups never in flow (and their bodies' rows in
     ``lw``) hold the law at the probe. Returns the Newton iterations."""
     free, _, radius, _, ng = system
-    _blend(twist, free, radius, ng, probe)
+    blend(twist, free, radius, ng, probe)
     on = np.ones(ng, np.bool_)
     _law(lw, probe, on, ng, st, LAW, f, df)
     return solve_from_probe(system, lw, twist, flowing, prior, st, out, probe, f, df, True)
@@ -393,7 +374,7 @@ def _passive_finish(w, v, a, sv, sw, end, w_out):
 @njit(**JIT)
 def solve_from_probe(system, lw, start, flowing, prior, st, out, probe, f, df, ready):
     """:func:`implicit_wrenches` from its capacity test on: ``probe`` (ng, 6) holds the blended twists
-    (:func:`_blend`) and ``f`` (ng, 6) the groups' law at them; a flowing group's Newton solve starts from its
+    (:func:`rft_mujoco.compiled.rest.blend`) and ``f`` (ng, 6) the groups' law at them; a flowing group's Newton solve starts from its
     row of ``start`` (ng, 6) (the twists now, or an earlier zone pass's answer). Without ``ready`` (``lw`` does
     not hold the evaluation's elements: the probe's law came from the element pass), returns
     :data:`NEED_ELEMENTS` before the first Newton solve, having written nothing but ``flowing`` (the caller

@@ -20,11 +20,11 @@ import numpy as np
 from rft_mujoco.compiled.evaluate import _gravity
 from rft_mujoco.compiled.share import BAD_ACCELERATION, NOT_FINITE, _share_and_commit, touching_groups
 from rft_mujoco.compiled.element_pass import law_of, occluders_of, surface_of, terrain_of, wrenches
-from rft_mujoco.compiled.implicit import NEED_ELEMENTS, _blend, solve_from_probe
+from rft_mujoco.compiled.implicit import NEED_ELEMENTS, solve_from_probe
 from rft_mujoco.compiled.implicit_law import LAW, SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled import schema as sc
-from rft_mujoco.compiled.rest import add_user_wrenches
+from rft_mujoco.compiled.rest import add_user_wrenches, blend
 from rft_mujoco.compiled.system import cholesky, constrained_system, end_acceleration, free_motion, row_zones
 
 IMPLICIT_FIELDS = (("e_slot", "i1"), ("e_arm", "f2"), ("e_nrm", "f2"), ("e_depth", "f1"), ("e_area", "f1"),
@@ -39,6 +39,12 @@ numpy reference's ``work.flowing``) and ``istate`` ([whether ``prev_*`` hold an 
 EFC_FIELDS = ("efc_J", "efc_J_rowadr", "efc_J_rownnz", "efc_J_colind", "efc_type", "efc_id", "efc_D", "efc_aref",
               "efc_frictionloss", "qacc")
 """MjData's constraint rows of this step (in its arena: read at every call) and its last ``qacc``."""
+SYSTEM = ("efc", "sparse", "m_val", "damping", "linearized")
+"""The ``system`` bundle of :func:`evaluate_implicit`: MuJoCo's system of this step. ``efc``: its constraint rows
+(:data:`EFC_FIELDS`); ``sparse``: its constraint Jacobian is sparse; ``m_val``: its sparse mass matrix
+(``data.M``); ``damping``: the dofs' implicit damping (:func:`rft_mujoco.compiled.system.velocity_damping`);
+``linearized``: the solve takes this step's constraints (:func:`rft_mujoco.compiled.system.constrained_system`),
+else MuJoCo's previous constraint forces (when they belong to this motion)."""
 
 
 def build_implicit(n_elements: int, n_bodies: int, n_groups: int, nv: int) -> dict:
@@ -68,24 +74,51 @@ def _elements(md, hc, ws, k, g_hat, e_slot, e_arm, e_nrm, e_depth, e_area):
 
 
 @njit(**JIT)
-def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_val, damping, st, linearized):
-    """The implicit solve of the ``state[sc.S_TOUCHING]`` touching bodies of the broadphase: the sand wrenches, the
-    diagnostics and the wrenches added to ``sand_out`` (nbody, 6). ``linearized``: this step's constraints
-    (:func:`rft_mujoco.compiled.system.constrained_system`), else MuJoCo's previous constraint forces (when
-    they belong to this motion); ``sparse``: MuJoCo's constraint Jacobian is sparse. Returns 1 (a non-zero
-    wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing written)."""
+def _free_system(md, hc, user_xfrc, system, zones, lagged, dt, groups, out):
+    """Steps 2-3 of :func:`evaluate_implicit` in one zone pass: the smooth force ``f`` (nv,) of this evaluation (+
+    the user's wrenches; + MuJoCo's last constraint forces when ``lagged`` and not ``linearized``), H (this step's
+    constraints linearized in ``zones``), its factor, and the groups' free twists and mobility. ``groups`` =
+    (ng, ``active``, ``ids``, ``group_ref``); ``out`` = (``jrows``, ``y``, ``twist``, ``free``, ``mob``, ``h``,
+    ``f``). False when the accelerations are not finite (or H not positive definite)."""
     xipos, cdof, subtree_com, qvel = md[sc.M_XIPOS], md[sc.M_CDOF], md[sc.M_SUBTREE_COM], md[sc.M_QVEL]
-    ids, group_of, group_ref = hc[sc.H_IDS], hc[sc.H_GROUP_OF], hc[sc.H_GROUP_REF]
-    body_rootid, body_dofnum, body_dofadr = hc[sc.H_BODY_ROOTID], hc[sc.H_BODY_DOFNUM], hc[sc.H_BODY_DOFADR]
-    body_parentid, dof_parentid = hc[sc.H_BODY_PARENTID], hc[sc.H_DOF_PARENTID]
-    jac_tree = (body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid)    # rest.JAC_TREE
+    jac_tree = (hc[sc.H_BODY_ROOTID], hc[sc.H_BODY_DOFNUM], hc[sc.H_BODY_DOFADR], hc[sc.H_BODY_PARENTID],
+                hc[sc.H_DOF_PARENTID])                                                  # rest.JAC_TREE
     rownnz, rowadr, colind = hc[sc.H_M_ROWNNZ], hc[sc.H_M_ROWADR], hc[sc.H_M_COLIND]
-    bound_radius, group_radius, params = hc[sc.H_BOUND_RADIUS], hc[sc.H_GROUP_RADIUS], hc[sc.H_PARAMS]
+    efc, sparse, m_val, damping, linearized = system
+    jrows, y, twist, free, mob, h, f = out
+    nv = qvel.shape[0]
+    # 2. the smooth force of this evaluation (+ the user's wrenches; + the last constraint forces when lagged)
+    for i in range(nv):
+        f[i] = (md[sc.M_QFRC_PASSIVE][i] - md[sc.M_QFRC_BIAS][i] + md[sc.M_QFRC_ACTUATOR][i]
+                + md[sc.M_QFRC_APPLIED][i])
+        if not linearized and lagged:
+            f[i] += md[sc.M_QFRC_CONSTRAINT][i]
+    add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, jac_tree, jrows, f)
+    # 3. H (this step's constraints linearized), its factor, the free motion and mobility of the groups
+    constrained_system(nv, (rowadr, rownnz, colind, m_val), sparse, efc, zones, linearized, damping, dt, h, f)
+    if not cholesky(nv, h):
+        return False
+    free_motion(groups, (xipos, cdof, subtree_com, qvel), jac_tree, h, f, dt, (jrows, y, twist, free, mob))
+    for i in range(nv):
+        if not math.isfinite(f[i]):
+            return False
+    return True
+
+
+@njit(**JIT)
+def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, system, st):
+    """The implicit solve of the ``state[sc.S_TOUCHING]`` touching bodies of the broadphase: the sand wrenches, the
+    diagnostics and the wrenches added to ``sand_out`` (nbody, 6). ``system``: MuJoCo's system of this step,
+    :data:`SYSTEM`. Returns 1 (a non-zero wrench), 0 (none), NOT_FINITE or BAD_ACCELERATION (nothing written)."""
+    xipos, qvel = md[sc.M_XIPOS], md[sc.M_QVEL]
+    ids, group_of, group_ref = hc[sc.H_IDS], hc[sc.H_GROUP_OF], hc[sc.H_GROUP_REF]
+    group_radius, params = hc[sc.H_GROUP_RADIUS], hc[sc.H_PARAMS]
+    efc, sparse, linearized = system[0], system[1], system[4]
     touch, body_com = ws[sc.W_TOUCH], ws[sc.W_BODY_COM]
     wrench, count, depth_max, occluded = ws[sc.W_WRENCH], ws[sc.W_COUNT], ws[sc.W_DEPTH], ws[sc.W_OCCLUDED]
     active, slot, rest = ws[sc.W_ACTIVE], ws[sc.W_SLOT], ws[sc.W_REST]
     twist, free, w = ws[sc.W_TWIST], ws[sc.W_FREE], ws[sc.W_W]
-    arm, applied, size, total, cap = ws[sc.W_ARM], ws[sc.W_APPLIED], ws[sc.W_SIZE], ws[sc.W_TOTAL], ws[sc.W_CAP]
+    arm, total = ws[sc.W_ARM], ws[sc.W_TOTAL]
     state = ws[sc.W_STATE]
     (e_slot, e_arm, e_nrm, e_depth, e_area, jac_b, lin, ang, on, jrows, h, f, y, end, probe, gf, gdf, flowing,
      prev_active, prev_flow, istate, scr, pk) = iw                      # IMPLICIT_FIELDS, in order
@@ -126,26 +159,13 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, efc, sparse, m_va
     start = np.empty((ng, 6))                       # the Newton solve's starting twists
     have_elements = False                           # the evaluation's elements found (the same in every pass)
     for zone_pass in range(int(st[sc.ST_ZONE_PASSES])):
-        # 2. the smooth force of this evaluation (+ the user's wrenches; + the last constraint forces when lagged)
-        for i in range(nv):
-            f[i] = (md[sc.M_QFRC_PASSIVE][i] - md[sc.M_QFRC_BIAS][i] + md[sc.M_QFRC_ACTUATOR][i]
-                    + md[sc.M_QFRC_APPLIED][i])
-            if not linearized and state[sc.S_LAGGED] != 0.0:
-                f[i] += md[sc.M_QFRC_CONSTRAINT][i]
-        add_user_wrenches(user_xfrc, xipos, cdof, subtree_com, jac_tree, jrows, f)
-        # 3. H (this step's constraints linearized), its factor, the free motion and mobility of the groups
-        constrained_system(nv, (rowadr, rownnz, colind, m_val), sparse, efc, zones, linearized, damping, dt, h, f)
-        if not cholesky(nv, h):
-            return BAD_ACCELERATION
         mob = np.empty((6 * ng, 6 * ng))
-        free_motion((ng, active, ids, group_ref), (xipos, cdof, subtree_com, qvel), jac_tree, h, f, dt,
-                    (jrows, y, twist, free, mob))
-        for i in range(nv):
-            if not math.isfinite(f[i]):
-                return BAD_ACCELERATION
+        if not _free_system(md, hc, user_xfrc, system, zones, state[sc.S_LAGGED] != 0.0, dt, (ng, active, ids,
+                            group_ref), (jrows, y, twist, free, mob, h, f)):
+            return BAD_ACCELERATION
         # 4. the capacity test's twists (the blend of the twists now and the free ones) and the law at them, by
         #    the element pass
-        _blend(twist, free, rad_g, ng, probe)
+        blend(twist, free, rad_g, ng, probe)
         group_twists(probe, all_on, k, slot, arm, lin, ang, on)
         wrenches(touch, k, surface_of(hc), (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com), (lin, ang),
                  terrain_of(hc, g_hat), law_of(hc, xi_n), occluders_of(hc, md), (ws[sc.W_SCRATCH], ws[sc.W_INDEX]),

@@ -97,7 +97,7 @@ def implicit_phase(ptr, h, dt):
                      _j1(t, s + 24), _j2(t, s + 28), _j1(t, s + 32), rt._f2(t, s + 36), rt._f2(t, s + 40), damping)
     sparse = jacobian == _JAC_SPARSE or (jacobian == _JAC_AUTO and nv >= _SPARSE_NV)
     return ie.evaluate_implicit(md, _hc(t, base), _ws(t, base + rt._HC_SLOTS), _iw(t, ib), user, dt, sand,
-                                efc, sparse, m_val, damping, st, flags[0] != 0.0)
+                                (efc, sparse, m_val, damping, flags[0] != 0.0), st)
 
 
 _cfunc = []

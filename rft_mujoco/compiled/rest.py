@@ -11,6 +11,8 @@ Nothing here calls MuJoCo. The evaluation that uses them is :mod:`rft_mujoco.com
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from rft_mujoco.physics import rest as _rest
@@ -320,6 +322,26 @@ and the buffers of :func:`min_norm_solve` (``lin``, ``perm``)."""
 REST_KEPT = ("keep_rest", "state")
 """The ``kept`` bundle of :func:`rest_wrenches`: the resting groups of the kept factor (G,) bool and the
 evaluation's ``state`` (:data:`rft_mujoco.compiled.schema.STATE`: ``KEPT_GROUPS``, ``KEPT_RANK``)."""
+
+
+@njit(**JIT)
+def blend(twist, free, radius, ng, out):
+    """:func:`rft_mujoco.physics.rest.blend` of the ``ng`` groups' twists now and free (ng, 6: m/s, rad/s about
+    their reference points) in their radii ``radius`` (m), into ``out`` (ng, 6)."""
+    for r in range(ng):
+        sl = sa = vl = va = 0.0
+        for c in range(3):
+            d0 = free[r, c] - twist[r, c]
+            d1 = free[r, 3 + c] - twist[r, 3 + c]
+            sl += d0 * d0
+            sa += d1 * d1
+            vl += twist[r, c] * twist[r, c]
+            va += twist[r, 3 + c] * twist[r, 3 + c]
+        s = math.sqrt(sl) + radius[r] * math.sqrt(sa)
+        v = math.sqrt(vl) + radius[r] * math.sqrt(va)
+        w = s * s / (v * v + s * s) if s > 0.0 else 0.0
+        for c in range(6):
+            out[r, c] = twist[r, c] + w * (free[r, c] - twist[r, c])
 
 
 @njit(**JIT)

@@ -71,6 +71,7 @@ def evaluate_compiled(handle, data, work, user_xfrc: np.ndarray, dt: float, sand
     d_, adr, trn, trnid, bias, biasprm, gear = iw.model_arrays
     system.velocity_damping(int(m.opt.integrator) in _IMPLICIT, d_, adr, trn, trnid, bias, biasprm, gear,
                             iw.damping)
-    return implicit_eval.evaluate_implicit(work.md, work.hc, work.tuple, iw.tuple, user_xfrc, dt, sand_out,
-                                           implicit_eval.efc_arrays(data), bool(mujoco.mj_isSparse(m)), data.M,
-                                           iw.damping, iw.settings, handle.constraints == "linearized")
+    system = (implicit_eval.efc_arrays(data), bool(mujoco.mj_isSparse(m)), data.M, iw.damping,
+              handle.constraints == "linearized")                                         # implicit_eval.SYSTEM
+    return implicit_eval.evaluate_implicit(work.md, work.hc, work.tuple, iw.tuple, user_xfrc, dt, sand_out, system,
+                                           iw.settings)
