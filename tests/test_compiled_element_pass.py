@@ -34,6 +34,11 @@ MEDIA = rft_mujoco.MPM_VALIDATION
 GUARDS = [law.Guards(*flags) for flags in itertools.product((False, True), repeat=3)]
 
 
+def bundled(c, n, a, eb, nb, pos, mat, com, *rest):
+    """The arguments of both ``body_wrenches`` (numpy and compiled) from the flat arrays."""
+    return (kernel.BodySurface(c, n, a, eb, nb), kernel.BodyPose(pos, mat, com), *rest)
+
+
 def close(a, b, rtol=RTOL):
     a, b = np.asarray(a, float), np.asarray(b, float)
     scale = max(np.abs(b).max(initial=0.0), 1e-300)
@@ -129,7 +134,7 @@ def test_body_wrenches_match_numpy(seed):
     c, n, a, eb, pos, mat, com, vcom, om = random_problem(rng)
     g_hat = np.array([0.0, 0.0, -1.0])
     for terrain, guards in itertools.product(terrains(rng), GUARDS[::3]):
-        args = (c, n, a, eb, 4, pos, mat, com, vcom, om, terrain, g_hat, (0.0, 0.0, -9.81), MEDIA, guards)
+        args = bundled(c, n, a, eb, 4, pos, mat, com, vcom, om, terrain, g_hat, (0.0, 0.0, -9.81), MEDIA, guards)
         w_ref, cnt_ref, dep_ref = kernel.body_wrenches(*args)
         w, cnt, dep = fastkernel.body_wrenches(*args)
         assert close(w, w_ref), (terrain, guards)
@@ -147,7 +152,7 @@ def test_body_wrenches_tilted_gravity_and_slow_elements():
     vcom[1] *= 1e-14
     gravity = np.array([1.0, 2.0, -9.0])
     g_hat = gravity / np.linalg.norm(gravity)
-    args = (c, n, a, eb, 3, pos, mat, com, vcom, om, FlatSurface(0.02), g_hat, gravity, MEDIA,
+    args = bundled(c, n, a, eb, 3, pos, mat, com, vcom, om, FlatSurface(0.02), g_hat, gravity, MEDIA,
             law.Guards.all())
     w_ref, cnt_ref, dep_ref = kernel.body_wrenches(*args)
     w, cnt, dep = fastkernel.body_wrenches(*args)
@@ -170,7 +175,7 @@ def test_clusters_wholly_partly_and_not_in_the_sand():
     bottom = packed.cluster_center[:, 2] - packed.cluster_radius
     assert (top < 0.0).sum() >= 2 and ((bottom < 0.0) & (top > 0.0)).sum() >= 2     # both paths are taken
     for v in ([0.1, 0.0, -0.2], [0.0, 0.0, 0.3], [-0.2, 0.1, 0.05]):
-        args = (c, nrm, areas, eb, 1, np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)), np.array([v]),
+        args = bundled(c, nrm, areas, eb, 1, np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)), np.array([v]),
                 np.array([[0.5, -1.0, 2.0]]), FlatSurface(0.0), np.array([0.0, 0.0, -1.0]), (0.0, 0.0, -9.81),
                 MEDIA, law.PUBLISHED)
         w_ref, cnt_ref, dep_ref = kernel.body_wrenches(*args)
@@ -184,7 +189,7 @@ def test_heightfield_needs_vertical_gravity_in_both():
     c, n, a, eb, pos, mat, com, vcom, om = random_problem(rng, 2, 50)
     hf = terrains(rng)[2]
     g = np.array([0.6, 0.0, -0.8])
-    args = (c, n, a, eb, 2, pos, mat, com, vcom, om, hf, g, g * 9.81, MEDIA, law.PUBLISHED)
+    args = bundled(c, n, a, eb, 2, pos, mat, com, vcom, om, hf, g, g * 9.81, MEDIA, law.PUBLISHED)
     for impl in (kernel.body_wrenches, fastkernel.body_wrenches):
         with pytest.raises(ValueError, match="gravity along -z"):
             impl(*args)

@@ -57,9 +57,9 @@ class Problem:
         ub = np.einsum("kij,kj->ki", shift, u[self.slot])
         z = np.zeros((self.k, 3))
         w_b, j_b, _, _ = elements.body_wrench_jacobians(
-            self.pos, self.nrm, self.area, self.body, self.k, z, np.broadcast_to(np.eye(3), (self.k, 3, 3)), z,
-            ub[:, :3], ub[:, 3:], terrains.as_terrain(0.0), G_HAT, GRAVITY, MEDIA, rft_mujoco.PUBLISHED,
-            implicit.SPEED_SCALE)
+            elements.BodySurface(self.pos, self.nrm, self.area, self.body, self.k),
+            elements.BodyPose(z, np.broadcast_to(np.eye(3), (self.k, 3, 3)), z), ub[:, :3], ub[:, 3:],
+            terrains.as_terrain(0.0), G_HAT, GRAVITY, MEDIA, rft_mujoco.PUBLISHED, implicit.SPEED_SCALE)
         f = np.zeros((self.ng, 6))
         np.add.at(f, self.slot, np.einsum("kji,kj->ki", shift, w_b))
         df = np.zeros((self.ng, 6, 6))

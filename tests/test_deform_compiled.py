@@ -33,8 +33,8 @@ def press_both(surface, state, buffers, pts, nrm, ar, known_top=True):
     tp, grid, cycles, reach = state
     b = buffers
     highest = surface.max_height if known_top else np.nan
-    top = cdeform.press(tp, grid, cycles, reach, b["live"], pts, nrm, ar, len(ar), b["mark"], b["val"], b["nodes"],
-                        b["low"], b["rim"], b["stats"], highest)
+    top = cdeform.press(tp, (grid, cycles, reach, b["live"]), (pts, nrm, ar), len(ar),
+                        tuple(b[name] for name in cdeform.SCRATCH), b["stats"], highest)
     result = deform.press(surface, pts, nrm, ar)
     assert b["mark"].max() == 0                        # the scratch is left clear
     return result, b["stats"].copy(), top

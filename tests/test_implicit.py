@@ -99,7 +99,8 @@ def test_element_jacobian_matches_finite_differences_of_the_law():
     body = np.zeros(n, dtype=np.int64)
     media = get_media("li_loose_glass_beads")
     flat = terrains.as_terrain(0.05)
-    args = (cent, normals, areas, body, 1, np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)))
+    args = (elements.BodySurface(cent, normals, areas, body, 1),
+            elements.BodyPose(np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3))))
     tw = np.array([0.05, -0.02, -0.03, 0.4, 0.2, -0.1])
     g, grav = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, -9.81])
 
@@ -129,8 +130,8 @@ def test_the_implicit_law_ramps_the_leading_edge(normal):
     theta = np.linspace(-2.0, 0.5, 401) * elements.LEADING_RAMP    # c = n.v/|v| = sin(theta), 400 steps
     media, flat = get_media("li_loose_glass_beads"), terrains.as_terrain(0.05)
     g, grav = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, -9.81])
-    args = (np.zeros((1, 3)), n[None], np.array([1e-4]), np.zeros(1, dtype=np.int64), 1, np.zeros((1, 3)),
-            np.eye(3)[None], np.zeros((1, 3)))
+    args = (elements.BodySurface(np.zeros((1, 3)), n[None], np.array([1e-4]), np.zeros(1, dtype=np.int64), 1),
+            elements.BodyPose(np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3))))
     speed, c = 0.05, 1e-3
     reg, pub = [], []
     for th in theta:

@@ -162,10 +162,10 @@ def test_swimmer_balance_matches_body_wrenches():
     ids, b = sw.bodies.ids, sw.bodies
     jp, jr = qs._jacobians(m, d, ids)
     v, w = jp @ d.qvel, jr @ d.qvel
-    wr, _, _ = elements.body_wrenches(b.centroids, b.normals, b.areas, b.elem_body, ids.size, d.xpos[ids],
-                                      d.xmat[ids].reshape(-1, 3, 3), d.xipos[ids], v, w, FlatSurface(0.0),
-                                      np.array([0.0, 0.0, -1.0]), m.opt.gravity, MALADEN_GLASS_BEADS, PUBLISHED,
-                                      b.exposed(d))
+    surface = elements.BodySurface(b.centroids, b.normals, b.areas, b.elem_body, ids.size)
+    pose = elements.BodyPose(d.xpos[ids], d.xmat[ids].reshape(-1, 3, 3), d.xipos[ids])
+    wr, _, _ = elements.body_wrenches(surface, pose, v, w, FlatSurface(0.0), np.array([0.0, 0.0, -1.0]),
+                                      m.opt.gravity, MALADEN_GLASS_BEADS, PUBLISHED, b.exposed(d))
     gen = np.einsum("bij,bi->j", jp, wr[:, :3]) + np.einsum("bij,bi->j", jr, wr[:, 3:])
     want = gen[:3] * [1.0, 1.0, 1.0 / sw.length]
     assert np.linalg.norm(want) > 0.1

@@ -28,6 +28,28 @@ from rft_mujoco.physics import terrain_spec as ts
 STATS = ("covered", "yielded", "displaced", "deposited", "lost", "settled")
 """Entries of :func:`press`'s ``stats`` (6,): those of :class:`rft_mujoco.physics.deform.PressResult`."""
 
+STATE = ("grid", "cycles", "reach", "live")
+"""The ``state`` bundle: one MjData's surface as the press reads and writes it: ``grid`` (2 ny, nx) heights over
+preload, m (:func:`rft_mujoco.compiled.terrain.deformable_heights`), ``cycles`` and ``reach`` (ny, nx), ``live``
+(ny nx + 1,) int: the number of nodes whose reach may be non-zero, then those nodes (:func:`buffers`)."""
+ELEMENTS = ("pts", "nrm", "areas")
+"""The ``elements`` bundle: world elements, ``pts`` (E, 3) m, unit ``nrm`` (E, 3), ``areas`` (E,) m^2 (the first
+``n`` rows press; :func:`press_touching` gathers into :func:`buffers`' ``pts``, ``nrm``, ``ar``)."""
+SCRATCH = ("mark", "val", "nodes", "low", "rim")
+"""The ``scratch`` bundle (:func:`buffers`): ``mark`` (ny nx,) int, all 0 (left so), ``val`` (ny nx,), ``nodes``
+(ny nx,) int, ``low`` (ny nx,), ``rim`` (ny nx,) int."""
+SCHEDULE = ("clock", "time", "dt", "slack")
+"""The ``schedule`` bundle of :func:`press_touching`: ``clock`` (2,) s, the times of the last update and of the
+last evaluation with bodies touching (written), the evaluation's ``time`` (s), the model's timestep ``dt`` (s) and
+``slack`` (1 + the schedule's tolerance: :func:`rft_mujoco.physics.deform.schedule`)."""
+TOUCHING = ("touch", "body_pos", "body_mat")
+"""The ``touching`` bundle: the broadphase's rows of the touching bodies, ``touch`` (indices into the handle's
+bodies), their poses ``body_pos`` (k, 3) m and ``body_mat`` (k, 9) (the first ``k`` rows)."""
+PACKED = ("centroids", "normals", "areas", "cluster_start", "body_clusters")
+"""The ``packed`` bundle: the handle's packed elements (:func:`rft_mujoco.compiled.elements.pack`; the handle
+constants' ``H_CENTROIDS`` (3, E) m and ``H_NORMALS`` (3, E) in the body frames, ``H_AREAS`` (E,) m^2,
+``H_CLUSTER_START``, ``H_BODY_CLUSTERS``; padding slots are NaN)."""
+
 _FACING = 1e-6              # rft_mujoco.physics.deform.FACING_DOWN (tests check they are equal)
 _YIELD = 1e-12              # rft_mujoco.physics.deform.YIELD_TOL (likewise)
 _RELAX_ITERATIONS = 10      # rft_mujoco.physics.deform.RELAX_ITERATIONS
@@ -58,15 +80,16 @@ def _tiles(h, nx, ny, i0, i1, j0, j1, facing, mark, want):
 
 
 @njit(**JIT)
-def _cover(tp, nx, ny, h, pts, nrm, areas, n, facing, mark, val, want, bbox, top):
-    """One ``covering`` pass: every element facing ``facing`` (-1: down, +1: up) over the nodes of its grown
-    projected rectangle, at its plane's height there. ``facing=-1``: only where below ``h`` (the surface), the
-    highest such height kept in ``val`` and the node marked 1 in ``mark`` (a node met first sets ``bbox``);
-    ``facing=+1``: only nodes marked ``want`` (1) or 2 (inside ``bbox``), the highest height in ``val`` and the mark
-    set to 2. ``top``: m, no node is higher (elements wholly above it are skipped; NaN: none is). An element
-    whose nodes are all above its lowest point (down) or none of them marked (up) is skipped by the maxima of
-    :func:`_tiles` over the tiles its nodes are in: what it would have done is nothing, so the numbers are
-    those of testing every node."""
+def _cover(tp, nx, ny, h, elements, n, facing, mark, val, want, bbox, top):
+    """One ``covering`` pass: every element (the first ``n`` of ``elements``, :data:`ELEMENTS`) facing ``facing``
+    (-1: down, +1: up) over the nodes of its grown projected rectangle, at its plane's height there.
+    ``facing=-1``: only where below ``h`` (the surface), the highest such height kept in ``val`` and the node
+    marked 1 in ``mark`` (a node met first sets ``bbox``); ``facing=+1``: only nodes marked ``want`` (1) or 2
+    (inside ``bbox``), the highest height in ``val`` and the mark set to 2. ``top``: m, no node is higher
+    (elements wholly above it are skipped; NaN: none is). An element whose nodes are all above its lowest point
+    (down) or none of them marked (up) is skipped by the maxima of :func:`_tiles` over the tiles its nodes are
+    in: what it would have done is nothing, so the numbers are those of testing every node."""
+    pts, nrm, areas = elements
     sx, sy, ox, oy = tp[ts.TP_GRID_DX], tp[ts.TP_GRID_DY], tp[ts.TP_GRID_X0], tp[ts.TP_GRID_Y0]
     smin = min(sx, sy)
     grow = tp[ts.TP_COVER_GROW] * smin
@@ -340,14 +363,14 @@ def _flow_windows(tp, nx, nodes, m):
 
 
 @njit(**JIT)
-def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, low, rim, stats, highest=np.nan):
-    """Deform the state (``grid`` (2 ny, nx): heights over preload, m; ``cycles``, ``reach`` (ny, nx)) in place
-    under the ``n`` elements ``pts`` (n, 3) m, ``nrm`` (n, 3), ``areas`` (n,) m^2: :func:`rft_mujoco.physics.
-    deform.press`, its result in ``stats`` (:data:`STATS`). ``live`` (ny nx + 1,): the number of nodes whose
-    reach may be non-zero, then those nodes (written for the next press). Scratch: ``mark`` (ny nx,) int, all 0
-    (left so), ``val`` (ny nx,), ``nodes``, ``rim`` (ny nx,) int, ``low`` (ny nx,). ``highest``: the surface's
-    highest point before the press (m; NaN: unknown). Returns the highest point after the press (m; at least the
-    initial height), or NaN when no node was lowered (the heights did not change)."""
+def press(tp, state, elements, n, scratch, stats, highest=np.nan):
+    """Deform the ``state`` (:data:`STATE`) in place under the first ``n`` of the ``elements`` (:data:`ELEMENTS`):
+    :func:`rft_mujoco.physics.deform.press`, its result in ``stats`` (:data:`STATS`); ``live`` is written for the
+    next press. ``scratch``: :data:`SCRATCH`. ``highest``: the surface's highest point before the press (m; NaN:
+    unknown). Returns the highest point after the press (m; at least the initial height), or NaN when no node was
+    lowered (the heights did not change)."""
+    grid, cycles, reach, live = state
+    mark, val, nodes, low, rim = scratch
     ny, nx = cycles.shape
     size = ny * nx
     flat = grid.reshape(2 * size)
@@ -358,11 +381,11 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
     for c in range(6):
         stats[c] = 0.0
     bbox = np.array((ny, -1, nx, -1))
-    _cover(tp, nx, ny, h, pts, nrm, areas, n, -1, mark, val, 1, bbox, highest)
+    _cover(tp, nx, ny, h, elements, n, -1, mark, val, 1, bbox, highest)
     m = 0
     kept = np.array((ny, -1, nx, -1))                 # the kept nodes' rows and columns
     if bbox[1] >= 0:
-        _cover(tp, nx, ny, h, pts, nrm, areas, n, 1, mark, low, 1, bbox, highest)   # the highest upward surface
+        _cover(tp, nx, ny, h, elements, n, 1, mark, low, 1, bbox, highest)   # the highest upward surface
         for i in range(bbox[0], bbox[1] + 1):              # sorted; kept where no upward surface is under the sand
             for j in range(bbox[2], bbox[3] + 1):
                 node = i * nx + j
@@ -464,18 +487,19 @@ def press(tp, grid, cycles, reach, live, pts, nrm, areas, n, mark, val, nodes, l
 
 
 @njit(**JIT)
-def press_touching(tp, grid, cycles, reach, live, clock, time, dt, slack, k, touch, body_pos, body_mat, centroids,
-                   normals, areas, cluster_start, body_clusters, max_height, pts, nrm, ar, mark, val, nodes, low,
-                   rim, stats):
-    """:func:`rft_mujoco.coupling.deformable.press_touching`, compiled: at an evaluation at ``time`` (s) with bodies
-    touching, when an update is due (``clock``: the times of the last update and of the last evaluation with
-    bodies touching, s; :func:`rft_mujoco.physics.deform.schedule`, ``slack`` = 1 + its tolerance), unload every
-    node if the last step had nothing touching, then press the grid
-    with the elements of the ``k`` touching bodies (``touch``, their poses ``body_pos`` (k, 3) m and
-    ``body_mat`` (k, 9): the broadphase's rows) that are below ``max_height`` (m), from the handle's packed
-    elements (padding slots are NaN: never below); ``max_height``: the surface's highest point now (m). ``pts``,
-    ``nrm`` (E, 3), ``ar`` (E,): gather buffers; the rest as :func:`press`. Returns what :func:`press` returns
-    (NaN, the heights unchanged, when no update is due)."""
+def press_touching(tp, state, schedule, k, touching, packed, max_height, gather, scratch, stats):
+    """:func:`rft_mujoco.coupling.deformable.press_touching`, compiled: at an evaluation with bodies touching, when
+    an update is due (``schedule``: :data:`SCHEDULE`; :func:`rft_mujoco.physics.deform.schedule`), unload every
+    node if the last step had nothing touching, then press the ``state`` (:data:`STATE`) with the elements of the
+    ``k`` touching bodies (``touching``: :data:`TOUCHING`) that are below ``max_height`` (m, the surface's highest
+    point now), from the handle's ``packed`` elements (:data:`PACKED`; padding slots are NaN: never below).
+    ``gather``: :data:`ELEMENTS` buffers of the handle's size; ``scratch``, ``stats``: as :func:`press`. Returns
+    what :func:`press` returns (NaN, the heights unchanged, when no update is due)."""
+    clock, time, dt, slack = schedule
+    _, _, reach, live = state
+    touch, body_pos, body_mat = touching
+    centroids, normals, areas, cluster_start, body_clusters = packed
+    pts, nrm, ar = gather
     since_touch, interval = time - clock[1], tp[ts.TP_UPDATE_INTERVAL]
     clock[1] = time
     if not (0.0 <= since_touch <= dt * slack):
@@ -505,7 +529,7 @@ def press_touching(tp, grid, cycles, reach, live, clock, time, dt, slack, k, tou
                 nrm[n, 2] = r[6] * m0 + r[7] * m1 + r[8] * m2
                 ar[n] = areas[e]
                 n += 1
-    return press(tp, grid, cycles, reach, live, pts, nrm, ar, n, mark, val, nodes, low, rim, stats, max_height)
+    return press(tp, state, gather, n, scratch, stats, max_height)
 
 
 def buffers(shape: tuple[int, int], n_elements: int) -> dict:

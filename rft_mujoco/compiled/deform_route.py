@@ -52,11 +52,10 @@ def press_phase(ptr, h, time):
     dt = rt._f1(t, t[sc.T_BOOK] + _SNAPSHOT)[0]              # the model's timestep, as the dispatcher last checked it
     cycles, reach, clock, live, stats, pts, nrm, ar, mark, val, nodes, low, rim = _part(t, t[rt._HEADER + 2 * n + h])
     params = hc[sc.H_PARAMS]
-    top = press_touching(hc[sc.H_TP], hc[sc.H_HEIGHTS], cycles, reach, live, clock, time, dt, _SLACK,
-                         int(ws[sc.W_STATE][sc.S_TOUCHING]), ws[sc.W_TOUCH], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT],
-                         hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START],
-                         hc[sc.H_BODY_CLUSTERS], params[sc.P_MAX_HEIGHT], pts, nrm, ar, mark, val, nodes, low, rim,
-                         stats)
+    packed = (hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START], hc[sc.H_BODY_CLUSTERS])
+    top = press_touching(hc[sc.H_TP], (hc[sc.H_HEIGHTS], cycles, reach, live), (clock, time, dt, _SLACK),
+                         int(ws[sc.W_STATE][sc.S_TOUCHING]), (ws[sc.W_TOUCH], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT]),
+                         packed, params[sc.P_MAX_HEIGHT], (pts, nrm, ar), (mark, val, nodes, low, rim), stats)
     if top == top:                                   # not NaN: the heights changed
         params[sc.P_MAX_HEIGHT] = top
     return 0

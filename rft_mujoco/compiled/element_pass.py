@@ -259,6 +259,7 @@ def _law_forces(scratch, ml, twist, gb, law, c, speed_scale):
     sums stay in :func:`wrenches`: as a tuple carried through here, LLVM fuses their multiply-adds differently.)"""
     xi_n, _, mu_surf, no_tension, no_forward, no_power, tol = law
     lead_tol, vert_tol, ramp = tol[0], tol[1], tol[3]
+    guards = (mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)                    # law.STRESS_GUARDS
     (ub0, ub1, ub2), (wb0, wb1, wb2) = twist
     gb0, gb1, gb2 = gb
     for i in range(ml):
@@ -269,8 +270,7 @@ def _law_forces(scratch, ml, twist, gb, law, c, speed_scale):
         n0, n1, n2 = scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i]
         sp = math.sqrt(vx * vx + vy * vy + vz * vz)
         dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp)  # unswitched
-        rx, ry, rz = _stress(n0, n1, n2, dx, dy, dz, gb0, gb1, gb2, c, mu_surf, no_tension, no_forward,
-                             no_power, lead_tol, vert_tol)
+        rx, ry, rz = _stress((n0, n1, n2), (dx, dy, dz), (gb0, gb1, gb2), c, guards)
         sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i]) * reg
         fx, fy, fz = rx * sa, ry * sa, rz * sa
         scratch[_P_F, i] = fx
@@ -384,13 +384,12 @@ class ElementPass:
     compiled counterpart of :func:`rft_mujoco.physics.elements.body_wrenches` (tests, benchmarks).
 
     Args:
-        local_centroids, local_normals: (E, 3) body-frame centroids (m) and unit normals; areas: (E,) m^2;
-        elem_body: (E,) int in 0..B-1; n_bodies: B; terrain: FlatSurface, HeightfieldSurface or SandRegion;
-        g_hat: (3,) unit gravity direction; gravity: (3,) m/s^2; media, guards: as the law's.
+        surface: the bodies' elements (:class:`rft_mujoco.physics.elements.BodySurface`, E elements on B bodies);
+        terrain: FlatSurface, HeightfieldSurface or SandRegion; g_hat: (3,) unit gravity direction; gravity:
+        (3,) m/s^2; media, guards: as the law's.
     """
 
-    def __init__(self, local_centroids, local_normals, areas, elem_body, n_bodies, terrain, g_hat, gravity,
-                 media, guards):
+    def __init__(self, surface, terrain, g_hat, gravity, media, guards):
         from rft_mujoco.compiled.law import tolerances
         from rft_mujoco.compiled.terrain import check_gravity
         from rft_mujoco.physics import law
@@ -402,6 +401,7 @@ class ElementPass:
                              f"got {type(terrain).__name__}; use rft_mujoco.physics.elements.body_wrenches")
         self.g_hat = np.ascontiguousarray(g_hat, dtype=float)
         check_gravity(terrain, spec, self.g_hat)
+        local_centroids, local_normals, areas, elem_body, n_bodies = surface
         self.n_bodies = int(n_bodies)
         self.packed = pack(local_centroids, local_normals, areas, elem_body, self.n_bodies)
         occ = Occluders.none(self.n_bodies)
@@ -432,10 +432,8 @@ class ElementPass:
         return self.wrench, self.count, self.max_depth
 
 
-def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, body_pos, body_mat, body_com,
-                  v_com, omega, terrain, g_hat, gravity, media, guards):
+def body_wrenches(surface, pose, v_com, omega, terrain, g_hat, gravity, media, guards):
     """:func:`rft_mujoco.physics.elements.body_wrenches` (without ``active``) through the compiled pass:
     the same arguments and results (new arrays)."""
-    run = ElementPass(local_centroids, local_normals, areas, elem_body, n_bodies, terrain, g_hat, gravity, media,
-                      guards)
-    return tuple(x.copy() for x in run(body_pos, body_mat, body_com, v_com, omega))
+    run = ElementPass(surface, terrain, g_hat, gravity, media, guards)
+    return tuple(x.copy() for x in run(*pose, v_com, omega))

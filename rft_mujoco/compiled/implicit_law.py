@@ -166,7 +166,8 @@ def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, 
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed, ramp = tol[0], tol[1], tol[2], tol[3]
-    law = (g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol, ramp)
+    guards = (mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)                    # law.STRESS_GUARDS
+    law = ((g0, g1, g2), c, guards, lead_tol, ramp)
     last = derivative == DERIVATIVE_OF_LAST
     for j in range(k):
         if on[j]:
@@ -209,8 +210,7 @@ def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, 
         vx, vy, vz, sp = scr[_V, i], scr[_V + 1, i], scr[_V + 2, i], scr[_SP, i]
         n0, n1, n2 = scr[_N, i], scr[_N + 1, i], scr[_N + 2, i]
         dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp)
-        sx, sy, sz = _stress(n0, n1, n2, dx, dy, dz, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power,
-                             lead_tol, vert_tol)
+        sx, sy, sz = _stress((n0, n1, n2), (dx, dy, dz), (g0, g1, g2), c, guards)
         ph = scr[_SA, i] * reg
         scr[_F, i] = sx * ph
         scr[_F + 1, i] = sy * ph
@@ -235,9 +235,9 @@ def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, 
 @njit(**JIT_LAW)
 def _derivative_sums(m, e_slot, e_arm, law, speed_scale, fd_step, scr, pk, jac):
     """:func:`body_law`'s derivative on its ``m`` packed loaded elements (``scr``, ``pk`` as it left them), added
-    to ``jac`` (rows zeroed by the caller); ``law``: the arguments of :func:`rft_mujoco.compiled.law._stress`
-    after the direction (gravity, coefficients, medium and guards, tolerances)."""
-    g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol, ramp = law
+    to ``jac`` (rows zeroed by the caller); ``law`` = (unit gravity, coefficients, guards: the arguments of
+    :func:`rft_mujoco.compiled.law._stress` after the direction; the leading tolerance and ramp)."""
+    g, c, guards, lead_tol, ramp = law
     ee = np.empty((3, 3))
     for q in range(3):                           # the law at v + h e_q
         for i in range(m):
@@ -249,8 +249,7 @@ def _derivative_sums(m, e_slot, e_arm, law, speed_scale, fd_step, scr, pk, jac):
             s = math.sqrt(ux * ux + uy * uy + uz * uz)
             n0, n1, n2 = scr[_N, i], scr[_N + 1, i], scr[_N + 2, i]
             dx, dy, dz, reg = _law_direction(n0, n1, n2, ux, uy, uz, s, speed_scale, lead_tol, ramp)
-            tx, ty, tz = _stress(n0, n1, n2, dx, dy, dz, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power,
-                                 lead_tol, vert_tol)
+            tx, ty, tz = _stress((n0, n1, n2), (dx, dy, dz), g, c, guards)
             p = scr[_SA, i] * reg
             scr[_D + q, i] = (tx * p - scr[_F, i]) / h           # d[i_, q] = d f_i_ / d v_q, row-major
             scr[_D + 3 + q, i] = (ty * p - scr[_F + 1, i]) / h

@@ -81,10 +81,20 @@ def _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp):
     return dx, dy, dz, 1.0
 
 
+STRESS_GUARDS = ("mu_surf", "no_tension", "no_forward", "no_power", "lead_tol", "vert_tol")
+"""The ``guards`` bundle of :func:`_stress`: the surface friction, the three guards (bool) and the leading and
+vertical tolerances (:func:`tolerances`' first two)."""
+
+
 @njit(**INLINE)
-def _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forward, no_power, lead_tol,
-            vert_tol):
-    """:func:`rft_mujoco.physics.law.stress_per_depth` / xi_n of one element (unit n, unit v), without branches."""
+def _stress(n, v, g, c, guards):
+    """:func:`rft_mujoco.physics.law.stress_per_depth` / xi_n of one element, without branches: unit normal ``n``,
+    unit direction ``v`` and unit gravity ``g`` (3-tuples), ``c`` the coefficients (:func:`_coef`), ``guards`` =
+    :data:`STRESS_GUARDS`."""
+    nx, ny, nz = n
+    vx, vy, vz = v
+    g0, g1, g2 = g
+    mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol = guards
     gn = nx * g0 + ny * g1 + nz * g2
     vn = nx * vx + ny * vy + nz * vz
     s_g = 1.0 if gn > 0.0 else -1.0
@@ -131,10 +141,10 @@ def _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forwa
 
 # --- element_forces ------------------------------------------------------------------------------------
 @njit(**JIT_LAW)
-def _element_forces(centroids, normals, areas, velocities, height, g_hat, xi_n, coef, mu_surf,
-                    no_tension, no_forward, no_power, tol, scratch, out):
+def _element_forces(elements, height, g_hat, law, scratch, out):
     """Fill ``out`` (N, 3); return 0, or 1 on non-finite input / negative area / zero normal (the caller
-    then lets the numpy reference raise its error). ``scratch``: (9, CHUNK) float.
+    then lets the numpy reference raise its error). ``elements`` = (``centroids``, ``normals``, ``areas``,
+    ``velocities``); ``law``: :data:`rft_mujoco.compiled.element_pass.LAW`; ``scratch``: (9, CHUNK) float.
 
     ``centroids``, ``normals``, ``velocities`` and ``out`` are the flat (3N,) views of the (N, 3) arrays.
     Each chunk is gathered into ``scratch`` (rows: depth, normal, velocity, area, input check), the law runs
@@ -143,9 +153,12 @@ def _element_forces(centroids, normals, areas, velocities, height, g_hat, xi_n, 
     element measured for the gather); the input check is a per-element number (``x - x`` is 0 for finite x,
     NaN otherwise), not a boolean reduction.
     """
+    centroids, normals, areas, velocities = elements
+    xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol = law
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
     lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
+    guards = (mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)
     n_all = areas.shape[0]
     chunk = scratch.shape[1]
     for s in range(0, n_all, chunk):
@@ -184,8 +197,7 @@ def _element_forces(centroids, normals, areas, velocities, height, g_hat, xi_n, 
             vz *= inv
             keep = (speed > zero_speed) & (depth > 0.0) & (area > 0.0) & \
                 (nx * vx + ny * vy + nz * vz >= -lead_tol)
-            rx, ry, rz = _stress(nx, ny, nz, vx, vy, vz, g0, g1, g2, c, mu_surf, no_tension, no_forward,
-                                 no_power, lead_tol, vert_tol)
+            rx, ry, rz = _stress((nx, ny, nz), (vx, vy, vz), (g0, g1, g2), c, guards)
             sa = depth * area
             scratch[1, i] = (xi_n * rx) * sa if keep else 0.0
             scratch[2, i] = (xi_n * ry) * sa if keep else 0.0
@@ -232,9 +244,9 @@ def element_forces(centroids, normals, areas, velocities, media: Media, surface_
     elif out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float64 array of shape ({n}, 3), got {out.shape} "
                          f"{out.dtype}")
-    status = _element_forces(c.reshape(-1), nrm.reshape(-1), a, vel.reshape(-1), float(surface_height), g_hat,
-                             media.xi_n_at(g_mag), law.COEFFICIENTS, float(media.mu_surf), guards.no_tension,
-                             guards.no_forward_tangential, guards.no_positive_power, _TOLERANCES,
+    status = _element_forces((c.reshape(-1), nrm.reshape(-1), a, vel.reshape(-1)), float(surface_height), g_hat,
+                             (media.xi_n_at(g_mag), law.COEFFICIENTS, float(media.mu_surf), guards.no_tension,
+                              guards.no_forward_tangential, guards.no_positive_power, _TOLERANCES),
                              _scratch((9, CHUNK)), out.reshape(-1))
     if status:
         law.element_forces(centroids, normals, areas, velocities, media, surface_height, gravity,

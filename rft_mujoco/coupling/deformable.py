@@ -57,12 +57,12 @@ def press_compiled(handle, data, work, k: int) -> None:
     from rft_mujoco.compiled import schema as sc
     a, b, hc = work.arrays, work.press, work.hc
     params = hc[sc.H_PARAMS]
+    state = (hc[sc.H_HEIGHTS], a["surface_cycles"], a["surface_reach"], b["live"])
+    schedule = (a["surface_clock"], data.time, handle.model.opt.timestep, 1.0 + tol.TIME_RTOL)
+    packed = (hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START], hc[sc.H_BODY_CLUSTERS])
     top = compiled_deform.press_touching(
-        hc[sc.H_TP], hc[sc.H_HEIGHTS], a["surface_cycles"], a["surface_reach"], b["live"], a["surface_clock"],
-        data.time, handle.model.opt.timestep, 1.0 + tol.TIME_RTOL, k, a["touch"], a["body_pos"], a["body_mat"],
-        hc[sc.H_CENTROIDS], hc[sc.H_NORMALS], hc[sc.H_AREAS], hc[sc.H_CLUSTER_START], hc[sc.H_BODY_CLUSTERS],
-        params[sc.P_MAX_HEIGHT], b["pts"], b["nrm"], b["ar"], b["mark"], b["val"], b["nodes"], b["low"], b["rim"],
-        b["stats"])
+        hc[sc.H_TP], state, schedule, k, (a["touch"], a["body_pos"], a["body_mat"]), packed, params[sc.P_MAX_HEIGHT],
+        (b["pts"], b["nrm"], b["ar"]), tuple(b[name] for name in compiled_deform.SCRATCH), b["stats"])
     if top == top:                                   # not NaN: the heights changed
         params[sc.P_MAX_HEIGHT] = top
 

@@ -83,6 +83,16 @@ def _touching_elements(handle, data, touch):
     return sel, b, occluded_mask(handle, data, touch, sel, b)
 
 
+def _surface(handle, sel, b, k) -> elements.BodySurface:
+    """The elements ``sel`` of the ``k`` touching bodies, on their rows ``b`` (:func:`_touching_elements`)."""
+    return elements.BodySurface(handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k)
+
+
+def _pose(a, k) -> elements.BodyPose:
+    """The poses of the ``k`` touching bodies: the first rows of the workspace's arrays ``a``."""
+    return elements.BodyPose(a["body_pos"][:k], a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k])
+
+
 def rft(handle, data, work, touch, v_com, omega, g_hat):
     """RFT wrenches (k, 6) about each touching body's COM for body twists (v_com, omega) (k, 3), the loaded
     element counts (k,), deepest loaded depths (k,) m and the submerged area inside occluders (k,) m^2."""
@@ -94,9 +104,8 @@ def rft(handle, data, work, touch, v_com, omega, g_hat):
     submerged = work.terrain.depth(pos, g_hat) > 0.0
     occluded = np.bincount(b, weights=handle.areas[sel] * (hidden & submerged), minlength=k)
     wrench, count, max_depth = elements.body_wrenches(
-        handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
-        a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, work.terrain, g_hat,
-        handle.model.opt.gravity, handle.media, handle.guards, active=~hidden)
+        _surface(handle, sel, b, k), _pose(a, k), v_com, omega, work.terrain, g_hat, handle.model.opt.gravity,
+        handle.media, handle.guards, active=~hidden)
     return wrench, count, max_depth, occluded
 
 
@@ -485,9 +494,8 @@ def rft_jacobian(handle, data, work, touch, v_com, omega, g_hat, speed_scale, el
     a = work.arrays
     sel, b, hidden = _touching_elements(handle, data, touch) if elements_ is None else elements_
     return elements.body_wrench_jacobians(
-        handle.local_centroids[sel], handle.local_normals[sel], handle.areas[sel], b, k, a["body_pos"][:k],
-        a["body_mat"][:k].reshape(k, 3, 3), a["body_com"][:k], v_com, omega, work.terrain, g_hat,
-        handle.model.opt.gravity, handle.media, handle.guards, speed_scale, active=~hidden)
+        _surface(handle, sel, b, k), _pose(a, k), v_com, omega, work.terrain, g_hat, handle.model.opt.gravity,
+        handle.media, handle.guards, speed_scale, active=~hidden)
 
 
 def _shift(arm: np.ndarray) -> np.ndarray:

@@ -6,6 +6,8 @@ The readable reference of the coupling's element pass; the compiled one
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from rft_mujoco.physics import law
@@ -28,6 +30,39 @@ enters or leaves the leading set, and on a finite surface the jumps made Newton'
 force behind the edge: within 1% of the published force in steady flow except where a flat face is within the
 ramp of its tangent plane, where the published law itself jumps by that face's tangential force
 (tests/test_implicit.py::test_steady_flow_gets_the_published_force)."""
+
+
+class BodySurface(NamedTuple):
+    """The surface elements of ``B`` rigid bodies, in their body frames (what :func:`body_wrenches` and
+    :func:`body_wrench_jacobians` press into the sand).
+
+    Attributes:
+        local_centroids: (E, 3) float, m, body frame.
+        local_normals: (E, 3) float, unit, body frame.
+        areas: (E,) float, m^2.
+        elem_body: (E,) int, the row of each element's body in the body arrays (:class:`BodyPose`, the twists).
+        n_bodies: B, the number of rows of the body arrays.
+    """
+
+    local_centroids: np.ndarray
+    local_normals: np.ndarray
+    areas: np.ndarray
+    elem_body: np.ndarray
+    n_bodies: int
+
+
+class BodyPose(NamedTuple):
+    """The world poses of ``B`` rigid bodies (rows of MuJoCo's ``xpos``, ``xmat``, ``xipos``).
+
+    Attributes:
+        pos: (B, 3) float, body frame origins in world, m.
+        mat: (B, 3, 3) float, body orientations (body to world).
+        com: (B, 3) float, body centres of mass in world, m.
+    """
+
+    pos: np.ndarray
+    mat: np.ndarray
+    com: np.ndarray
 
 
 def element_states(local_centroids, local_normals, elem_body, body_pos, body_mat, body_com, v_com, omega):
@@ -77,12 +112,15 @@ def ramped_directions(normals: np.ndarray, v_hat: np.ndarray) -> tuple[np.ndarra
     return u, np.minimum(1.0, (c + LEADING_RAMP) / (LEADING_RAMP - law.LEADING_TOL))
 
 
-def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, body_pos, body_mat, body_com,
-                  v_com, omega, terrain, g_hat, gravity, media: Media, guards: Guards, active=None):
+def body_wrenches(surface: BodySurface, pose: BodyPose, v_com, omega, terrain, g_hat, gravity, media: Media,
+                  guards: Guards, active=None):
     """3D-RFT wrench about each body's centre of mass.
 
     Args:
-        (element and body arrays as in :func:`element_states`), areas (E,) m^2, n_bodies B.
+        surface: the bodies' elements (:class:`BodySurface`, E elements on B bodies).
+        pose: the bodies' poses (:class:`BodyPose`).
+        v_com: (B, 3) float, linear velocity of each centre of mass, m/s, world frame.
+        omega: (B, 3) float, angular velocity, rad/s, world frame.
         terrain: object with ``depth(points (n, 3), g_hat) -> (n,)`` in m.
         g_hat: (3,) unit gravity direction; gravity: (3,) m/s^2.
         active: (E,) bool, the elements that can feel sand (False: inside another body's geom), or None.
@@ -90,8 +128,8 @@ def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, bo
         wrench (B, 6) [force N, torque N m about the body's COM], submerged leading element count (B,) int,
         maximum depth (B,) m of the loaded elements (0 if none).
     """
-    pos, nrm, arm, vel = element_states(local_centroids, local_normals, elem_body, body_pos, body_mat,
-                                        body_com, v_com, omega)
+    local_centroids, local_normals, areas, elem_body, n_bodies = surface
+    pos, nrm, arm, vel = element_states(local_centroids, local_normals, elem_body, *pose, v_com, omega)
     depth = terrain.depth(pos, g_hat)
     wrench = np.zeros((n_bodies, 6))
     count = np.zeros(n_bodies, dtype=np.int64)
@@ -111,9 +149,8 @@ def body_wrenches(local_centroids, local_normals, areas, elem_body, n_bodies, bo
     return wrench, count, max_depth
 
 
-def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bodies, body_pos, body_mat, body_com,
-                          v_com, omega, terrain, g_hat, gravity, media: Media, guards: Guards, speed_scale: float,
-                          active=None):
+def body_wrench_jacobians(surface: BodySurface, pose: BodyPose, v_com, omega, terrain, g_hat, gravity, media: Media,
+                          guards: Guards, speed_scale: float, active=None):
     """The regularized 3D-RFT wrench about each body's COM and its derivative in the body's twist.
 
     The implicit sand solve (:func:`rft_mujoco.physics.implicit.implicit_wrenches`) evaluates the law at the
@@ -130,8 +167,8 @@ def body_wrench_jacobians(local_centroids, local_normals, areas, elem_body, n_bo
         derivative holds the leading set fixed and differentiates the law's direction dependence by forward
         differences (a step of :data:`FD_STEP` times the element's speed or ``c``, whichever is larger).
     """
-    pos, nrm, arm, vel = element_states(local_centroids, local_normals, elem_body, body_pos, body_mat,
-                                        body_com, v_com, omega)
+    local_centroids, local_normals, areas, elem_body, n_bodies = surface
+    pos, nrm, arm, vel = element_states(local_centroids, local_normals, elem_body, *pose, v_com, omega)
     depth = terrain.depth(pos, g_hat)
     wrench = np.zeros((n_bodies, 6))
     jac = np.zeros((n_bodies, 6, 6))

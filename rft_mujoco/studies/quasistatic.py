@@ -114,10 +114,9 @@ class _Bodies:
         g_hat = gravity / np.linalg.norm(gravity)
         ids = self.ids
         e = np.flatnonzero(active)                      # the culled elements carry nothing: leave them out
-        w, _, _ = elements.body_wrenches(
-            self.centroids[e], self.normals[e], self.areas[e], self.elem_body[e], ids.size, data.xpos[ids],
-            data.xmat[ids].reshape(-1, 3, 3), data.xipos[ids], v_com, omega, terrain, g_hat, gravity, media,
-            PUBLISHED)
+        surface = elements.BodySurface(self.centroids[e], self.normals[e], self.areas[e], self.elem_body[e], ids.size)
+        pose = elements.BodyPose(data.xpos[ids], data.xmat[ids].reshape(-1, 3, 3), data.xipos[ids])
+        w, _, _ = elements.body_wrenches(surface, pose, v_com, omega, terrain, g_hat, gravity, media, PUBLISHED)
         return w
 
 
