@@ -129,20 +129,17 @@ maximum first (deformable sand, gravity down), or element by element (any other 
 
 
 @njit(**INLINE)
-def _depths(dep, sub, cl, frame, gb, c0, top, mode, terrain):
-    """Step 1 of a cluster: the depth (m) of each of its elements (body-frame centroids ``cl``, padding slots NaN:
-    never submerged) into ``dep``, the indices of the submerged ones into ``sub``; returns their number.
-    ``frame`` = (``body_mat[j]``'s nine, px, py, pz); ``gb``: gravity in the body frame; ``c0``: the flat depth of the
-    body origin; ``top``: the highest deformed surface around the cluster plus ABOVE."""
+def _terrain_depths(dep, cl, frame, top, deformed, terrain):
+    """Step 1 of a cluster on a terrain other than flat sand (on flat sand the depth is affine in the body frame:
+    :func:`wrenches`): the depth (m) of each of its elements (body-frame centroids ``cl``, padding slots NaN: never
+    submerged) into ``dep``. ``frame`` = (``body_mat[j]``'s nine, px, py, pz); ``deformed``: on deformable sand
+    under gravity along -z, where ``top`` is the highest surface around the cluster plus ABOVE."""
     g_hat, _, kind, tp, heights = terrain
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz = frame
     cl0, cl1, cl2 = cl
     n = cl0.shape[0]
-    if mode == _FLAT:
-        for i in range(n):
-            dep[i] = c0 + (gb[0] * cl0[i] + gb[1] * cl1[i] + gb[2] * cl2[i])
-    elif mode == _DEFORMED:                              # the surface around is nowhere above ``top``: the
+    if deformed:                                         # the surface around is nowhere above ``top``: the
         for i in range(n):                               # depth where an element is below it, else <= 0
             dep[i] = top - (pz + (r6 * cl0[i] + r7 * cl1[i] + r8 * cl2[i]))
         for i in range(n):
@@ -155,11 +152,33 @@ def _depths(dep, sub, cl, frame, gb, c0, top, mode, terrain):
             l0, l1, l2 = cl0[i], cl1[i], cl2[i]
             dep[i] = _depth(px + (r0 * l0 + r1 * l1 + r2 * l2), py + (r3 * l0 + r4 * l1 + r5 * l2),
                             pz + (r6 * l0 + r7 * l1 + r8 * l2), g0, g1, g2, kind, tp, heights)
-    ms = 0
-    for i in range(n):
-        sub[ms] = i
-        ms += dep[i] > 0.0
-    return ms
+
+
+@njit(**INLINE)
+def _cluster_place(center, radius, frame, g_hat):
+    """A cluster's centre in the world (m; ``center`` in the body frame, ``frame`` the body's) and the depth of its
+    lowest point below the plane through the origin normal to gravity, less its ``radius`` (m): ``low``."""
+    r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz = frame
+    q0, q1, q2 = center[0], center[1], center[2]
+    qx = px + (r0 * q0 + r1 * q1 + r2 * q2)
+    qy = py + (r3 * q0 + r4 * q1 + r5 * q2)
+    qz = pz + (r6 * q0 + r7 * q1 + r8 * q2)
+    return qx, qy, qz, -(qx * g_hat[0] + qy * g_hat[1] + qz * g_hat[2]) - radius
+
+
+@njit(**INLINE)
+def _pass_constants(terrain, law, speed_scale):
+    """The element pass's constants: the law's coefficients (:func:`rft_mujoco.compiled.law._coef`), its guards
+    (:data:`rft_mujoco.compiled.law.STRESS_GUARDS`), the leading tolerance and ramp, (zero speed^2, leading
+    edge^2) and how depths are found (:data:`_FLAT`, ``_DEFORMED`` or ``_GENERAL``)."""
+    g_hat, _, kind, tp, _ = terrain
+    _, coef, mu_surf, no_tension, no_forward, no_power, tol = law
+    lead_tol, vert_tol, ramp = tol[0], tol[1], tol[3]
+    edge = ramp if speed_scale > 0.0 else lead_tol                 # the regularized law's leading edge
+    mode = _FLAT if kind == FLAT and tp[ts.TP_REGION] == 0.0 else _DEFORMED if kind == DEFORMABLE and g_hat[2] < 0.0 \
+        else _GENERAL
+    return (_coef(coef), (mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol), lead_tol, ramp,
+            (tol[2] * tol[2], edge * edge), mode)
 
 
 @njit(**INLINE)
@@ -212,75 +231,6 @@ def _occlude(dep, sub, ms, cl, cluster, frame, surface, occluders, hidden):
     return hidden
 
 
-@njit(**INLINE)
-def _pack_loaded(scratch, index, ms, cl, nr, area, cb, twist, edges):
-    """Step 3 of a cluster: the elements that carry stress (:func:`_loaded`), in increasing index, packed to the
-    front of ``scratch`` (lever arm about the COM ``cb``, normal, depth, area ``area[i]``, m^2); returns their
-    number. ``twist`` = (``ub``, ``wb``) in the body frame; ``edges`` = (zero speed^2, leading edge^2)."""
-    dep, keep = scratch[_DEPTH], scratch[_KEEP]
-    sub, load = index[0], index[1]
-    cl0, cl1, cl2 = cl
-    nr0, nr1, nr2 = nr
-    cb0, cb1, cb2 = cb
-    ub, wb = twist
-    zs2, lt2 = edges
-    n = cl0.shape[0]
-    ml = 0
-    if SPARSE * ms < n:
-        for jj in range(ms):
-            i = sub[jj]
-            load[ml] = i
-            ml += _loaded((cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2), (nr0[i], nr1[i], nr2[i]), dep[i], ub, wb,
-                          zs2, lt2)
-    else:
-        for i in range(n):
-            keep[i] = 1.0 if _loaded((cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2), (nr0[i], nr1[i], nr2[i]), dep[i],
-                                     ub, wb, zs2, lt2) else 0.0
-        for i in range(n):
-            load[ml] = i
-            ml += keep[i] != 0.0
-    for jj in range(ml):
-        i = load[jj]
-        scratch[_P_ARM, jj] = cl0[i] - cb0
-        scratch[_P_ARM + 1, jj] = cl1[i] - cb1
-        scratch[_P_ARM + 2, jj] = cl2[i] - cb2
-        scratch[_P_NRM, jj] = nr0[i]
-        scratch[_P_NRM + 1, jj] = nr1[i]
-        scratch[_P_NRM + 2, jj] = nr2[i]
-        scratch[_P_DEPTH, jj] = dep[i]
-        scratch[_P_AREA, jj] = area[i]
-    return ml
-
-
-@njit(**INLINE)
-def _law_forces(scratch, ml, twist, gb, law, c, speed_scale):
-    """Step 4 of a cluster: the law on its ``ml`` packed elements (body frame: vectorized, no branches), their
-    forces (N) and torques (N m about the COM) into ``scratch``. ``c``: ``_coef`` of the law's coefficients. (The
-    sums stay in :func:`wrenches`: as a tuple carried through here, LLVM fuses their multiply-adds differently.)"""
-    xi_n, _, mu_surf, no_tension, no_forward, no_power, tol = law
-    lead_tol, vert_tol, ramp = tol[0], tol[1], tol[3]
-    guards = (mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)                    # law.STRESS_GUARDS
-    (ub0, ub1, ub2), (wb0, wb1, wb2) = twist
-    gb0, gb1, gb2 = gb
-    for i in range(ml):
-        l0, l1, l2 = scratch[_P_ARM, i], scratch[_P_ARM + 1, i], scratch[_P_ARM + 2, i]
-        vx = ub0 + (wb1 * l2 - wb2 * l1)
-        vy = ub1 + (wb2 * l0 - wb0 * l2)
-        vz = ub2 + (wb0 * l1 - wb1 * l0)
-        n0, n1, n2 = scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i]
-        sp = math.sqrt(vx * vx + vy * vy + vz * vz)
-        dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp)  # unswitched
-        rx, ry, rz = _stress((n0, n1, n2), (dx, dy, dz), (gb0, gb1, gb2), c, guards)
-        sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i]) * reg
-        fx, fy, fz = rx * sa, ry * sa, rz * sa
-        scratch[_P_F, i] = fx
-        scratch[_P_F + 1, i] = fy
-        scratch[_P_F + 2, i] = fz
-        scratch[_P_T, i] = l1 * fz - l2 * fy
-        scratch[_P_T + 1, i] = l2 * fx - l0 * fz
-        scratch[_P_T + 2, i] = l0 * fy - l1 * fx
-
-
 @njit(**JIT_LAW)
 def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work, out, speed_scale):
     """The RFT wrench about each COM of the bodies ``bodies[:n_on]`` moving with twists ``twists`` = (``lin``,
@@ -300,25 +250,19 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
     centroids, normals, areas, cluster_start, cluster_center, cluster_radius, body_clusters = surface
     body_pos, body_mat, body_com = poses
     lin, ang = twists
-    g_hat, max_height, kind, tp, heights = terrain
+    g_hat, max_height, _, tp, heights = terrain
     occ_start = occluders[0]
     (scratch, index), (wrench, count, max_depth, occluded) = work, out
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
-    c = _coef(law[1])
-    tol = law[6]
-    edge = tol[3] if speed_scale > 0.0 else tol[0]                 # the regularized law's leading edge
-    edges = (tol[2] * tol[2], edge * edge)
-    mode = _FLAT if kind == FLAT and tp[ts.TP_REGION] == 0.0 else _DEFORMED if kind == DEFORMABLE and g2 < 0.0 \
-        else _GENERAL
-    h0 = tp[ts.TP_HEIGHT]
+    xi_n = law[0]
+    c, guards, lead_tol, ramp, (zs2, lt2), mode = _pass_constants(terrain, law, speed_scale)
     lanes = np.empty(LANES)
+    dep, keep = scratch[_DEPTH], scratch[_KEEP]
+    sub, load = index[0], index[1]
     for j in range(n_on):
         b = bodies[j]
-        for k in range(6):
-            wrench[j, k] = 0.0
-        count[j] = 0
-        max_depth[j] = 0.0
-        occluded[j] = 0.0
+        wrench[j, :] = 0.0
+        count[j], max_depth[j], occluded[j] = 0, 0.0, 0.0
         ux, uy, uz = lin[j, 0], lin[j, 1], lin[j, 2]
         wx, wy, wz = ang[j, 0], ang[j, 1], ang[j, 2]
         if ux == 0.0 and uy == 0.0 and uz == 0.0 and wx == 0.0 and wy == 0.0 and wz == 0.0:
@@ -328,20 +272,16 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
         px, py, pz = body_pos[j, 0], body_pos[j, 1], body_pos[j, 2]
         frame = (r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz)
         # the body frame: gravity, the COM (lever arms are l - cb), the twist of the COM
-        gb = (r0 * g0 + r3 * g1 + r6 * g2, r1 * g0 + r4 * g1 + r7 * g2, r2 * g0 + r5 * g1 + r8 * g2)
+        gb0, gb1, gb2 = r0 * g0 + r3 * g1 + r6 * g2, r1 * g0 + r4 * g1 + r7 * g2, r2 * g0 + r5 * g1 + r8 * g2
         dx, dy, dz = body_com[j, 0] - px, body_com[j, 1] - py, body_com[j, 2] - pz
-        cb = (r0 * dx + r3 * dy + r6 * dz, r1 * dx + r4 * dy + r7 * dz, r2 * dx + r5 * dy + r8 * dz)
-        twist = ((r0 * ux + r3 * uy + r6 * uz, r1 * ux + r4 * uy + r7 * uz, r2 * ux + r5 * uy + r8 * uz),
-                 (r0 * wx + r3 * wy + r6 * wz, r1 * wx + r4 * wy + r7 * wz, r2 * wx + r5 * wy + r8 * wz))
-        c0 = h0 + (px * g0 + py * g1 + pz * g2)           # flat depth of the body origin
+        cb0, cb1, cb2 = r0 * dx + r3 * dy + r6 * dz, r1 * dx + r4 * dy + r7 * dz, r2 * dx + r5 * dy + r8 * dz
+        ub = ub0, ub1, ub2 = r0 * ux + r3 * uy + r6 * uz, r1 * ux + r4 * uy + r7 * uz, r2 * ux + r5 * uy + r8 * uz
+        wb = wb0, wb1, wb2 = r0 * wx + r3 * wy + r6 * wz, r1 * wx + r4 * wy + r7 * wz, r2 * wx + r5 * wy + r8 * wz
+        c0 = tp[ts.TP_HEIGHT] + (px * g0 + py * g1 + pz * g2)            # flat depth of the body origin
         a0 = a1 = a2 = a3 = a4 = a5 = 0.0
         deepest = 0.0
         for q in range(body_clusters[b], body_clusters[b + 1]):
-            q0, q1, q2 = cluster_center[q, 0], cluster_center[q, 1], cluster_center[q, 2]
-            qx = px + (r0 * q0 + r1 * q1 + r2 * q2)
-            qy = py + (r3 * q0 + r4 * q1 + r5 * q2)
-            qz = pz + (r6 * q0 + r7 * q1 + r8 * q2)
-            low = -(qx * g0 + qy * g1 + qz * g2) - cluster_radius[q]
+            qx, qy, qz, low = _cluster_place(cluster_center[q], cluster_radius[q], frame, g_hat)
             if low > max_height:                             # the whole cluster is above the sand
                 continue
             top = deformed_range(qx, qy, cluster_radius[q], tp, heights)[1] + ABOVE if mode == _DEFORMED else 0.0
@@ -350,16 +290,69 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
             s = cluster_start[q]
             n = cluster_start[q + 1] - s
             cl = (centroids[0, s:s + n], centroids[1, s:s + n], centroids[2, s:s + n])
-            nr = (normals[0, s:s + n], normals[1, s:s + n], normals[2, s:s + n])
-            ms = _depths(scratch[_DEPTH], index[0], cl, frame, gb, c0, top, mode, terrain)
+            nr0, nr1, nr2 = normals[0, s:s + n], normals[1, s:s + n], normals[2, s:s + n]
+            cl0, cl1, cl2 = cl
+            # 1. depths (flat sand: affine in the body frame), the submerged indices (branchless)
+            if mode == _FLAT:
+                for i in range(n):
+                    dep[i] = c0 + (gb0 * cl0[i] + gb1 * cl1[i] + gb2 * cl2[i])
+            else:
+                _terrain_depths(dep, cl, frame, top, mode == _DEFORMED, terrain)
+            ms = 0
+            for i in range(n):
+                sub[ms] = i
+                ms += dep[i] > 0.0
             if ms == 0:
                 continue
-            occluded[j] = _occlude(scratch[_DEPTH], index[0], ms, cl, (q, s, occ_start[b], occ_start[b + 1], qx, qy,
+            occluded[j] = _occlude(dep, sub, ms, cl, (q, s, occ_start[b], occ_start[b + 1], qx, qy,
                                    qz), frame, surface, occluders, occluded[j])
-            ml = _pack_loaded(scratch, index, ms, cl, nr, areas[s:s + n], cb, twist, edges)
+            cl0, cl1, cl2 = cl
+            # 3. the loaded elements (submerged, moving, leading), in increasing index, packed to the front
+            ml = 0
+            if SPARSE * ms < n:
+                for jj in range(ms):
+                    i = sub[jj]
+                    load[ml] = i
+                    ml += _loaded((cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2), (nr0[i], nr1[i], nr2[i]), dep[i],
+                                  ub, wb, zs2, lt2)
+            else:
+                for i in range(n):
+                    keep[i] = 1.0 if _loaded((cl0[i] - cb0, cl1[i] - cb1, cl2[i] - cb2), (nr0[i], nr1[i], nr2[i]),
+                                             dep[i], ub, wb, zs2, lt2) else 0.0
+                for i in range(n):
+                    load[ml] = i
+                    ml += keep[i] != 0.0
             if ml == 0:
                 continue
-            _law_forces(scratch, ml, twist, gb, law, c, speed_scale)    # 4. the law on them; 5. the sums:
+            for jj in range(ml):
+                i = load[jj]
+                scratch[_P_ARM, jj] = cl0[i] - cb0
+                scratch[_P_ARM + 1, jj] = cl1[i] - cb1
+                scratch[_P_ARM + 2, jj] = cl2[i] - cb2
+                scratch[_P_NRM, jj] = nr0[i]
+                scratch[_P_NRM + 1, jj] = nr1[i]
+                scratch[_P_NRM + 2, jj] = nr2[i]
+                scratch[_P_DEPTH, jj] = dep[i]
+                scratch[_P_AREA, jj] = areas[s + i]
+            # 4. the law on the packed elements (body frame): vectorized, no branches
+            for i in range(ml):
+                l0, l1, l2 = scratch[_P_ARM, i], scratch[_P_ARM + 1, i], scratch[_P_ARM + 2, i]
+                vx = ub0 + (wb1 * l2 - wb2 * l1)
+                vy = ub1 + (wb2 * l0 - wb0 * l2)
+                vz = ub2 + (wb0 * l1 - wb1 * l0)
+                n0, n1, n2 = scratch[_P_NRM, i], scratch[_P_NRM + 1, i], scratch[_P_NRM + 2, i]
+                sp = math.sqrt(vx * vx + vy * vy + vz * vz)
+                dx, dy, dz, reg = _law_direction(n0, n1, n2, vx, vy, vz, sp, speed_scale, lead_tol, ramp)  # unswitched
+                rx, ry, rz = _stress((n0, n1, n2), (dx, dy, dz), (gb0, gb1, gb2), c, guards)
+                sa = xi_n * (scratch[_P_DEPTH, i] * scratch[_P_AREA, i]) * reg
+                fx, fy, fz = rx * sa, ry * sa, rz * sa
+                scratch[_P_F, i] = fx
+                scratch[_P_F + 1, i] = fy
+                scratch[_P_F + 2, i] = fz
+                scratch[_P_T, i] = l1 * fz - l2 * fy
+                scratch[_P_T + 1, i] = l2 * fx - l0 * fz
+                scratch[_P_T + 2, i] = l0 * fy - l1 * fx
+            # 5. sums (body frame)
             for i in range(ml):
                 a0 += scratch[_P_F, i]
                 a1 += scratch[_P_F + 1, i]
@@ -370,12 +363,10 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
             count[j] += ml
             deepest = max(deepest, _lane_max(scratch[_P_DEPTH], ml, lanes))
         max_depth[j] = deepest
-        wrench[j, 0] = r0 * a0 + r1 * a1 + r2 * a2                # back to the world frame
-        wrench[j, 1] = r3 * a0 + r4 * a1 + r5 * a2
-        wrench[j, 2] = r6 * a0 + r7 * a1 + r8 * a2
-        wrench[j, 3] = r0 * a3 + r1 * a4 + r2 * a5
-        wrench[j, 4] = r3 * a3 + r4 * a4 + r5 * a5
-        wrench[j, 5] = r6 * a3 + r7 * a4 + r8 * a5
+        wrench[j, 0], wrench[j, 1], wrench[j, 2] = (r0 * a0 + r1 * a1 + r2 * a2, r3 * a0 + r4 * a1 + r5 * a2,
+                                                    r6 * a0 + r7 * a1 + r8 * a2)    # back to the world frame
+        wrench[j, 3], wrench[j, 4], wrench[j, 5] = (r0 * a3 + r1 * a4 + r2 * a5, r3 * a3 + r4 * a4 + r5 * a5,
+                                                    r6 * a3 + r7 * a4 + r8 * a5)
 
 
 # --- the element pass on its own (tests, benchmarks) -----------------------------------------------------
