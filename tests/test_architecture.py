@@ -109,6 +109,14 @@ def test_no_module_imports_itself_through_others():
     assert _cycles(EDGES) == []
 
 
+def test_the_envs_and_models_import_no_study():
+    """The environments and the bundled models stand on the library, not on the studies (issue 30: the envs
+    imported ``studies.gait``; the gait is now beside its robot, ``rft_mujoco.models.quadruped``)."""
+    mine = {m: t for m, t in EDGES.items() if m.split(".")[1:2] in (["envs"], ["models"])}
+    assert len(mine) > 10 and "rft_mujoco.models.quadruped" in EDGES["rft_mujoco.envs.sand_quadruped_v1"]
+    assert [(m, t) for m, targets in mine.items() for t in sorted(targets) if t.startswith("rft_mujoco.studies")] == []
+
+
 @pytest.mark.parametrize("layer", sorted(LAYERS, key=LAYERS.get))
 def test_imports_go_down_the_layers(layer):
     up = [(m, t) for m, targets in EDGES.items() if m.split(".")[1:2] == [layer] for t in sorted(targets)

@@ -1,4 +1,4 @@
-"""The bundled quadruped (models/quadruped.xml) and its scripted trot (rft_mujoco.studies.gait) on a rigid floor."""
+"""The bundled quadruped (models/quadruped.xml) and its scripted trot (rft_mujoco.models.quadruped) on a rigid floor."""
 
 import dataclasses
 import importlib.resources
@@ -7,7 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from rft_mujoco.studies import gait
+from rft_mujoco.models import quadruped
 
 TOTAL_MASS_KG = 12.0
 STAND_HEIGHT_RANGE_M = (0.2, 0.4)
@@ -40,13 +40,13 @@ def test_model_names_and_structure():
     model, _ = load()
     assert model.opt.timestep == 0.002
     assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    assert [model.actuator(i).name for i in range(model.nu)] == list(gait.ACTUATOR_NAMES)
-    for i, name in enumerate(gait.ACTUATOR_NAMES):
+    assert [model.actuator(i).name for i in range(model.nu)] == list(quadruped.ACTUATOR_NAMES)
+    for i, name in enumerate(quadruped.ACTUATOR_NAMES):
         assert model.joint(model.actuator_trnid[i, 0]).name == name + "_joint"
         np.testing.assert_allclose(model.actuator_ctrlrange[i], model.jnt_range[model.actuator_trnid[i, 0]])
     trunk = model.body("trunk")
     assert trunk.jntnum == 1 and model.jnt_type[trunk.jntadr[0]] == mujoco.mjtJoint.mjJNT_FREE
-    for leg, foot in zip(gait.LEGS, gait.FOOT_BODIES):
+    for leg, foot in zip(quadruped.LEGS, quadruped.FOOT_BODIES):
         body = model.body(foot)
         assert body.jntnum == 0, "feet are welded to the calves"
         assert model.body(int(body.parentid[0])).name == f"{leg}_calf"
@@ -58,8 +58,8 @@ def test_model_names_and_structure():
 
 def test_geometry_from_model_and_kinematics_match_mujoco():
     model, data = load()
-    geometry = gait.LegGeometry.from_model(model)
-    assert geometry == gait.LegGeometry(), "the defaults describe the bundled model"
+    geometry = quadruped.LegGeometry.from_model(model)
+    assert geometry == quadruped.LegGeometry(), "the defaults describe the bundled model"
     rng = np.random.default_rng(0)
     lo, hi = model.jnt_range[1:].T
     q = rng.uniform(lo, hi).reshape(4, 3)
@@ -72,43 +72,43 @@ def test_geometry_from_model_and_kinematics_match_mujoco():
     data.qpos[7:] = q.ravel()
     mujoco.mj_kinematics(model, data)
     rot = data.body("trunk").xmat.reshape(3, 3)
-    for i, leg in enumerate(gait.LEGS):
+    for i, leg in enumerate(quadruped.LEGS):
         foot_hip = rot.T @ (data.body(f"{leg}_foot").xpos - data.body(f"{leg}_hip").xpos)
-        np.testing.assert_allclose(gait.leg_fk(q[i], gait.SIDE[i], geometry), foot_hip, atol=1e-12)
-    np.testing.assert_allclose(gait.leg_ik(gait.leg_fk(q_work, gait.SIDE, geometry), gait.SIDE, geometry),
+        np.testing.assert_allclose(quadruped.leg_fk(q[i], quadruped.SIDE[i], geometry), foot_hip, atol=1e-12)
+    np.testing.assert_allclose(quadruped.leg_ik(quadruped.leg_fk(q_work, quadruped.SIDE, geometry), quadruped.SIDE, geometry),
                                q_work, atol=1e-9)
 
 
 def test_jacobian_matches_finite_differences():
     q = np.array([[0.3, 0.9, -1.6], [-0.2, 0.4, -2.2], [0.1, 1.5, -1.0], [-0.5, -0.3, -2.6]])
-    jac = gait.leg_jacobian(q, gait.SIDE)
+    jac = quadruped.leg_jacobian(q, quadruped.SIDE)
     h = 1e-6
     for j in range(3):
         dq = np.zeros(3)
         dq[j] = h
-        fd = (gait.leg_fk(q + dq, gait.SIDE) - gait.leg_fk(q - dq, gait.SIDE)) / (2 * h)
+        fd = (quadruped.leg_fk(q + dq, quadruped.SIDE) - quadruped.leg_fk(q - dq, quadruped.SIDE)) / (2 * h)
         np.testing.assert_allclose(jac[:, :, j], fd, atol=1e-8)
 
 
 def test_gait_config():
-    plain = gait.TrotGait(stride_m=0.0, step_height_m=0.0)
+    plain = quadruped.TrotGait(stride_m=0.0, step_height_m=0.0)
     model, _ = load()
     np.testing.assert_allclose(plain.stand(), model.key("home").ctrl, atol=2e-3)
     assert plain.targets(1.23).shape == (12,)
-    trot = gait.TrotGait(frequency_hz=2.0, stride_m=0.1, duty_factor=0.5)
+    trot = quadruped.TrotGait(frequency_hz=2.0, stride_m=0.1, duty_factor=0.5)
     assert trot.nominal_speed_mps == pytest.approx(0.4)
     np.testing.assert_array_equal(trot.stance(0.1), [True, False, False, True])
     with pytest.raises(dataclasses.FrozenInstanceError):
         trot.stride_m = 0.2
     with pytest.raises(ValueError, match="frequency_hz"):
-        gait.TrotGait(frequency_hz=0.0)
+        quadruped.TrotGait(frequency_hz=0.0)
     with pytest.raises(ValueError, match="out of reach"):
-        gait.TrotGait(hip_height_m=0.42, stride_m=0.2)
+        quadruped.TrotGait(hip_height_m=0.42, stride_m=0.2)
 
 
 def test_home_keyframe_stands():
     model, data = load()
-    stand = gait.TrotGait.from_model(model).stand()
+    stand = quadruped.TrotGait.from_model(model).stand()
     xyz, upright = simulate(model, data, lambda t: stand, 2.0)
     assert STAND_HEIGHT_RANGE_M[0] < xyz[:, 2].min() and xyz[:, 2].max() < STAND_HEIGHT_RANGE_M[1]
     assert upright.min() > 0.99
@@ -117,7 +117,7 @@ def test_home_keyframe_stands():
 
 def test_trot_walks_forward_on_rigid_floor():
     model, data = load()
-    trot = gait.TrotGait.from_model(model, frequency_hz=2.5, stride_m=0.10, step_height_m=0.06)
+    trot = quadruped.TrotGait.from_model(model, frequency_hz=2.5, stride_m=0.10, step_height_m=0.06)
     xyz, upright = simulate(model, data, trot.targets, 4.0)
     assert xyz[-1, 0] - xyz[0, 0] > 0.1
     assert xyz[:, 2].min() > MIN_TRUNK_HEIGHT_M

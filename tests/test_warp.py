@@ -18,7 +18,7 @@ wp = pytest.importorskip("warp", reason="warp-lang is not installed (pip install
 
 import rft_mujoco  # noqa: E402
 from rft_mujoco.physics.terrain import FlatSurface, HeightfieldSurface, SandRegion  # noqa: E402
-from rft_mujoco.studies.gait import FOOT_BODIES  # noqa: E402
+from rft_mujoco.models.quadruped import FOOT_BODIES  # noqa: E402
 from rft_mujoco.warp import kernels as K  # noqa: E402
 from rft_mujoco.coupling import layout as wlayout  # noqa: E402
 

@@ -8,7 +8,7 @@ import numpy as np
 from gymnasium import utils
 from gymnasium.spaces import Box
 
-from rft_mujoco.studies.gait import FOOT_BODIES
+from rft_mujoco.models.quadruped import FOOT_BODIES
 from rft_mujoco.physics.media import Media
 
 from .sand_bed import MediaRanges
@@ -47,7 +47,7 @@ class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
     ## Action Space
     ``Box(-1, 1, (12,), float32)``: joint target offsets from the ``home`` pose,
     ``target = home + action_scale_rad * action``, clipped to the joint ranges, in actuator order
-    FL_hip FL_thigh FL_calf FR_hip ... RR_calf (``rft_mujoco.studies.gait.ACTUATOR_NAMES``). Servos: kp 80 N m/rad,
+    FL_hip FL_thigh FL_calf FR_hip ... RR_calf (``rft_mujoco.models.quadruped.ACTUATOR_NAMES``). Servos: kp 80 N m/rad,
     kv 1.5 N m s/rad, torque limits 25 N m (hip, thigh) and 35 N m (calf).
 
     ## Observation Space

@@ -10,7 +10,7 @@ from gymnasium import utils
 from gymnasium.spaces import Box
 
 from rft_mujoco.physics.media import Media
-from rft_mujoco.studies.gait import LEGS, TrotGait
+from rft_mujoco.models.quadruped import LEGS, TrotGait
 
 from .sand_bed import FEATURES_PER_BODY, MediaRanges
 from .quadruped_task import CommandedQuadruped
@@ -61,7 +61,7 @@ class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
     ## Action Space
     ``Box(-1, 1, (12,), float32)``: joint target offsets from the ``home`` pose,
     ``target = home + action_scale_rad * action``, clipped to the joint ranges, in actuator order
-    FL_hip FL_thigh FL_calf FR_hip ... RR_calf (``rft_mujoco.studies.gait.ACTUATOR_NAMES``).
+    FL_hip FL_thigh FL_calf FR_hip ... RR_calf (``rft_mujoco.models.quadruped.ACTUATOR_NAMES``).
 
     | Num  | Action                                  | Min | Max | Unit (times ``action_scale_rad``) |
     |------|-----------------------------------------|-----|-----|-----------------------------------|
@@ -323,7 +323,7 @@ class SandQuadrupedEnv(CommandedQuadruped, SandTaskEnv, utils.EzPickle):
 
 SCRIPTED_TROT = types.MappingProxyType({"frequency_hz": 2.5, "step_height_m": 0.06, "hip_height_m": 0.28,
                                         "ramp_time_s": 0.5})
-"""The gait of :func:`scripted_trot`: the rigid-ground trot of :class:`~rft_mujoco.studies.gait.TrotGait`
+"""The gait of :func:`scripted_trot`: the rigid-ground trot of :class:`~rft_mujoco.models.quadruped.TrotGait`
 (its joint offsets from ``home`` stay within the default 0.5 rad action scale)."""
 
 
@@ -331,7 +331,7 @@ def scripted_trot(env, speed_mps: float = 0.4, **gait_kwargs) -> Callable[[np.nd
     """A scripted trot as a policy of this env: ``obs -> action`` (the gait's phase is the env's simulated
     time since the last reset, ``env.unwrapped.data.time``).
 
-    The :class:`~rft_mujoco.studies.gait.TrotGait` joint targets (rad) become actions
+    The :class:`~rft_mujoco.models.quadruped.TrotGait` joint targets (rad) become actions
     ``(target - home) / action_scale_rad``, clipped to [-1, 1]. The stride is chosen for a nominal
     ``speed_mps`` (feet that do not slip; on sand the trunk is slower).
 

@@ -36,7 +36,7 @@ from gymnasium.vector.utils import batch_space
 
 import rft_mujoco.warp as rw
 from rft_mujoco.physics.media import Media, get_media
-from rft_mujoco.studies.gait import FOOT_BODIES
+from rft_mujoco.models.quadruped import FOOT_BODIES
 
 from .sand_bed import FEATURES_PER_BODY, MediaRanges, compile_sand_model, surface_of
 from .sand_quadruped_v0 import DEFAULT_COMMAND_RANGES, DEFAULT_REWARD_WEIGHTS

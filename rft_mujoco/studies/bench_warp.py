@@ -37,7 +37,7 @@ from rft_mujoco.coupling.handle import attach as cpu_attach
 from rft_mujoco.physics.media import LI_LOOSE_GLASS_BEADS
 from rft_mujoco.studies.bench.timing import machine, quadruped as _quadruped, settled_state as _settled_state
 from rft_mujoco.tables import table as _table
-from rft_mujoco.studies.gait import FOOT_BODIES
+from rft_mujoco.models.quadruped import FOOT_BODIES
 
 CASES = (("no sand", None, {}), ("sand: feet", FOOT_BODIES, {}), ("sand: every body", "all", {}),
          ("sand: every body, cull=False", "all", {"cull": False}))

@@ -20,7 +20,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from rft_mujoco.studies.gait import FOOT_BODIES, TrotGait
+from rft_mujoco.models.quadruped import FOOT_BODIES, TrotGait
 from rft_mujoco.coupling.scene import attach_scene
 from rft_mujoco.tables import table
 

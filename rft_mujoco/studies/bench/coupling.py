@@ -16,12 +16,12 @@ from rft_mujoco.studies.bench.timing import STEPS_PER_RUN, median_time, quadrupe
 
 MOTIONS = ("standing", "trotting")
 """What the quadruped does while it is timed: stands still (servos holding ``home``), or trots (the scripted
-gait of :class:`rft_mujoco.studies.gait.TrotGait`, timed after 1 s of trotting)."""
+gait of :class:`rft_mujoco.models.quadruped.TrotGait`, timed after 1 s of trotting)."""
 
 
 def _trot(model, data, state) -> tuple[np.ndarray, np.ndarray]:
     """(state after 1 s of trotting from ``state``, the controls of the next STEPS_PER_RUN steps)."""
-    from rft_mujoco.studies.gait import TrotGait
+    from rft_mujoco.models.quadruped import TrotGait
 
     gait = TrotGait.from_model(model)
     mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
