@@ -64,9 +64,11 @@ class DemoLog:
 
 
 class Demo:
-    """The scene, its sand and the scripted gait, stepped one control period at a time."""
+    """The scene, its sand and the scripted gait, stepped one control period at a time: standing for ``stand_s`` s,
+    then trotting (``gait_kwargs`` over :data:`DEMO_GAIT`); ``deformable``: on a deformable surface drawn as a
+    heightfield; ``backend``: the sand's (:func:`rft_mujoco.attach`)."""
 
-    def __init__(self, stand_s: float = 1.0, deformable: bool = False, **gait_kwargs):
+    def __init__(self, stand_s: float = 1.0, deformable: bool = False, backend: str = "auto", **gait_kwargs):
         self.grid = None
         if deformable:   # a DeformableSurface, drawn by a visual heightfield in place of the floor
             from rft_mujoco.physics.deform import DeformableSurface
@@ -81,7 +83,7 @@ class Demo:
             self.model.geom_rgba[self.model.geom("floor").id, 3] = 0.0
         else:
             self.model = mujoco.MjModel.from_xml_path(str(scene_path()))
-        self.sand = attach_scene(self.model)[0]
+        self.sand = attach_scene(self.model, backend=backend)[0]
         if self.grid is not None:
             self.sand.terrain = self.grid
         self.data = mujoco.MjData(self.model)

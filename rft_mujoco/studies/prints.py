@@ -73,15 +73,11 @@ def trot(seconds: float, terrain: str = "deformable", draw: bool = False) -> dic
     or "flat_numpy"; returns cpu_per_sim_s, trunk_x_m, the surface (deformable only) and the last frame (draw)."""
     from rft_mujoco.studies.demo import Demo, scene_path
 
-    demo = Demo(stand_s=STAND_S)
-    height = float(demo.sand.terrain.max_height)
-    if terrain == "deformable":
-        demo.sand.terrain = DeformableSurface(height=height, **GRID)
-    elif terrain == "flat_numpy":
-        demo.sand._backend_request = "numpy"
-        demo.sand.terrain = demo.sand.terrain
-    elif terrain != "flat":
+    if terrain not in ("deformable", "flat", "flat_numpy"):
         raise ValueError(f"terrain must be 'deformable', 'flat' or 'flat_numpy', got {terrain!r}")
+    demo = Demo(stand_s=STAND_S, backend="numpy" if terrain == "flat_numpy" else "auto")
+    if terrain == "deformable":
+        demo.sand.terrain = DeformableSurface(height=float(demo.sand.terrain.max_height), **GRID)
     n = int(round(seconds / demo.model.opt.timestep))
     cpu = time.process_time()
     for _ in range(n):
@@ -110,10 +106,8 @@ def trot_demo(run: str, interval: float | None = None):
     from rft_mujoco.studies.demo import Demo
 
     warnings.simplefilter("ignore")                  # (the validity monitor's warnings of the trot: not timed here)
-    demo = Demo(stand_s=STAND_S)
+    demo = Demo(stand_s=STAND_S, backend="numpy" if run == "deformable_numpy" else "auto")
     if run != "flat":
-        if run == "deformable_numpy":
-            demo.sand._backend_request = "numpy"
         grid = GRID if interval is None else dict(GRID, update_interval=interval)
         demo.sand.terrain = DeformableSurface(height=float(demo.sand.terrain.max_height), **grid)
     want = "numpy" if run == "deformable_numpy" else "numba"
