@@ -117,6 +117,30 @@ def test_the_envs_and_models_import_no_study():
     assert [(m, t) for m, targets in mine.items() for t in sorted(targets) if t.startswith("rft_mujoco.studies")] == []
 
 
+def test_only_the_coupling_touches_a_handles_private_members():
+    """A :class:`~rft_mujoco.coupling.handle.SandHandle`'s ``_``-prefixed members are its package-internal seam
+    with the dispatcher, its evaluators and checks (all in ``coupling/``); studies, envs, warp and the tests use
+    its public surface (settings, ``observe``, ``counters``, ``diagnostics``, ``evaluation_path``: issue 30)."""
+    tree = ast.parse((PACKAGE / "coupling" / "handle.py").read_text())
+    cls = next(n for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name == "SandHandle")
+    private = {n.name for n in ast.walk(cls) if isinstance(n, ast.FunctionDef)} | \
+        {n.attr for n in ast.walk(cls) if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name)
+         and n.value.id == "self"}
+    private = {p for p in private if p.startswith("_") and not p.startswith("__")}
+    assert {"_workspace", "_evaluate", "_model", "_backend_request"} <= private      # the scan saw them
+    outside = [p for p in list(PACKAGE.rglob("*.py")) + list(pathlib.Path(__file__).parent.glob("*.py"))
+               if p.parent != PACKAGE / "coupling"]
+    found = []
+    for path in outside:
+        module = ast.parse(path.read_text())
+        imported = {(a.asname or a.name).split(".")[0] for n in ast.walk(module)
+                    if isinstance(n, (ast.Import, ast.ImportFrom)) for a in n.names}
+        found += [f"{path.name}:{n.lineno} {ast.unparse(n)}" for n in ast.walk(module)
+                  if isinstance(n, ast.Attribute) and n.attr in private
+                  and not (isinstance(n.value, ast.Name) and n.value.id in imported | {"self", "cls"})]
+    assert len(outside) > 100 and found == []
+
+
 @pytest.mark.parametrize("layer", sorted(LAYERS, key=LAYERS.get))
 def test_imports_go_down_the_layers(layer):
     up = [(m, t) for m, targets in EDGES.items() if m.split(".")[1:2] == [layer] for t in sorted(targets)
