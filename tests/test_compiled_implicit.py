@@ -67,6 +67,13 @@ class Problem:
         return f, df
 
 
+
+def solve_work(ng):
+    """:data:`rft_mujoco.compiled.implicit.SOLVE_WORK` for ``ng`` groups, on arenas sized for ``ng + 2`` (views cut
+    from larger arenas, as on a handle whose groups do not all touch)."""
+    nf, ni, nb = cimp.arena_sizes(ng + 2)
+    return cimp.solve_work(np.full(nf, np.nan), np.full(ni, -1, np.int64), np.ones(nb, np.bool_), ng)
+
 def test_constraint_types_are_mujocos():
     c = mujoco.mjtConstraint
     assert (csys.EQUALITY, csys.FRICTION_DOF, csys.FRICTION_TENDON, csys.LIMIT_JOINT, csys.LIMIT_TENDON,
@@ -140,7 +147,7 @@ def test_implicit_wrenches_match_the_numpy_solve(seed):
         its = cimp.implicit_wrenches((free, mob, radius, dt, p.ng), p.lw(), twist,
                                      np.zeros(p.ng, np.bool_) if prior is None else prior, prior is not None,
                                      cimp.settings(), (w, rest, end), probe, np.zeros((p.ng, 6)),
-                                     np.zeros((p.ng, 6, 6)))
+                                     np.zeros((p.ng, 6, 6)), solve_work(p.ng))
         np.testing.assert_array_equal(rest, rest_ref)
         assert its == its_ref
         scale = np.abs(w_ref).max()

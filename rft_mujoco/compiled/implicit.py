@@ -32,6 +32,75 @@ LAW_FIELDS = ("bodies", "els", "lawc", "work")
 """The ``lw`` tuple: the ``law`` argument of :func:`rft_mujoco.compiled.implicit_law.group_law`, fixed within one
 evaluation: the bodies (``k``, ``slot``, ``arm``), the elements (``implicit_law.ELEMENTS``), the law's constants
 (``implicit_law.LAW_CONSTANTS``) and the bodies' work space and outputs (``implicit_law.BODY_WORK``)."""
+SOLVE_WORK = ("sv", "sw", "v", "u_probe", "w", "x", "col", "pv", "v_eff", "u_flow", "rhs", "weight", "wf", "res",
+              "step", "u_try", "wf_try", "res_try", "capacity", "weight_all", "full", "a", "block", "pa", "a_eff",
+              "mat", "lin", "jac", "r_idx", "f_idx", "perm", "groups", "flow", "untried", "on")
+"""The ``work`` bundle of :func:`solve_from_probe` (:func:`solve_work`): every buffer the solve writes, views of three
+arenas the handle keeps per MjData (``iw``'s ``sf``, ``si``, ``sb``: :func:`arena_sizes`), each cut to the size
+the groups touching now need; the solve allocates nothing. In order: 18 vectors of up to 6 G (the scaled
+coordinates' scales, free twists, probe and wrenches; the rest operator's and the Newton solve's vectors), 2 of G
+(capacities, weights), ``full`` (G, 6), 5 matrices of up to (6 G)^2 (the scaled mobility, the rest block, P a_rf,
+the flowing system, Newton's matrix), ``lin`` (:func:`rft_mujoco.compiled.rest.min_norm_factor`'s), ``jac`` (G, 6,
+6); int: ``r_idx``, ``f_idx`` (6 G), ``perm`` (12 G), ``groups`` (G); bool: ``flow``, ``untried``, ``on`` (G)."""
+_VECTORS, _MATRICES = 18, 5
+
+
+def arena_sizes(n_groups: int) -> tuple[int, int, int]:
+    """The lengths of the float, int and bool arenas of :data:`SOLVE_WORK` for ``n_groups`` groups."""
+    g = max(int(n_groups), 1)
+    n = 6 * g
+    return _VECTORS * n + 2 * g + 6 * g + _MATRICES * n * n + (3 * n + 5) * n + 36 * g, 4 * n + g, 3 * g
+
+
+@njit(**JIT)
+def _cut(buf, o, k):
+    """``buf[o:o + k]`` and the next offset."""
+    return buf[o:o + k], o + k
+
+
+@njit(**JIT)
+def solve_work(sf, si, sb, ng):
+    """:data:`SOLVE_WORK` for ``ng`` groups: views of the arenas ``sf`` (float), ``si`` (int), ``sb`` (bool)."""
+    n = 6 * ng
+    o = 0
+    sv, o = _cut(sf, o, n)
+    sw, o = _cut(sf, o, n)
+    v, o = _cut(sf, o, n)
+    u_probe, o = _cut(sf, o, n)
+    w, o = _cut(sf, o, n)
+    x, o = _cut(sf, o, n)
+    col, o = _cut(sf, o, n)
+    pv, o = _cut(sf, o, n)
+    v_eff, o = _cut(sf, o, n)
+    u_flow, o = _cut(sf, o, n)
+    rhs, o = _cut(sf, o, n)
+    weight, o = _cut(sf, o, n)
+    wf, o = _cut(sf, o, n)
+    res, o = _cut(sf, o, n)
+    step, o = _cut(sf, o, n)
+    u_try, o = _cut(sf, o, n)
+    wf_try, o = _cut(sf, o, n)
+    res_try, o = _cut(sf, o, n)
+    capacity, o = _cut(sf, o, ng)
+    weight_all, o = _cut(sf, o, ng)
+    full, o = _cut(sf, o, 6 * ng)
+    a, o = _cut(sf, o, n * n)
+    block, o = _cut(sf, o, n * n)
+    pa, o = _cut(sf, o, n * n)
+    a_eff, o = _cut(sf, o, n * n)
+    mat, o = _cut(sf, o, n * n)
+    lin, o = _cut(sf, o, (3 * n + 5) * n)
+    jac, o = _cut(sf, o, 36 * ng)
+    r_idx, o = _cut(si, 0, n)
+    f_idx, o = _cut(si, o, n)
+    perm, o = _cut(si, o, 2 * n)
+    groups, o = _cut(si, o, ng)
+    flow, o = _cut(sb, 0, ng)
+    untried, o = _cut(sb, o, ng)
+    on, o = _cut(sb, o, ng)
+    return (sv, sw, v, u_probe, w, x, col, pv, v_eff, u_flow, rhs, weight, wf, res, step, u_try, wf_try, res_try,
+            capacity, weight_all, full.reshape((ng, 6)), a.reshape((n, n)), block, pa, a_eff, mat,
+            lin.reshape((3 * n + 5, n)), jac, r_idx, f_idx, perm, groups, flow, untried, on)
 
 def settings() -> np.ndarray:
     """``st`` (:data:`SETTINGS`) from the reference modules' constants now."""
@@ -110,26 +179,29 @@ def _flow_jac(lw, groups, ng, flow, sv, sw, st, full, f, df, jac):
 
 
 @njit(**JIT)
-def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
+def _newton_flow(lw, flow, ng, system, sv, sw, st, full, f, df, nw):
     """:func:`rft_mujoco.physics.implicit._newton_flow`: Newton's method on ``u - v_eff - a_eff F(u) = 0`` for
     the flowing groups (scaled coordinates), from ``u`` (overwritten with the answer). Returns the flowing
     groups' scaled wrenches and the iterations. The law's derivative is taken only at the points a step
     starts from (:data:`~rft_mujoco.compiled.implicit_law.DERIVATIVE_OF_LAST`), not at trial points of the
-    line search nor at the answer: the iterates of a derivative at every evaluation, bit for bit."""
+    line search nor at the answer: the iterates of a derivative at every evaluation, bit for bit. ``system`` =
+    (``a_eff``, ``v_eff``, ``u``); ``nw``: its buffers (``groups``, ``wf``, ``jac``, ``res``, ``mat``, ``step``,
+    ``u_try``, ``wf_try``, ``res_try`` of :data:`SOLVE_WORK`)."""
+    a_eff, v_eff, u = system
+    groups_buf, wf_buf, jac_buf, res_buf, mat_buf, step_buf, u_try_buf, wf_try_buf, res_try_buf = nw
     kf = 0
     for g in range(ng):
         if flow[g]:
             kf += 1
-    groups = np.empty(kf, np.int64)
+    groups = groups_buf[:kf]
     i = 0
     for g in range(ng):
         if flow[g]:
             groups[i] = g
             i += 1
     n = 6 * kf
-    wf = np.empty(n)
-    jac = np.empty((kf, 6, 6))
-    res = np.empty(n)
+    wf, res = wf_buf[:n], res_buf[:n]
+    jac = jac_buf[:36 * kf].reshape((kf, 6, 6))
     _flow_eval(lw, u, groups, ng, flow, sv, sw, st, full, f, df, wf)
     scale = 0.0
     for p in range(n):
@@ -139,11 +211,8 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
         scale = max(scale, abs(v_eff[p] - u[p]))
     scale = max(scale, st[sc.ST_SPEED_SCALE]) * st[sc.ST_NEWTON_RTOL]
     its = 0
-    mat = np.empty((n, n))
-    step = np.empty(n)
-    u_try = np.empty(n)
-    wf_try = np.empty(n)
-    res_try = np.empty(n)
+    mat = mat_buf[:n * n].reshape((n, n))
+    step, u_try, wf_try, res_try = step_buf[:n], u_try_buf[:n], wf_try_buf[:n], res_try_buf[:n]
     for it in range(1, int(st[sc.ST_NEWTON_ITERATIONS]) + 1):
         its = it
         top = 0.0
@@ -187,7 +256,7 @@ def _newton_flow(lw, flow, ng, a_eff, v_eff, u, sv, sw, st, full, f, df):
 
 
 @njit(**JIT)
-def implicit_wrenches(system, lw, twist, flowing, prior, st, out, probe, f, df):
+def implicit_wrenches(system, lw, twist, flowing, prior, st, out, probe, f, df, work):
     """:func:`rft_mujoco.physics.implicit.implicit_wrenches` of groups 0..ng-1. ``system`` = (``free`` (ng, 6)
     m/s, rad/s, ``mob`` (6 ng, 6 ng), ``radius`` (ng,) m, ``dt`` s, ``ng``): the groups' free twists and
     mobility (:data:`SYSTEM`); ``twist`` (ng, 6) the twists now, ``flowing`` (ng,) bool the groups that flowed
@@ -195,12 +264,14 @@ def implicit_wrenches(system, lw, twist, flowing, prior, st, out, probe, f, df):
     (``w_out`` (ng, 6) wrenches (N, N m), ``rest`` (ng,) bool, ``end`` (ng, 6) end twists), ``probe`` (ng, 6)
     the blended twists of the capacity test, ``flowing`` (overwritten): the groups solved in flow at some
     point. ``f``, ``df``: the law's outputs; the rows of the groups never in flow (and their bodies' rows in
-    ``lw``) hold the law at the probe. Returns the Newton iterations."""
+    ``lw``) hold the law at the probe. ``work``: :data:`SOLVE_WORK` (:func:`solve_work`). Returns the Newton
+    iterations."""
     free, _, radius, _, ng = system
     blend(twist, free, radius, ng, probe)
-    on = np.ones(ng, np.bool_)
+    on = work[34]
+    on[:] = True
     _law(lw, probe, on, ng, st, LAW, f, df)
-    return solve_from_probe(system, lw, twist, flowing, prior, st, out, probe, f, df, True)
+    return solve_from_probe(system, lw, twist, flowing, prior, st, out, probe, f, df, True, work)
 
 
 SYSTEM = ("free", "mob", "radius", "dt", "ng")
@@ -210,18 +281,15 @@ NEED_ELEMENTS = -1
 
 
 @njit(**JIT)
-def _scaled(free, mob, radius, dt, ng):
-    """The solve's scaled coordinates (:func:`rft_mujoco.physics.rest._scales`): ``sv``, ``sw`` (6 ng,) and the
-    scaled ``a = dt S_v mob S_v`` (6 ng, 6 ng) and ``v = S_v free`` (6 ng,)."""
+def _scaled(free, mob, radius, dt, ng, out):
+    """The solve's scaled coordinates (:func:`rft_mujoco.physics.rest._scales`) into ``out`` = (``sv``, ``sw``
+    (6 ng,), the scaled ``a = dt S_v mob S_v`` (6 ng, 6 ng), ``v = S_v free`` (6 ng,)), which it returns."""
     n6 = 6 * ng
-    sv = np.empty(n6)
-    sw = np.empty(n6)
+    sv, sw, a, v = out
     for g in range(ng):
         for c in range(6):
             sv[6 * g + c] = 1.0 if c < 3 else radius[g]
             sw[6 * g + c] = 1.0 if c < 3 else 1.0 / radius[g]
-    a = np.empty((n6, n6))
-    v = np.empty(n6)
     for p in range(n6):
         v[p] = free[p // 6, p % 6] * sv[p]
         for q in range(n6):
@@ -230,15 +298,13 @@ def _scaled(free, mob, radius, dt, ng):
 
 
 @njit(**JIT)
-def _capacities(f, probe, sv, sw, ng, prior, flowing, rest, flow, untried):
+def _capacities(f, probe, sv, sw, ng, prior, flowing, rest, flow, untried, out):
     """The capacity test's quantities of each group from the law ``f`` at the ``probe`` twists: ``capacity``
     (ng,) (the power the sand can take along the probe, scaled), ``weight_all`` (ng,) (the rest operator's
     weights) and ``u_probe`` (6 ng,) (the scaled probe). Sets ``rest`` (a group with sand under it), and with
     ``prior`` starts in flow (``flow``, ``untried``) the groups that flowed last (``flowing``, overwritten with
-    ``flow``)."""
-    capacity = np.empty(ng)
-    weight_all = np.empty(ng)
-    u_probe = np.empty(6 * ng)
+    ``flow``). ``out`` = (``capacity``, ``weight_all``, ``u_probe``): their buffers, returned."""
+    capacity, weight_all, u_probe = out
     for g in range(ng):
         cp = 0.0
         wa = 0.0
@@ -262,8 +328,9 @@ def _capacities(f, probe, sv, sw, ng, prior, flowing, rest, flow, untried):
 
 
 @njit(**JIT)
-def _indices(ng, rest, flow):
-    """The scaled coordinates of the resting groups and of the flowing ones: ``r_idx`` (6 nr,), ``f_idx`` (6 nf,)."""
+def _indices(ng, rest, flow, r_buf, f_buf):
+    """The scaled coordinates of the resting groups and of the flowing ones: ``r_idx`` (6 nr,), ``f_idx`` (6 nf,),
+    the heads of the buffers ``r_buf``, ``f_buf`` (6 ng,)."""
     nr = 0
     nf = 0
     for g in range(ng):
@@ -271,7 +338,7 @@ def _indices(ng, rest, flow):
             nr += 1
         if flow[g]:
             nf += 1
-    r_idx, f_idx = np.empty(6 * nr, np.int64), np.empty(6 * nf, np.int64)
+    r_idx, f_idx = r_buf[:6 * nr], f_buf[:6 * nf]
     ir = jf = 0
     for g in range(ng):
         for c in range(6):
@@ -285,13 +352,12 @@ def _indices(ng, rest, flow):
 
 
 @njit(**JIT)
-def _rest_factor(a, r_idx, weight_all, st, lin, perm):
+def _rest_factor(a, r_idx, weight_all, st, lin, perm, bufs):
     """The rest operator of the resting coordinates ``r_idx`` (:func:`rft_mujoco.physics.implicit.rest_operator`),
     factored by :func:`rft_mujoco.compiled.rest.min_norm_factor` into ``lin``, ``perm``: returns the block of
-    ``a``, the capacity weights and the factor's rank."""
+    ``a``, the capacity weights and the factor's rank, in the heads of ``bufs`` = (``block``, ``weight``)."""
     mr = r_idx.shape[0]
-    block = np.empty((mr, mr))
-    weight = np.empty(mr)
+    block, weight = bufs[0][:mr * mr].reshape((mr, mr)), bufs[1][:mr]
     if mr == 0:
         return block, weight, 0
     top = 0.0
@@ -307,14 +373,16 @@ def _rest_factor(a, r_idx, weight_all, st, lin, perm):
 
 
 @njit(**JIT)
-def _flow_system(a, v, r_idx, f_idx, start, sv, rest_op):
+def _flow_system(a, v, r_idx, f_idx, start, sv, rest_op, bufs):
     """The flowing coordinates' system with the resting groups' wrenches following them, ``-P (v_r + a_rf w_f)``
     (P the rest operator ``rest_op`` = (block, weight, rank, lin, perm, x) applied to the vectors it meets rather
-    than formed): ``a_eff``, ``v_eff`` and the Newton solve's start ``u_flow`` (scaled ``start`` rows)."""
+    than formed): ``a_eff``, ``v_eff`` and the Newton solve's start ``u_flow`` (scaled ``start`` rows), in the
+    heads of ``bufs`` = (``pa``, ``col``, ``pv``, ``a_eff``, ``v_eff``, ``u_flow``)."""
     block, weight, kf, lin, perm, x = rest_op
     mr, mf = r_idx.shape[0], f_idx.shape[0]
-    pa = np.zeros((mr, mf))                    # P a_rf
-    col = np.empty(mr)
+    pa = bufs[0][:mr * mf].reshape((mr, mf))   # P a_rf
+    pa[:] = 0.0
+    col = bufs[1][:mr]
     for j in range(mf):
         if mr == 0:
             break
@@ -323,14 +391,13 @@ def _flow_system(a, v, r_idx, f_idx, start, sv, rest_op):
         min_norm_apply(block, col, weight, mr, kf, lin, perm, x)
         for l in range(mr):
             pa[l, j] = x[l]
-    pv = np.zeros(mr)                          # P v_r
+    pv = bufs[2][:mr]                          # P v_r
+    pv[:] = 0.0
     if mr:
         for l in range(mr):
             col[l] = v[r_idx[l]]
         min_norm_apply(block, col, weight, mr, kf, lin, perm, pv)
-    a_eff = np.empty((mf, mf))
-    v_eff = np.empty(mf)
-    u_flow = np.empty(mf)
+    a_eff, v_eff, u_flow = bufs[3][:mf * mf].reshape((mf, mf)), bufs[4][:mf], bufs[5][:mf]
     for i in range(mf):
         for j in range(mf):
             s = 0.0
@@ -372,36 +439,40 @@ def _passive_finish(w, v, a, sv, sw, end, w_out):
 
 
 @njit(**JIT)
-def solve_from_probe(system, lw, start, flowing, prior, st, out, probe, f, df, ready):
+def solve_from_probe(system, lw, start, flowing, prior, st, out, probe, f, df, ready, work):
     """:func:`implicit_wrenches` from its capacity test on: ``probe`` (ng, 6) holds the blended twists
     (:func:`rft_mujoco.compiled.rest.blend`) and ``f`` (ng, 6) the groups' law at them; a flowing group's Newton solve starts from its
     row of ``start`` (ng, 6) (the twists now, or an earlier zone pass's answer). Without ``ready`` (``lw`` does
     not hold the evaluation's elements: the probe's law came from the element pass), returns
     :data:`NEED_ELEMENTS` before the first Newton solve, having written nothing but ``flowing`` (the caller
     restores it, fills ``lw`` and calls again with ``ready``); a solve that keeps every group at rest never needs
-    them. ``system``, ``out``: as :func:`implicit_wrenches`'s."""
+    them. ``system``, ``out``, ``work``: as :func:`implicit_wrenches`'s."""
     free, mob, radius, dt, ng = system
     w_out, rest, end = out
+    (sv, sw, v, u_probe, w, x, col, pv, v_eff, u_flow, rhs_buf, weight, wf, res, step, u_try, wf_try, res_try,
+     capacity, weight_all, full, a, block, pa, a_eff, mat, lin, jac, r_buf, f_buf, perm, groups, flow, untried,
+     _) = work                                                                              # SOLVE_WORK
     n6, retry = 6 * ng, st[sc.ST_REST_RETRY] * st[sc.ST_SPEED_SCALE]
-    sv, sw, a, v = _scaled(free, mob, radius, dt, ng)
-    flow = np.zeros(ng, np.bool_)
-    untried = np.zeros(ng, np.bool_)
-    capacity, weight_all, u_probe = _capacities(f, probe, sv, sw, ng, prior, flowing, rest, flow, untried)
-    w = np.zeros(n6)
-    full = np.empty((ng, 6))
-    lin, perm, x = np.empty((3 * n6 + 5, n6)), np.empty(2 * n6, np.int64), np.empty(n6)  # min_norm_factor's
+    _scaled(free, mob, radius, dt, ng, (sv, sw, a, v))
+    flow[:] = False
+    untried[:] = False
+    _capacities(f, probe, sv, sw, ng, prior, flowing, rest, flow, untried, (capacity, weight_all, u_probe))
+    w[:] = 0.0
     its = 0
     while True:
-        r_idx, f_idx = _indices(ng, rest, flow)
+        r_idx, f_idx = _indices(ng, rest, flow, r_buf, f_buf)
         mr, mf = r_idx.shape[0], f_idx.shape[0]
-        block, weight, kf = _rest_factor(a, r_idx, weight_all, st, lin, perm)
+        block_r, weight_r, kf = _rest_factor(a, r_idx, weight_all, st, lin, perm, (block, weight))
         for i in range(n6):
             w[i] = 0.0
         if mf and not ready:
             return NEED_ELEMENTS
         if mf:
-            a_eff, v_eff, u_flow = _flow_system(a, v, r_idx, f_idx, start, sv, (block, weight, kf, lin, perm, x))
-            w_f, it = _newton_flow(lw, flow, ng, a_eff, v_eff, u_flow, sv, sw, st, full, f, df)
+            system_f = _flow_system(a, v, r_idx, f_idx, start, sv, (block_r, weight_r, kf, lin, perm, x),
+                                    (pa, col, pv, a_eff, v_eff, u_flow))
+            u_f = system_f[2]
+            w_f, it = _newton_flow(lw, flow, ng, system_f, sv, sw, st, full, f, df,
+                                   (groups, wf, jac, res, mat, step, u_try, wf_try, res_try))
             its += it
             for i in range(mf):
                 w[f_idx[i]] = w_f[i]
@@ -410,8 +481,8 @@ def solve_from_probe(system, lw, start, flowing, prior, st, out, probe, f, df, r
                 g = f_idx[6 * i] // 6
                 sl = sa = 0.0
                 for c in range(3):
-                    sl += (u_flow[6 * i + c] / sv[6 * g + c]) ** 2
-                    sa += (u_flow[6 * i + 3 + c] / sv[6 * g + 3 + c]) ** 2
+                    sl += (u_f[6 * i + c] / sv[6 * g + c]) ** 2
+                    sa += (u_f[6 * i + 3 + c] / sv[6 * g + 3 + c]) ** 2
                 if untried[g] and math.sqrt(sl) + radius[g] * math.sqrt(sa) < retry:
                     untried[g] = False
                     flow[g] = False
@@ -420,13 +491,13 @@ def solve_from_probe(system, lw, start, flowing, prior, st, out, probe, f, df, r
             if slow:
                 continue
         if mr:
-            rhs = np.empty(mr)
+            rhs = rhs_buf[:mr]
             for i in range(mr):
                 s = v[r_idx[i]]
                 for j in range(mf):
                     s += a[r_idx[i], f_idx[j]] * w[f_idx[j]]
                 rhs[i] = s
-            min_norm_apply(block, rhs, weight, mr, kf, lin, perm, x)
+            min_norm_apply(block_r, rhs, weight_r, mr, kf, lin, perm, x)
             for i in range(mr):
                 w[r_idx[i]] = -x[i]
             over = False

@@ -20,7 +20,7 @@ import numpy as np
 from rft_mujoco.compiled.evaluate import _gravity
 from rft_mujoco.compiled.share import BAD_ACCELERATION, NOT_FINITE, _share_and_commit, touching_groups
 from rft_mujoco.compiled.element_pass import law_of, occluders_of, surface_of, terrain_of, wrenches
-from rft_mujoco.compiled.implicit import NEED_ELEMENTS, solve_from_probe
+from rft_mujoco.compiled.implicit import NEED_ELEMENTS, arena_sizes, solve_from_probe, solve_work
 from rft_mujoco.compiled.implicit_law import LAW, SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled import schema as sc
@@ -31,11 +31,14 @@ IMPLICIT_FIELDS = (("e_slot", "i1"), ("e_arm", "f2"), ("e_nrm", "f2"), ("e_depth
                    ("jac", "f3"), ("lin", "f2"), ("ang", "f2"), ("on", "b1"), ("jrows", "f2"), ("h", "f2"),
                    ("f", "f1"), ("y", "f2"), ("end", "f2"), ("probe", "f2"), ("gf", "f2"), ("gdf", "f3"),
                    ("flowing", "b1"), ("prev_active", "b1"), ("prev_flow", "b1"), ("istate", "f1"), ("scr", "f2"),
-                   ("pk", "i1"))
+                   ("pk", "i1"), ("mob", "f1"), ("start", "f2"), ("qacc_end", "f1"), ("sf", "f1"), ("si", "i1"),
+                   ("sb", "b1"))
 """(name, kind) of the ``iw`` buffers: the evaluation's elements (:func:`rft_mujoco.compiled.implicit_law.
 loaded_candidates`), the law's work space, the free motion's (``jrows`` J, ``h`` H and its factor, ``f``, ``y``),
 the solve's outputs, the groups that touched and flowed at the last evaluation (``prev_*``: the
-numpy reference's ``work.flowing``) and ``istate`` ([whether ``prev_*`` hold an evaluation])."""
+numpy reference's ``work.flowing``), ``istate`` ([whether ``prev_*`` hold an evaluation]), the groups' mobility
+(flat, (6 G)^2), the Newton solves' start twists, the end accelerations and the solve's arenas
+(:data:`rft_mujoco.compiled.implicit.SOLVE_WORK`)."""
 EFC_FIELDS = ("efc_J", "efc_J_rowadr", "efc_J_rownnz", "efc_J_colind", "efc_type", "efc_id", "efc_D", "efc_aref",
               "efc_frictionloss", "qacc")
 """MjData's constraint rows of this step (in its arena: read at every call) and its last ``qacc``."""
@@ -50,10 +53,12 @@ else MuJoCo's previous constraint forces (when they belong to this motion)."""
 def build_implicit(n_elements: int, n_bodies: int, n_groups: int, nv: int) -> dict:
     """Zeroed ``iw`` arrays (:data:`IMPLICIT_FIELDS`) for E packed element slots, B bodies, G groups, nv dofs."""
     e, b, g, n6, nv1 = max(n_elements, 1), n_bodies, n_groups, 6 * n_groups, max(nv, 1)
+    nf, ni, nb = arena_sizes(g)
     shapes = dict(e_slot=(e,), e_arm=(e, 3), e_nrm=(e, 3), e_depth=(e,), e_area=(e,), jac=(b, 6, 6), lin=(b, 3),
                   ang=(b, 3), on=(b,), jrows=(n6, nv), h=(nv1, nv1), f=(nv,), y=(n6, nv), end=(g, 6), probe=(g, 6),
                   gf=(g, 6), gdf=(g, 6, 6), flowing=(g,), prev_active=(g,), prev_flow=(g,), istate=(1,),
-                  scr=(SCRATCH_ROWS, e), pk=(e + 1,))
+                  scr=(SCRATCH_ROWS, e), pk=(e + 1,), mob=(n6 * n6,), start=(g, 6), qacc_end=(nv,), sf=(nf,), si=(ni,),
+                  sb=(nb,))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     return {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in IMPLICIT_FIELDS}
 
@@ -121,7 +126,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, system, st):
     arm, total = ws[sc.W_ARM], ws[sc.W_TOTAL]
     state = ws[sc.W_STATE]
     (e_slot, e_arm, e_nrm, e_depth, e_area, jac_b, lin, ang, on, jrows, h, f, y, end, probe, gf, gdf, flowing,
-     prev_active, prev_flow, istate, scr, pk) = iw                      # IMPLICIT_FIELDS, in order
+     prev_active, prev_flow, istate, scr, pk, mob_buf, start, qacc_end, sf, si, sb) = iw     # IMPLICIT_FIELDS
     k = int(state[sc.S_TOUCHING])
     state[sc.S_CLEAN] = 0.0
     nv = qvel.shape[0]
@@ -139,7 +144,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, system, st):
     # 2-5 are repeated while the end accelerations put a constraint row in another zone than the one it was
     #    linearized in (physics.implicit.ZONE_PASSES; reference.evaluate_implicit)
     nefc = efc[4].shape[0]
-    zones, zones_end, qacc_end = np.empty(nefc, np.int64), np.empty(nefc, np.int64), np.empty(nv)
+    zones, zones_end = np.empty(nefc, np.int64), np.empty(nefc, np.int64)    # (this step's number of rows)
     if linearized:
         row_zones(nv, sparse, efc, efc[9], zones, False, zones)
     prior = istate[0] != 0.0 and state[sc.S_LAGGED] != 0.0      # the last evaluation was of this motion
@@ -155,11 +160,12 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, system, st):
     rad_g = total                                   # (G,) the active groups' radii
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
-    all_on = np.ones(ng, np.bool_)
-    start = np.empty((ng, 6))                       # the Newton solve's starting twists
+    solve_buf = solve_work(sf, si, sb, ng)          # the solve's buffers (implicit.SOLVE_WORK)
+    all_on = solve_buf[34]
+    all_on[:] = True
+    mob = mob_buf[:36 * ng * ng].reshape((6 * ng, 6 * ng))
     have_elements = False                           # the evaluation's elements found (the same in every pass)
     for zone_pass in range(int(st[sc.ST_ZONE_PASSES])):
-        mob = np.empty((6 * ng, 6 * ng))
         if not _free_system(md, hc, user_xfrc, system, zones, state[sc.S_LAGGED] != 0.0, dt, (ng, active, ids,
                             group_ref), (jrows, y, twist, free, mob, h, f)):
             return BAD_ACCELERATION
@@ -186,7 +192,7 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, system, st):
             for r in range(ng):
                 flowing[r] = prev_flow[active[r]]
             its = solve_from_probe((free, mob, rad_g, dt, ng), lw, start, flowing, prior, st, (w, resting, end), probe,
-                                   gf, gdf, ready)
+                                   gf, gdf, ready, solve_buf)
             if its != NEED_ELEMENTS:
                 break
             ready = True
