@@ -28,7 +28,7 @@ import numpy as np
 from rft_mujoco.compiled.elements import CLUSTER_SIZE, LANES, _inside, _nearest_face, _outside_ball, pack
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
-from rft_mujoco.compiled.law import _coef, _law_direction, _stress
+from rft_mujoco.compiled.law import _coef, _law_direction, _stress, stress_guards
 from rft_mujoco.compiled.terrain import ABOVE, DEFORMABLE, FLAT, _depth, deformed_range
 from rft_mujoco.geometry.occlusion import Occluders
 from rft_mujoco.physics import terrain_spec as ts
@@ -172,13 +172,12 @@ def _pass_constants(terrain, law, speed_scale):
     (:data:`rft_mujoco.compiled.law.STRESS_GUARDS`), the leading tolerance and ramp, (zero speed^2, leading
     edge^2) and how depths are found (:data:`_FLAT`, ``_DEFORMED`` or ``_GENERAL``)."""
     g_hat, _, kind, tp, _ = terrain
-    _, coef, mu_surf, no_tension, no_forward, no_power, tol = law
-    lead_tol, vert_tol, ramp = tol[0], tol[1], tol[3]
+    coef, tol = law[1], law[6]
+    lead_tol, ramp = tol[0], tol[3]
     edge = ramp if speed_scale > 0.0 else lead_tol                 # the regularized law's leading edge
     mode = _FLAT if kind == FLAT and tp[ts.TP_REGION] == 0.0 else _DEFORMED if kind == DEFORMABLE and g_hat[2] < 0.0 \
         else _GENERAL
-    return (_coef(coef), (mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol), lead_tol, ramp,
-            (tol[2] * tol[2], edge * edge), mode)
+    return _coef(coef), stress_guards(law), lead_tol, ramp, (tol[2] * tol[2], edge * edge), mode
 
 
 @njit(**INLINE)
@@ -304,9 +303,9 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
                 ms += dep[i] > 0.0
             if ms == 0:
                 continue
+            # 2. the submerged elements inside another body's geom: depth -inf, their area reported
             occluded[j] = _occlude(dep, sub, ms, cl, (q, s, occ_start[b], occ_start[b + 1], qx, qy,
                                    qz), frame, surface, occluders, occluded[j])
-            cl0, cl1, cl2 = cl
             # 3. the loaded elements (submerged, moving, leading), in increasing index, packed to the front
             ml = 0
             if SPARSE * ms < n:

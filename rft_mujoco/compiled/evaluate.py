@@ -36,7 +36,8 @@ from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.schema import HANDLE_FIELDS, MJDATA_FIELDS, PARAMS, STATE, WORK_FIELDS  # noqa: F401
 from rft_mujoco.compiled.rest import _chain_dof, add_user_wrenches, blend, rest_wrenches, solve_m
 from rft_mujoco.compiled.share import (BAD_ACCELERATION, NOT_FINITE, NOT_FINITE_STATE,  # noqa: F401
-                                       _clear, _share_and_commit, touching_groups)
+                                       _clear, _share_and_commit, body_arms, group_sums, group_twists,
+                                       touching_groups)
 
 _TIME_SLACK = 1.0 + tol.TIME_RTOL
 """A step of dt (1 + TIME_RTOL) still follows the previous evaluation (frozen into the compiled code)."""
@@ -83,11 +84,8 @@ def broadphase(md, hc, ws, time, dt):
     cleared once). Returns the count, or NOT_FINITE_STATE."""
     xpos, xmat, xipos, cvel = md[sc.M_XPOS], md[sc.M_XMAT], md[sc.M_XIPOS], md[sc.M_CVEL]
     subtree_com, qpos, qvel = md[sc.M_SUBTREE_COM], md[sc.M_QPOS], md[sc.M_QVEL]
-    ids, root, cluster_start = hc[sc.H_IDS], hc[sc.H_ROOT], hc[sc.H_CLUSTER_START]
-    body_clusters = hc[sc.H_BODY_CLUSTERS]
-    bound_center, bound_radius, centroids = hc[sc.H_BOUND_CENTER], hc[sc.H_BOUND_RADIUS], hc[sc.H_CENTROIDS]
-    cluster_center, cluster_radius, tp = hc[sc.H_CLUSTER_CENTER], hc[sc.H_CLUSTER_RADIUS], hc[sc.H_TP]
-    heights, gravity, params = hc[sc.H_HEIGHTS], hc[sc.H_GRAVITY], hc[sc.H_PARAMS]
+    ids, root, bound_center, bound_radius = hc[sc.H_IDS], hc[sc.H_ROOT], hc[sc.H_BOUND_CENTER], hc[sc.H_BOUND_RADIUS]
+    gravity = hc[sc.H_GRAVITY]
     touch, body_pos, body_mat, body_com = ws[sc.W_TOUCH], ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], ws[sc.W_BODY_COM]
     v_com, omega = ws[sc.W_V_COM], ws[sc.W_OMEGA]
     state = ws[sc.W_STATE]
@@ -262,50 +260,6 @@ def _mobility(groups, kinematics, qacc, tree, factor, dt, chain, zt, out, blocks
 
 
 @njit(**INLINE)
-def _body_twists(k, groups, u, xipos, body_com, out):
-    """Step 4 of :func:`_rest`: the touching bodies' twists at their COMs from their groups' ``u`` (G, 6: m/s, rad/s
-    about the reference points). ``groups`` = (``active``, ``slot``, ``ids``, ``group_ref``); ``out`` = (``arm``
-    (K, 3) m: each COM from its group's reference point, ``u_lin`` (K, 3) m/s, ``u_ang`` (K, 3) rad/s)."""
-    active, slot, ids, group_ref = groups
-    arm, u_lin, u_ang = out
-    for j in range(k):
-        r = slot[j]
-        b_ref = ids[group_ref[active[r]]]
-        ax = body_com[j, 0] - xipos[b_ref, 0]
-        ay = body_com[j, 1] - xipos[b_ref, 1]
-        az = body_com[j, 2] - xipos[b_ref, 2]
-        arm[j, 0] = ax
-        arm[j, 1] = ay
-        arm[j, 2] = az
-        wx, wy, wz = u[r, 3], u[r, 4], u[r, 5]
-        u_ang[j, 0] = wx
-        u_ang[j, 1] = wy
-        u_ang[j, 2] = wz
-        u_lin[j, 0] = u[r, 0] + (wy * az - wz * ay)
-        u_lin[j, 1] = u[r, 1] + (wz * ax - wx * az)
-        u_lin[j, 2] = u[r, 2] + (wx * ay - wy * ax)
-
-
-@njit(**INLINE)
-def _group_wrenches(ng, k, slot, arm, wrench, rft_g):
-    """Step 5 of :func:`_rest`: the sum into ``rft_g`` (G, 6) of the touching bodies' wrenches ``wrench`` (K, 6: N,
-    N m about each COM) about their groups' reference points (``arm``: each COM from its reference point, m)."""
-    for r in range(ng):
-        for c in range(6):
-            rft_g[r, c] = 0.0
-    for j in range(k):
-        r = slot[j]
-        fx, fy, fz = wrench[j, 0], wrench[j, 1], wrench[j, 2]
-        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-        rft_g[r, 0] += fx
-        rft_g[r, 1] += fy
-        rft_g[r, 2] += fz
-        rft_g[r, 3] += wrench[j, 3] + (ay * fz - az * fy)
-        rft_g[r, 4] += wrench[j, 4] + (az * fx - ax * fz)
-        rft_g[r, 5] += wrench[j, 5] + (ax * fy - ay * fx)
-
-
-@njit(**INLINE)
 def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     """The rest treatment of the ``k`` touching bodies: ``SandHandle._evaluate_rest``."""
     xipos, cdof, subtree_com, qvel = md[sc.M_XIPOS], md[sc.M_CDOF], md[sc.M_SUBTREE_COM], md[sc.M_QVEL]
@@ -372,12 +326,13 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
     blend(twist, free, rad_g, ng, u)
-    _body_twists(k, (active, slot, ids, group_ref), u, xipos, body_com, (arm, u_lin, u_ang))
+    body_arms(k, slot, (active, ids, group_ref), body_com, xipos, arm)
+    group_twists(u, None, k, slot, arm, u_lin, u_ang, None)
     # 5. RFT wrenches at the blended twists; the groups' wrenches about their reference points
     wrenches(touch, k, surface_of(hc), (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com), (u_lin, u_ang),
              terrain_of(hc, g_hat), law_of(hc, xi_n), occluders_of(hc, md), (ws[sc.W_SCRATCH], ws[sc.W_INDEX]),
              (wrench, count, depth_max, occluded), 0.0)
-    _group_wrenches(ng, k, slot, arm, wrench, rft_g)
+    group_sums(ng, None, k, slot, arm, None, wrench, rft_g)
     # 6. the rest solve (rest.rest_wrenches), in the groups' radii
     state[sc.S_LOCKED_DOFS] = 0.0
     lock_prev = ws[sc.W_LOCK_PREV]                               # the dofs locked in the last evaluation

@@ -43,6 +43,8 @@ coordinates' scales, free twists, probe and wrenches; the rest operator's and th
 the flowing system, Newton's matrix), ``lin`` (:func:`rft_mujoco.compiled.rest.min_norm_factor`'s), ``jac`` (G, 6,
 6); int: ``r_idx``, ``f_idx`` (6 G), ``perm`` (12 G), ``groups`` (G); bool: ``flow``, ``untried``, ``on`` (G)."""
 _VECTORS, _MATRICES = 18, 5
+_ON = SOLVE_WORK.index("on")
+"""The position of ``on`` in :data:`SOLVE_WORK` (the one buffer :func:`implicit_wrenches` reads by itself)."""
 
 
 def arena_sizes(n_groups: int) -> tuple[int, int, int]:
@@ -268,7 +270,7 @@ def implicit_wrenches(system, lw, twist, flowing, prior, st, out, probe, f, df, 
     iterations."""
     free, _, radius, _, ng = system
     blend(twist, free, radius, ng, probe)
-    on = work[34]
+    on = work[_ON]
     on[:] = True
     _law(lw, probe, on, ng, st, LAW, f, df)
     return solve_from_probe(system, lw, twist, flowing, prior, st, out, probe, f, df, True, work)
@@ -441,8 +443,9 @@ def _passive_finish(w, v, a, sv, sw, end, w_out):
 @njit(**JIT)
 def solve_from_probe(system, lw, start, flowing, prior, st, out, probe, f, df, ready, work):
     """:func:`implicit_wrenches` from its capacity test on: ``probe`` (ng, 6) holds the blended twists
-    (:func:`rft_mujoco.compiled.rest.blend`) and ``f`` (ng, 6) the groups' law at them; a flowing group's Newton solve starts from its
-    row of ``start`` (ng, 6) (the twists now, or an earlier zone pass's answer). Without ``ready`` (``lw`` does
+    (:func:`rft_mujoco.compiled.rest.blend`) and ``f`` (ng, 6) the groups' law at them; a flowing group's
+    Newton solve starts from its row of ``start`` (ng, 6) (the twists now, or an earlier zone pass's answer).
+    Without ``ready`` (``lw`` does
     not hold the evaluation's elements: the probe's law came from the element pass), returns
     :data:`NEED_ELEMENTS` before the first Newton solve, having written nothing but ``flowing`` (the caller
     restores it, fills ``lw`` and calls again with ``ready``); a solve that keeps every group at rest never needs

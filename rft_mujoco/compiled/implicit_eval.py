@@ -18,10 +18,11 @@ import math
 import numpy as np
 
 from rft_mujoco.compiled.evaluate import _gravity
-from rft_mujoco.compiled.share import BAD_ACCELERATION, NOT_FINITE, _share_and_commit, touching_groups
+from rft_mujoco.compiled.share import (BAD_ACCELERATION, NOT_FINITE, _share_and_commit, body_arms, group_sums,
+                                       group_twists, touching_groups)
 from rft_mujoco.compiled.element_pass import law_of, occluders_of, surface_of, terrain_of, wrenches
 from rft_mujoco.compiled.implicit import NEED_ELEMENTS, arena_sizes, solve_from_probe, solve_work
-from rft_mujoco.compiled.implicit_law import LAW, SCRATCH_ROWS, group_law, group_sums, group_twists, loaded_candidates
+from rft_mujoco.compiled.implicit_law import LAW, SCRATCH_ROWS, group_law, loaded_candidates
 from rft_mujoco.compiled.jit import JIT, njit
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.rest import add_user_wrenches, blend
@@ -153,16 +154,11 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, system, st):
     resting = ws[sc.W_FLOW]                                # (G,) the solve's rest flags (the explicit solve's ``flow``)
     its = NEED_ELEMENTS
     n_e = 0
-    for j in range(k):                              # the touching bodies' COMs from their groups' reference points
-        b_ref = ids[group_ref[active[slot[j]]]]
-        for c in range(3):
-            arm[j, c] = body_com[j, c] - xipos[b_ref, c]
+    body_arms(k, slot, (active, ids, group_ref), body_com, xipos, arm)
     rad_g = total                                   # (G,) the active groups' radii
     for r in range(ng):
         rad_g[r] = group_radius[active[r]]
     solve_buf = solve_work(sf, si, sb, ng)          # the solve's buffers (implicit.SOLVE_WORK)
-    all_on = solve_buf[34]
-    all_on[:] = True
     mob = mob_buf[:36 * ng * ng].reshape((6 * ng, 6 * ng))
     have_elements = False                           # the evaluation's elements found (the same in every pass)
     for zone_pass in range(int(st[sc.ST_ZONE_PASSES])):
@@ -172,11 +168,11 @@ def evaluate_implicit(md, hc, ws, iw, user_xfrc, dt, sand_out, system, st):
         # 4. the capacity test's twists (the blend of the twists now and the free ones) and the law at them, by
         #    the element pass
         blend(twist, free, rad_g, ng, probe)
-        group_twists(probe, all_on, k, slot, arm, lin, ang, on)
+        group_twists(probe, None, k, slot, arm, lin, ang, None)         # every group
         wrenches(touch, k, surface_of(hc), (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com), (lin, ang),
                  terrain_of(hc, g_hat), law_of(hc, xi_n), occluders_of(hc, md), (ws[sc.W_SCRATCH], ws[sc.W_INDEX]),
                  (wrench, count, depth_max, occluded), st[sc.ST_SPEED_SCALE])
-        group_sums(ng, all_on, k, slot, arm, on, wrench, gf)
+        group_sums(ng, None, k, slot, arm, None, wrench, gf)
         # 5. the solve, started in flow for the groups that flowed at the last evaluation of the same groups (of
         #    this motion: not after a state restore); the elements that may carry stress are found (in the world
         #    frame, for the Newton solve) once, when a group is first to flow; a group that flowed in the last zone

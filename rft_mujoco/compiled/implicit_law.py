@@ -23,8 +23,9 @@ import math
 import numpy as np
 
 from rft_mujoco.compiled.elements import _inside, _outside_ball
-from rft_mujoco.compiled.jit import INLINE, JIT, JIT_LAW, njit
-from rft_mujoco.compiled.law import _coef, _law_direction, _stress
+from rft_mujoco.compiled.jit import JIT, JIT_LAW, njit
+from rft_mujoco.compiled.law import _coef, _law_direction, _stress, stress_guards
+from rft_mujoco.compiled.share import group_sums, group_twists
 from rft_mujoco.compiled.terrain import _depth
 
 
@@ -161,12 +162,12 @@ def body_law(els, lawc, k, lin, ang, on, speed_scale, fd_step, derivative, scr, 
     last slot of ``pk`` keeps the number of loaded elements for :data:`DERIVATIVE_OF_LAST`. As the element pass,
     the loaded elements are packed first and the law runs on them without branches (vectorized)."""
     n_e, e_slot, e_arm, e_nrm, e_depth, e_area = els
-    g_hat, xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol = lawc
+    g_hat, xi_n, coef, tol = lawc[0], lawc[1], lawc[2], lawc[7]
     wrench, jac, count, max_depth = out
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
-    lead_tol, vert_tol, zero_speed, ramp = tol[0], tol[1], tol[2], tol[3]
-    guards = (mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)                    # law.STRESS_GUARDS
+    lead_tol, zero_speed, ramp = tol[0], tol[2], tol[3]
+    guards = stress_guards(lawc[1:])                                          # lawc = (g_hat,) + element_pass.LAW
     law = ((g0, g1, g2), c, guards, lead_tol, ramp)
     last = derivative == DERIVATIVE_OF_LAST
     for j in range(k):
@@ -329,43 +330,3 @@ def group_law(u, groups_on, ng, law, speed_scale, fd_step, derivative, f, df):
                 for m in range(6):
                     x += s[m, a] * t[m, b]
                 df[g, a, b] += x
-
-
-@njit(**INLINE)
-def group_twists(u, groups_on, k, slot, arm, lin, ang, on):
-    """Each body's twist at its COM from its group's ``u`` (ng, 6) at the reference point: ``lin``, ``ang``
-    (k, 3) m/s, rad/s; ``on`` (k,): whether its group is on (:func:`group_law`)."""
-    for j in range(k):
-        g = slot[j]
-        on[j] = groups_on[g]
-        wx, wy, wz = u[g, 3], u[g, 4], u[g, 5]
-        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-        lin[j, 0] = u[g, 0] + (wy * az - wz * ay)
-        lin[j, 1] = u[g, 1] + (wz * ax - wx * az)
-        lin[j, 2] = u[g, 2] + (wx * ay - wy * ax)
-        ang[j, 0] = wx
-        ang[j, 1] = wy
-        ang[j, 2] = wz
-
-
-@njit(**INLINE)
-def group_sums(ng, groups_on, k, slot, arm, on, wrench, f):
-    """``f`` (ng, 6): the groups' wrenches about their reference points (N, N m) from their bodies' rows of
-    ``wrench`` (about each COM, at ``arm`` from the reference point), for the groups with ``groups_on``."""
-    for g in range(ng):
-        if not groups_on[g]:
-            continue
-        for a in range(6):
-            f[g, a] = 0.0
-    for j in range(k):
-        if not on[j]:
-            continue
-        g = slot[j]
-        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
-        fx, fy, fz = wrench[j, 0], wrench[j, 1], wrench[j, 2]
-        f[g, 0] += fx                             # S^T w = (f, tau + arm x f)
-        f[g, 1] += fy
-        f[g, 2] += fz
-        f[g, 3] += wrench[j, 3] + (ay * fz - az * fy)
-        f[g, 4] += wrench[j, 4] + (az * fx - ax * fz)
-        f[g, 5] += wrench[j, 5] + (ax * fy - ay * fx)

@@ -87,6 +87,13 @@ vertical tolerances (:func:`tolerances`' first two)."""
 
 
 @njit(**INLINE)
+def stress_guards(law):
+    """:data:`STRESS_GUARDS` of the ``law`` bundle (:data:`rft_mujoco.compiled.element_pass.LAW`)."""
+    _, _, mu_surf, no_tension, no_forward, no_power, tol = law
+    return mu_surf, no_tension, no_forward, no_power, tol[0], tol[1]
+
+
+@njit(**INLINE)
 def _stress(n, v, g, c, guards):
     """:func:`rft_mujoco.physics.law.stress_per_depth` / xi_n of one element, without branches: unit normal ``n``,
     unit direction ``v`` and unit gravity ``g`` (3-tuples), ``c`` the coefficients (:func:`_coef`), ``guards`` =
@@ -154,11 +161,11 @@ def _element_forces(elements, height, g_hat, law, scratch, out):
     NaN otherwise), not a boolean reduction.
     """
     centroids, normals, areas, velocities = elements
-    xi_n, coef, mu_surf, no_tension, no_forward, no_power, tol = law
+    xi_n, coef, tol = law[0], law[1], law[6]
     g0, g1, g2 = g_hat[0], g_hat[1], g_hat[2]
     c = _coef(coef)
-    lead_tol, vert_tol, zero_speed = tol[0], tol[1], tol[2]
-    guards = (mu_surf, no_tension, no_forward, no_power, lead_tol, vert_tol)
+    lead_tol, zero_speed = tol[0], tol[2]
+    guards = stress_guards(law)
     n_all = areas.shape[0]
     chunk = scratch.shape[1]
     for s in range(0, n_all, chunk):

@@ -143,3 +143,59 @@ def _share_and_commit(k, ng, groups, hc, ws, sand_out):
         for c in range(6):
             sand_out[row, c] += applied[j, c]
     return status
+
+
+@njit(**INLINE)
+def body_arms(k, slot, groups, body_com, xipos, arm):
+    """``arm`` (k, 3) m: each touching body's COM (``body_com`` rows) from its group's reference point (the COM of
+    body ``ids[group_ref[active[slot[j]]]]``; ``groups`` = (``active``, ``ids``, ``group_ref``))."""
+    active, ids, group_ref = groups
+    for j in range(k):
+        b_ref = ids[group_ref[active[slot[j]]]]
+        for c in range(3):
+            arm[j, c] = body_com[j, c] - xipos[b_ref, c]
+
+
+@njit(**INLINE)
+def group_twists(u, groups_on, k, slot, arm, lin, ang, on):
+    """Each body's twist at its COM from its group's ``u`` (ng, 6) at the reference point: ``lin``, ``ang``
+    (k, 3) m/s, rad/s; ``on`` (k,): whether its group is on (``groups_on`` (ng,) bool; both None: every group,
+    nothing recorded)."""
+    for j in range(k):
+        g = slot[j]
+        if on is not None:
+            on[j] = groups_on[g]
+        wx, wy, wz = u[g, 3], u[g, 4], u[g, 5]
+        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
+        lin[j, 0] = u[g, 0] + (wy * az - wz * ay)
+        lin[j, 1] = u[g, 1] + (wz * ax - wx * az)
+        lin[j, 2] = u[g, 2] + (wx * ay - wy * ax)
+        ang[j, 0] = wx
+        ang[j, 1] = wy
+        ang[j, 2] = wz
+
+
+@njit(**INLINE)
+def group_sums(ng, groups_on, k, slot, arm, on, wrench, f):
+    """``f`` (ng, 6): the groups' wrenches about their reference points (N, N m) from their bodies' rows of
+    ``wrench`` (about each COM, at ``arm`` from the reference point), for the groups with ``groups_on`` and the
+    bodies with ``on`` (both None: all; the explicit evaluation's use)."""
+    for g in range(ng):
+        if groups_on is not None:
+            if not groups_on[g]:
+                continue
+        for a in range(6):
+            f[g, a] = 0.0
+    for j in range(k):
+        if on is not None:
+            if not on[j]:
+                continue
+        g = slot[j]
+        ax, ay, az = arm[j, 0], arm[j, 1], arm[j, 2]
+        fx, fy, fz = wrench[j, 0], wrench[j, 1], wrench[j, 2]
+        f[g, 0] += fx                             # S^T w = (f, tau + arm x f)
+        f[g, 1] += fy
+        f[g, 2] += fz
+        f[g, 3] += wrench[j, 3] + (ay * fz - az * fy)
+        f[g, 4] += wrench[j, 4] + (az * fx - ax * fz)
+        f[g, 5] += wrench[j, 5] + (ax * fy - ay * fx)
