@@ -75,8 +75,9 @@ def test_geometry_from_model_and_kinematics_match_mujoco():
     for i, leg in enumerate(quadruped.LEGS):
         foot_hip = rot.T @ (data.body(f"{leg}_foot").xpos - data.body(f"{leg}_hip").xpos)
         np.testing.assert_allclose(quadruped.leg_fk(q[i], quadruped.SIDE[i], geometry), foot_hip, atol=1e-12)
-    np.testing.assert_allclose(quadruped.leg_ik(quadruped.leg_fk(q_work, quadruped.SIDE, geometry), quadruped.SIDE, geometry),
-                               q_work, atol=1e-9)
+    side = quadruped.SIDE
+    np.testing.assert_allclose(quadruped.leg_ik(quadruped.leg_fk(q_work, side, geometry), side, geometry), q_work,
+                               atol=1e-9)
 
 
 def test_jacobian_matches_finite_differences():

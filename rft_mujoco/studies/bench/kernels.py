@@ -69,8 +69,7 @@ def throughput(sizes) -> list[dict]:
         bodies, pose = kernel.BodySurface(local, nrm, areas, body, B), kernel.BodyPose(pos, mat, com)
         t_ker_np = median_time(lambda: kernel.body_wrenches(bodies, pose, v_com, omega, terrain, _DOWN, _GRAVITY, media,
                                                             law.PUBLISHED), reps)
-        run = fast.ElementPass(kernel.BodySurface(local, nrm, areas, body, B), terrain, _DOWN, _GRAVITY, media,
-                               law.PUBLISHED)
+        run = fast.ElementPass(bodies, terrain, _DOWN, _GRAVITY, media, law.PUBLISHED)
         t_ker_nb = median_time(lambda: run(pos, mat, com, v_com, omega), reps)
         out.append(dict(n=n, law_numpy=t_law_np / n * 1e9, law_numba=t_law_nb / n * 1e9,
                         kernel_numpy=t_ker_np / n * 1e9, kernel_numba=t_ker_nb / n * 1e9,
@@ -160,12 +159,11 @@ def _evaluation_time(el, rot, depth) -> tuple[float, float]:
     v_com = np.array([[SPEED * math.cos(0.3), 0.0, -SPEED * math.sin(0.3)]])
     omega = np.zeros((1, 3))
     terrain = FlatSurface(0.0)
-    run = fast.ElementPass(kernel.BodySurface(local, nrm, areas, body, 1), terrain, _DOWN, _GRAVITY,
-                           MPM_VALIDATION, law.PUBLISHED)
+    bodies, pose = kernel.BodySurface(local, nrm, areas, body, 1), kernel.BodyPose(pos, mat, pos)
+    run = fast.ElementPass(bodies, terrain, _DOWN, _GRAVITY, MPM_VALIDATION, law.PUBLISHED)
 
     def numpy_pass():
-        kernel.body_wrenches(kernel.BodySurface(local, nrm, areas, body, 1), kernel.BodyPose(pos, mat, pos), v_com,
-                             omega, terrain, _DOWN, _GRAVITY, MPM_VALIDATION, law.PUBLISHED)
+        kernel.body_wrenches(bodies, pose, v_com, omega, terrain, _DOWN, _GRAVITY, MPM_VALIDATION, law.PUBLISHED)
     return median_time(lambda: run(pos, mat, pos, v_com, omega), 5, 0.01), median_time(numpy_pass, 3, 0.01)
 
 
