@@ -55,6 +55,27 @@ def test_a_push_below_the_capacity_rests_and_above_it_flows_with_the_full_capaci
             assert end[0, 0] > 0.0 and w[0, 0] < 0.0
 
 
+@pytest.mark.parametrize("mass", [1e-2, 1.0, 200.0])
+def test_the_newton_solve_stops_within_its_tolerance_in_force(mass, monkeypatch):
+    """The flow solve's wrench is the converged one's within NEWTON_RTOL of the largest, however steep the law is
+    where the answer lies: a body the sand slows to a creep (``|u| ~ SPEED_SCALE``, where the law's slope is the
+    capacity over SPEED_SCALE and a tolerance in velocity left up to 10% of the force), held, and flowing on,
+    each from a start far from the answer; against the same solve converged to round-off."""
+    cap, dt = 50.0, 0.002
+    law, a_eff, one = coulomb_law([cap]), np.eye(6) * dt / mass, np.ones((1, 6))
+    errors = []
+    for ratio in (0.3, 1.0, 3.0):              # the free speed over the speed the sand takes out in a step
+        v_eff = ratio * dt * cap / mass * np.array([0.8, 0.6, 0.0, 0.0, 0.0, 0.0])
+        start = v_eff + np.array([0.01, -0.02, 0.0, 0.0, 0.0, 0.0])
+        _, wf, its = implicit._newton_flow(law, np.array([True]), a_eff, v_eff, start, one, one, 1)
+        with monkeypatch.context() as patch:
+            patch.setattr(implicit, "NEWTON_RTOL", 1e-13)
+            _, wf_ref, its_ref = implicit._newton_flow(law, np.array([True]), a_eff, v_eff, start, one, one, 1)
+        assert its < implicit.NEWTON_ITERATIONS and np.abs(wf_ref).max() > 0.01 * cap
+        errors.append(np.abs(wf - wf_ref).max() / np.abs(wf_ref).max())
+    assert max(errors) <= implicit.NEWTON_RTOL, errors
+
+
 def test_flow_keeps_the_drag_of_a_body_that_stops_sinking():
     """A body sinking slowly and sliding fast: backward Euler stops the sinking within the step and keeps the
     full drag along the slide (the explicit treatment scaled the whole wrench down)."""

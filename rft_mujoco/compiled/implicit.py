@@ -181,6 +181,20 @@ def _flow_jac(lw, groups, ng, flow, sv, sw, st, full, f, df, jac):
 
 
 @njit(**JIT)
+def _wrench_change(jac, du, wf, kf):
+    """:func:`rft_mujoco.physics.implicit.wrench_change` with the blocks ``jac`` (k, 6, 6) and twists ``du``."""
+    top, change = 0.0, 0.0
+    for i in range(kf):
+        for a in range(6):
+            s = 0.0
+            for b in range(6):
+                s += jac[i, a, b] * du[6 * i + b]
+            change = max(change, abs(s))
+            top = max(top, abs(wf[6 * i + a]))
+    return change / top if top > 0.0 else np.inf
+
+
+@njit(**JIT)
 def _newton_flow(lw, flow, ng, system, sv, sw, st, full, f, df, nw):
     """:func:`rft_mujoco.physics.implicit._newton_flow`: Newton's method on ``u - v_eff - a_eff F(u) = 0`` for
     the flowing groups (scaled coordinates), from ``u`` (overwritten with the answer). Returns the flowing
@@ -212,6 +226,7 @@ def _newton_flow(lw, flow, ng, system, sv, sw, st, full, f, df, nw):
             res[p] -= a_eff[p, q] * wf[q]
         scale = max(scale, abs(v_eff[p] - u[p]))
     scale = max(scale, st[sc.ST_SPEED_SCALE]) * st[sc.ST_NEWTON_RTOL]
+    floor = st[sc.ST_SPEED_SCALE] * st[sc.ST_NEWTON_RTOL]
     its = 0
     mat = mat_buf[:n * n].reshape((n, n))
     step, u_try, wf_try, res_try = step_buf[:n], u_try_buf[:n], wf_try_buf[:n], res_try_buf[:n]
@@ -220,8 +235,8 @@ def _newton_flow(lw, flow, ng, system, sv, sw, st, full, f, df, nw):
         top = 0.0
         for p in range(n):
             top = max(top, abs(res[p]))
-        if top <= scale:
-            break
+        if top <= floor or (top <= scale and it > 1 and _wrench_change(jac, res, wf, kf) <= st[sc.ST_NEWTON_RTOL]):
+            break                              # jac: the law's slope where the last step started
         _flow_jac(lw, groups, ng, flow, sv, sw, st, full, f, df, jac)   # the law evaluated last was at u
         for p in range(n):                     # I - a_eff J (J block diagonal)
             for i in range(kf):

@@ -13,10 +13,12 @@ from rft_mujoco import tol
 from rft_mujoco.physics.rest import (CAPACITY_TOL, DEPENDENT_TOL, WEIGHT_FLOOR, _scales, blend, passive_scale,
                                      pivoted_apply, pivoted_factor, twist_speed)
 
-SPEED_SCALE = 1e-3
+SPEED_SCALE = 1e-4
 """m/s: the regularization speed ``c`` of the implicit solve's law (each element's stress times
 ``|v| / sqrt(|v|^2 + c^2)``, :func:`rft_mujoco.physics.elements.body_wrench_jacobians`): the published force
-to within 0.5% above 10 c = 1 cm/s. Rest is not regularized: a group the sand can hold is held exactly."""
+to within 0.5% above 10 c = 1 mm/s. Rest is not regularized: a group the sand can hold is held exactly. 0.1 mm/s
+(1 mm/s before 2026-12-04): slow strokes (a small swimmer's, 1-3 mm/s) get the published force (docs/rest.md,
+"Any mass")."""
 
 REST_RETRY = 10.0
 """A group that starts an evaluation in flow (it flowed at the last one) is tried at rest when the flow solve
@@ -34,8 +36,11 @@ that it loads or unloads): without it a friction held in the linear model beyond
 hold a body that MuJoCo's own solve then moves."""
 
 NEWTON_RTOL = 1e-3
-"""The implicit flow solve stops when the residual of the end-of-step twists is below this fraction of the
-twist change that the step makes (twist speeds), or below ``SPEED_SCALE * NEWTON_RTOL``."""
+"""The implicit flow solve stops when the residual of the end-of-step twists, through the law's slope where the
+last Newton step started, moves the flowing groups' wrenches by less than this fraction of the largest
+(:func:`wrench_change`: forces, and torques over the group's radius), or when that residual is below
+``SPEED_SCALE * NEWTON_RTOL`` (m/s). A tolerance in force, not in velocity: the law's slope near slow motion
+grows as ``1 / SPEED_SCALE``."""
 
 
 def rest_operator(block: np.ndarray, weight: np.ndarray) -> np.ndarray:
@@ -140,6 +145,16 @@ def implicit_wrenches(free_twist: np.ndarray, mobility: np.ndarray, law, twist: 
     return w.reshape(n, 6) / sw, rest, end, iterations
 
 
+def wrench_change(blocks: np.ndarray, du: np.ndarray, wf: np.ndarray) -> float:
+    """The flowing groups' wrench change that twists ``du`` make, as a fraction of the largest wrench:
+    ``max |J du| / max |wf|`` with ``blocks`` (k, 6, 6) the law's scaled derivative blocks, ``du`` (6 k,)
+    scaled twists (m/s, and rad/s times the radius), ``wf`` (6 k,) scaled wrenches (N, and N m over the
+    radius); inf when every wrench is zero. The Newton solve's stopping test with its residual as ``du``."""
+    top = float(np.abs(wf).max(initial=0.0))
+    change = float(np.abs(np.einsum("kab,kb->ka", blocks, du.reshape(-1, 6))).max(initial=0.0))
+    return change / top if top > 0.0 else np.inf
+
+
 def _newton_flow(law, flow, a_eff, v_eff, start, sv, sw, n):
     """Newton's method on ``u - v_eff - a_eff F(u) = 0`` for the flowing groups (scaled coordinates)."""
     groups = np.flatnonzero(flow)
@@ -159,10 +174,13 @@ def _newton_flow(law, flow, a_eff, v_eff, start, sv, sw, n):
     wf, jac = evaluate(u)
     res = u - v_eff - a_eff @ wf
     scale = max(float(np.abs(v_eff - u).max()), SPEED_SCALE) * NEWTON_RTOL
-    its = 0
+    its, blocks = 0, None
     for its in range(1, NEWTON_ITERATIONS + 1):
-        if float(np.abs(res).max()) <= scale:
-            break
+        top = float(np.abs(res).max())
+        if top <= SPEED_SCALE * NEWTON_RTOL or (
+                top <= scale and blocks is not None and wrench_change(blocks, res, wf) <= NEWTON_RTOL):
+            break                              # blocks: the law's slope where the last step started
+        blocks = jac.reshape(k, 6, k, 6)[np.arange(k), :, np.arange(k)]
         step = np.linalg.solve(np.eye(6 * k) - a_eff @ jac, -res)
         t, best = 1.0, None
         norm0 = float(res @ res)
