@@ -11,8 +11,10 @@ import pytest
 from rft_mujoco.studies import anymass, quasistatic, swim
 
 
-def test_scaling_the_density_keeps_the_subtree_com_the_mass_weighted_mean():
-    model = swim._model(anymass.ANIMAL)
+def test_the_bundled_swimmer_is_the_animal_and_scaling_keeps_the_subtree_com_the_mass_weighted_mean():
+    animal = swim._model()
+    assert anymass.ANIMAL == 1.0 and animal.body_mass[1:].sum() == pytest.approx(0.0219, rel=0.01)   # 22 g
+    model = swim._model(swim.DENSITY_SCALE)
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, 0)
     data.qpos[0] = 0.05
@@ -20,14 +22,13 @@ def test_scaling_the_density_keeps_the_subtree_com_the_mass_weighted_mean():
     mass = model.body_mass[1:]
     com = (mass[:, None] * data.xipos[1:]).sum(axis=0) / mass.sum()
     np.testing.assert_allclose(data.subtree_com[1], com, atol=1e-12)
-    assert mass.sum() == pytest.approx(0.0219, rel=0.01)                     # the animal: 22 g
-    bundled = swim._model()
-    joints = [bundled.joint(f"j{i}").dofadr[0] for i in range(1, 7)]
-    np.testing.assert_allclose(model.dof_armature[joints], bundled.dof_armature[joints] * anymass.ANIMAL)
-    np.testing.assert_allclose(model.dof_damping[joints], bundled.dof_damping[joints] * anymass.ANIMAL)
-    assert model.dof_armature[:3].tolist() == bundled.dof_armature[:3].tolist()   # the planar root: none
+    np.testing.assert_allclose(mass, animal.body_mass[1:] * swim.DENSITY_SCALE)
+    joints = [animal.joint(f"j{i}").dofadr[0] for i in range(1, 7)]
+    np.testing.assert_allclose(model.dof_armature[joints], animal.dof_armature[joints] * swim.DENSITY_SCALE)
+    np.testing.assert_allclose(model.dof_damping[joints], animal.dof_damping[joints] * swim.DENSITY_SCALE)
+    assert model.dof_armature[:3].tolist() == animal.dof_armature[:3].tolist()   # the planar root: none
     with pytest.raises(ValueError, match="density factor"):
-        swim.scale_density(bundled, 0.0)
+        swim.scale_density(animal, 0.0)
 
 
 @pytest.mark.slow
@@ -54,8 +55,8 @@ def test_the_animal_swims_at_the_quasi_static_limit_with_the_implicit_solve():
 
 def test_the_table_and_worst_error_report_every_solve():
     result = dict(limits={0.5: 0.1}, element_size_m=0.003, frequency_hz=1.0, rows=[
-        dict(density_scale=0.01, timestep_s=0.002, amplitude_rad=0.5, solve="explicit", eta=0.25, error=1.5),
-        dict(density_scale=0.01, timestep_s=0.002, amplitude_rad=0.5, solve="implicit", eta=0.102, error=0.02)])
+        dict(density_scale=1.0, timestep_s=0.002, amplitude_rad=0.5, solve="explicit", eta=0.25, error=1.5),
+        dict(density_scale=1.0, timestep_s=0.002, amplitude_rad=0.5, solve="implicit", eta=0.102, error=0.02)])
     lines = anymass.table(result)
     assert "explicit eta" in lines[0] and "implicit eta" in lines[0]
     assert "150.0%" in lines[2] and "2.0%" in lines[2] and "0.1000" in lines[2]

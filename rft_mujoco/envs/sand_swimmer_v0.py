@@ -42,9 +42,10 @@ class SandSwimmerEnv(SandTaskEnv, utils.EzPickle):
     body (with no pitch control) rises to the surface within a few seconds.
 
     A hand-written travelling wave, :func:`serpenoid_action` (0.6 rad, 2 Hz, one wave per body), swims
-    forward (and the reversed wave backward; ``tests/test_envs.py``). The model is mass-scaled (100x the
-    animal's density, see ``models/sand_swimmer.xml``) so that the explicit step converges on this
-    quasi-static, servo-driven body. Mean ``x_velocity`` over env steps 50-250 (seed 0, mujoco 4.0.0,
+    forward (and the reversed wave backward; ``tests/test_envs.py``). The env scales the bundled model (the
+    animal's density) by ``density_scale`` = 100 (masses, inertias, joint armature and damping; see
+    ``models/sand_swimmer.xml``) so that the explicit step converges on this quasi-static, servo-driven body;
+    ``density_scale=1.0, solve="implicit"`` runs the animal itself (docs/rest.md, "Any mass"). Mean ``x_velocity`` over env steps 50-250 (seed 0, mujoco 4.0.0,
     ``tests/test_envs.py::test_swimmer_speed_is_step_converged``):
 
     | ``timestep_s``            | 0.005 (default) | 0.002   | 0.001   | 0.0005  |
@@ -115,10 +116,13 @@ class SandSwimmerEnv(SandTaskEnv, utils.EzPickle):
     | `resolution`                  | str or float        | `"coarse"`              | sand element size (preset or m) |
     | `media_ranges`                | MediaRanges or None | `None`                  | per-episode medium randomization |
     | `include_sand_in_observation` | bool                | `False`                 | append per-link sand force and sinkage |
+    | `density_scale`               | float               | `100.0`                 | density over the animal's (> 0) |
     | plus ``render_mode``, ``width``, ``height``, ``camera_id``, ``camera_name`` of ``MujocoEnv`` |
 
     ## Version History
-    * v0: first version (7 links, planar root, Maladen glass beads, 50 Hz control).
+    * v0: first version (7 links, planar root, Maladen glass beads, 50 Hz control). ``density_scale`` added
+      (2026-12-04) when the bundled model became the animal's: its default 100 is the body v0 always had (the
+      joint damping differs by one unit in the last place, 1e-6 * 100).
     """
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"]}
@@ -139,11 +143,16 @@ class SandSwimmerEnv(SandTaskEnv, utils.EzPickle):
         resolution: str | float = "coarse",
         media_ranges: MediaRanges | None = None,
         include_sand_in_observation: bool = False,
+        density_scale: float = 100.0,
         **kwargs,
     ):
         utils.EzPickle.__init__(self, xml_file, frame_skip, timestep_s, default_camera_config,
                                 forward_reward_weight, ctrl_cost_weight, reset_noise_scale, depth_m, planar,
-                                media, resolution, media_ranges, include_sand_in_observation, **kwargs)
+                                media, resolution, media_ranges, include_sand_in_observation, density_scale,
+                                **kwargs)
+        if not density_scale > 0.0:
+            raise ValueError(f"density_scale must be > 0 (the swimmer's density over the animal's; 100 by default, "
+                             f"1 for the animal with solve='implicit'), got {density_scale!r}")
         if not depth_m > 0.0:
             raise ValueError(f"depth_m must be > 0 (the swimmer is buried), got {depth_m!r}")
         if not timestep_s > 0.0:
@@ -154,6 +163,7 @@ class SandSwimmerEnv(SandTaskEnv, utils.EzPickle):
         self._timestep_s = float(timestep_s)
         self._depth_m = float(depth_m)
         self._planar = bool(planar)
+        self._density_scale = float(density_scale)
         SandTaskEnv.__init__(self, xml_file, frame_skip, media=media, resolution=resolution,
                              sand_bodies=[f"link{i}" for i in range(1, N_JOINTS + 1)] + ["head"],
                              bed_depth_m=None, media_ranges=media_ranges,
@@ -171,6 +181,12 @@ class SandSwimmerEnv(SandTaskEnv, utils.EzPickle):
         spec.option.timestep = self._timestep_s
         head = spec.body("head")
         head.pos = [0.0, 0.0, -self._depth_m]
+        for geom in spec.geoms:                # the swimmer's links (the floor, a plane of the world, has no mass)
+            geom.density *= self._density_scale
+        for joint in spec.joints:
+            if joint.name.startswith("j"):
+                joint.armature *= self._density_scale
+                joint.damping *= self._density_scale
         if not self._planar:
             for name in ("root_x", "root_y", "root_yaw"):
                 spec.delete(spec.joint(name))

@@ -5,8 +5,8 @@ quasi-static: a kinematically driven swimmer must swim as its inertia-free limit
 (:func:`rft_mujoco.studies.quasistatic.swimmer_limit`) says, whatever it weighs. This study drives the bundled
 swimmer as the swim study does (:func:`rft_mujoco.studies.swim.swim`: stiff position servos, the serpenoid at
 1 Hz, 4 cycles, speed over the last 2) at the animal's density (:data:`ANIMAL`: 1,100 kg/m^3, 22 g; armature
-and joint damping scaled with it, :func:`rft_mujoco.studies.swim.scale_density`) and at the bundled model's
-100x, at several timesteps and joint amplitudes, with each sand solve (``attach(solve=...)``), at an element
+and joint damping: the bundled model) and at the swim study's 100x (:data:`MASS_SCALED`,
+:func:`rft_mujoco.studies.swim.scale_density`), at several timesteps and joint amplitudes, with each sand solve (``attach(solve=...)``), at an element
 size where the limit is converged (:data:`ELEMENT_SIZE`), and reports each eta's error against the limit at
 the same element size.
 
@@ -36,9 +36,12 @@ AMPLITUDES = (0.3, 0.5, 0.7, 0.9, 1.1, 1.3)
 """rad: the swim study's amplitudes from 0.3 to 1.3 rad."""
 TIMESTEPS = (0.002, 0.001, 0.0005)
 """s."""
-ANIMAL = 0.01
-"""The animal's density over the bundled model's (which is 100x the animal's; see the model's header)."""
-DENSITIES = (ANIMAL, 1.0)
+ANIMAL = 1.0
+"""The animal's density over the bundled model's: the bundled model is the animal (0.01 until 2026-12-04, when
+it was 100x the animal's; see the model's header)."""
+MASS_SCALED = 100.0
+"""The swim study's mass-scaled body (:data:`rft_mujoco.studies.swim.DENSITY_SCALE`), over the bundled model's."""
+DENSITIES = (ANIMAL, MASS_SCALED)
 SOLVES = ("explicit", "implicit")
 ELEMENT_SIZE = 0.003
 """m: where the swimmer's quasi-static limit is converged (docs/rest.md, "Quasi-static references")."""
@@ -209,7 +212,7 @@ def main(argv: list[str] | None = None, command: str = "anymass") -> int:
     parser.add_argument("--amplitudes", type=float, nargs="+", help="rad (default 0.3 0.5 ... 1.3)")
     parser.add_argument("--timesteps", type=float, nargs="+", help="s (default 0.002 0.001 0.0005)")
     parser.add_argument("--densities", type=float, nargs="+",
-                        help="density over the bundled model's (default 0.01, the animal, and 1)")
+                        help="density over the bundled model's, the animal's (default 1 and 100, the swim study's)")
     parser.add_argument("--solves", nargs="+", choices=SOLVES, help="default both")
     parser.add_argument("--frequency", type=float, default=FREQUENCY,
                         help=f"Hz, the serpenoid's (default {FREQUENCY:g}; the law is rate-independent, so the limit "

@@ -54,7 +54,9 @@ CYCLES = 4
 """Wave periods per run: the first ramps the amplitude up, speeds are taken over the last ones."""
 MEASURED_CYCLES = 2
 DENSITY_SCALE = 100.0
-"""The bundled model's density over the animal's (see the model's header)."""
+"""The study's density over the bundled model's, which is the animal's (see the model's header): 100x, the
+quasi-static mass scaling the explicit sand solve needs on this body (the study's default runs are explicit);
+``swim(..., density_scale=1.0, solve="implicit")`` runs the animal."""
 PUBLISHED = {
     "sandfish (Maladen et al. 2009)": (0.2, 0.5),
 }
@@ -125,11 +127,12 @@ def wave_shape(amplitude: float, phases: int = 16) -> tuple[float, float, float]
     return float(np.mean(ratios)), float(np.mean(lams)), float(sum(links))
 
 
-def swim(amplitude: float, frequency: float, *, cull: bool = True, density_scale: float = 1.0,
+def swim(amplitude: float, frequency: float, *, cull: bool = True, density_scale: float = DENSITY_SCALE,
          timestep: float | None = None, cycles: int = CYCLES, resolution: str | float = "default",
          **attach_kwargs) -> dict:
     """One kinematic run; returns speeds (m/s), eta, body lengths per cycle, tracking error (rad), wall s.
-    ``density_scale`` multiplies the bundled model's density (:func:`scale_density`); ``resolution`` and
+    ``density_scale`` multiplies the bundled model's (the animal's) density (:func:`scale_density`; default
+    :data:`DENSITY_SCALE`, the explicit solve's mass scaling); ``resolution`` and
     ``attach_kwargs`` (e.g. ``solve``, ``backend``) go to :func:`rft_mujoco.attach`."""
     model = _model(density_scale, timestep)
     data = mujoco.MjData(model)
@@ -183,9 +186,10 @@ def sweep(amplitudes=AMPLITUDES, frequencies=FREQUENCIES, culls=(True, False), p
 
 
 def mass_check(amplitude: float = 0.8, frequency: float = 1.0, timesteps=(0.002, 0.0005)) -> list[dict]:
-    """eta with the model's 100x density and with the real density, at each timestep (culling on)."""
+    """eta with the study's 100x density and with the real (the bundled model's) density, at each timestep
+    (culling on, the default explicit solve)."""
     return [swim(amplitude, frequency, density_scale=scale, timestep=dt)
-            for scale in (1.0, 1.0 / DENSITY_SCALE) for dt in timesteps]
+            for scale in (DENSITY_SCALE, 1.0) for dt in timesteps]
 
 
 def _table(rows, keys, fmt) -> list[str]:
