@@ -8,6 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
+import rft_mujoco
 from rft_mujoco.studies import anymass, quasistatic, swim
 
 
@@ -51,6 +52,32 @@ def test_the_animal_swims_at_the_quasi_static_limit_with_the_implicit_solve():
     # the servos lag by kv / kp = 10 ms (7 degrees at 2 Hz): a phase error of 0.126 a, 0.089 a RMS
     lag = 2 * math.sin(math.atan(2 * math.pi * f * swim.SERVO_KV / swim.SERVO_KP) / 2) * amplitude / math.sqrt(2)
     assert implicit["tracking_rms_rad"] < 1.2 * lag, (implicit["tracking_rms_rad"], lag)
+
+
+@pytest.mark.parametrize("density, solve, warned", [(1.0, "explicit", True), (100.0, "explicit", False),
+                                                   (1.0, "implicit", False)])
+def test_the_monitor_says_the_animal_is_light_for_the_explicit_solve(density, solve, warned):
+    """A user attaching the bundled swimmer (the animal, 22 g) with the default explicit solve is told that its
+    answer misses the quasi-static one and to use the implicit solve; not at the swim study's 100x, nor with
+    the implicit solve (the serpenoid at 0.5 rad, 1 Hz, dt 2 ms, 10 mm elements, 3 s)."""
+    from rft_mujoco.studies.swim import N_JOINTS
+    model = swim._model(density)
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, 0)
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        sand = rft_mujoco.attach(model, "maladen_glass_beads", surface_height=0.0, solve=solve)
+        sand.replace_rigid(["floor"])
+        joints = np.arange(N_JOINTS)
+        for _ in range(1500):
+            t = data.time
+            data.ctrl[:] = min(1.0, t) * 0.5 * np.sin(2 * math.pi * t - 2 * math.pi * joints / N_JOINTS)
+            mujoco.mj_step(model, data)
+        checks = sand.monitor.flow_checks
+        sand.detach()
+    light = [w for w in record if "explicit sand solve stops" in str(w.message)]
+    assert len(light) == int(warned) and all(issubclass(w.category, rft_mujoco.SandSetupWarning) for w in light)
+    assert (sum(c[0] for c in checks.values()) >= 7 * 100) == (solve == "explicit")   # it counted
 
 
 def test_the_table_and_worst_error_report_every_solve():

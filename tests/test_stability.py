@@ -221,6 +221,27 @@ def test_monitor_warns_once_with_the_numbers():
     assert sand.monitor.worst["i_mac"][0] > 0.15 and sand.monitor.worst["i_mac"][1] == "b"
 
 
+def test_monitor_warns_once_of_bodies_the_explicit_solve_often_stops():
+    """Diagnostics.scale below LIGHT_SCALE at more than LIGHT_SHARE of a body's checks in flow, once it has
+    LIGHT_SAMPLES of them: one SandSetupWarning naming it, with its share; a body stopped less often is not named."""
+    from rft_mujoco.coupling import monitor as m
+    mon = rft_mujoco.ValidityMonitor()
+    n = m.LIGHT_SAMPLES
+    light = np.where(np.arange(n) % 2 == 0, 0.2, 1.0)                  # stopped at half of its checks
+    heavy = np.where(np.arange(n) % 5 == 0, 0.2, 1.0)                  # at a fifth
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        for k in range(n - 1):
+            mon.observe_flow(["tail", "trunk"], [light[k], heavy[k]], 0.002)
+        assert not record                                               # too few checks yet
+        for k in range(n - 1, 2 * n):
+            mon.observe_flow(["tail", "trunk"], [light[k % n], heavy[k % n]], 0.002)
+    assert len(record) == 1 and issubclass(record[0].category, rft_mujoco.SandSetupWarning)
+    text = str(record[0].message)
+    assert "'tail' (50% of 50)" in text and "trunk" not in text and "solve='implicit'" in text
+    assert mon.flow_checks["trunk"] == [2 * n, 2 * n // 5] and "light" in mon.warned
+
+
 def validity_warnings(record):
     return [w for w in record if issubclass(w.category, rft_mujoco.RFTValidityWarning)]
 

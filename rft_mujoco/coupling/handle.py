@@ -492,7 +492,9 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             instead of resting).
         passive: with ``stabilize=False``, zero a body's wrench whenever it would do positive work.
         monitor: warn (:class:`rft_mujoco.RFTValidityWarning`, once per reason) when a loaded body leaves
-            the quasi-static regime or the validated depth (:mod:`rft_mujoco.coupling.monitor`); a
+            the quasi-static regime or the validated depth, and (:class:`rft_mujoco.SandSetupWarning`, once)
+            when the explicit solve often stops a body's flow within a step: a body light for it, which the
+            implicit solve gets right (:mod:`rft_mujoco.coupling.monitor`); a
             :class:`ValidityMonitor` to set the check interval; False switches it off.
         backend: "numba" (compiled, cached after the first use on a machine), "numpy" (the readable
             reference), or "auto" (default: numba when it imports and supports the terrain, else numpy).

@@ -11,7 +11,10 @@ body (at least one submerged leading element) it estimates:
   stress scale at the deepest loaded element's depth ``z``, but at least one grain deep: shallower, the
   continuum pressure estimate means nothing); valid below :data:`I_MICRO_MAX` = 0.01; needs
   ``Media.grain_diameter`` ``d`` (skipped when it is ``None``);
-* the depth-to-size ratio ``z / L``; valid below :data:`DEPTH_RATIO_MAX` = 10.
+* the depth-to-size ratio ``z / L``; valid below :data:`DEPTH_RATIO_MAX` = 10;
+* with the explicit solve, how often it stops a flowing body within a step (:meth:`ValidityMonitor.observe_flow`):
+  a body it often stops is light for it, and the implicit solve is the one that gets it right (warned with
+  :class:`rft_mujoco.SandSetupWarning`, not a limit of 3D-RFT).
 
 Here ``v = |v_com| + R |omega|`` bounds the speed of the body's surface points (m/s), ``L = 2 R`` is the
 diameter of the body's element bounding sphere (m), ``rho_g = Media.grain_density`` (kg/m^3) and
@@ -19,7 +22,7 @@ diameter of the body's element bounding sphere (m), ``rho_g = Media.grain_densit
 
 The check is cheap (a few array operations on the loaded bodies) and runs every
 :data:`CHECK_EVERY` evaluations. It warns with :class:`RFTValidityWarning`, at most once per sand handle
-for each of the two reasons (quasi-static regime, depth), with the numbers; ``monitor.worst`` keeps the
+for each reason (quasi-static regime, depth, light bodies), with the numbers; ``monitor.worst`` keeps the
 largest values seen. The warning names the user's line (the first frame outside the library,
 :func:`rft_mujoco.coupling.callers.user_stacklevel`: usually the ``mj_step`` call). The depth warning says
 the body is sinking through the bed only when it is: its COM moves down along gravity faster than
@@ -36,6 +39,7 @@ import warnings
 import numpy as np
 
 from rft_mujoco.coupling.callers import user_stacklevel
+from rft_mujoco.geometry.elements import SandSetupWarning
 from rft_mujoco.physics.law import gravity_direction
 from rft_mujoco.physics.media import Media
 
@@ -50,6 +54,19 @@ CHECK_EVERY = 10
 SINKING_SPEED = 1e-3
 """m/s: a deep body whose COM moves down along gravity faster than this, and that the sand does not hold at
 rest, is sinking (the rest speed of the stability and load-path studies)."""
+
+
+LIGHT_SCALE = 0.9
+"""A flowing body whose explicit flow wrench was scaled below this fraction of the law's (``Diagnostics.scale``:
+so as not to reverse its motion) was stopped by the sand within the step."""
+LIGHT_SHARE = 0.3
+"""Warn that bodies are light for the explicit solve when the sand stops their flow within the step (scale below
+:data:`LIGHT_SCALE`) at more than this share of the checks that saw them flow. Measured 2026-12-04: the bundled
+swimmer at the animal's 22 g 0.34-0.46 per link (the serpenoid at 0.5 rad, 1 Hz, dt 2 ms, 5 mm elements) and
+0.72 (random actions), at 100x 0-0.03 and 0.02; with random actions (300 env steps, every flowing body)
+SandAnt-v0 0.20, SandHalfCheetah-v0 0.13, the other tasks below 0.02."""
+LIGHT_SAMPLES = 50
+"""Checks in flow a body needs before the share of :data:`LIGHT_SHARE` is judged."""
 
 
 class RFTValidityWarning(UserWarning):
@@ -92,7 +109,9 @@ class ValidityMonitor:
     Attributes:
         every: evaluations between checks.
         worst: largest values seen: ``{"i_mac": (value, body, time_s), "i_micro": ..., "depth_ratio": ...}``.
-        warned: the reasons already warned about (``"quasi-static"``, ``"depth"``).
+        warned: the reasons already warned about (``"quasi-static"``, ``"depth"``, ``"light"``).
+        flow_checks: per body name, [checks that saw it flow, of which the explicit solve stopped it within the
+            step] (:meth:`observe_flow`).
     """
 
     def __init__(self, every: int = CHECK_EVERY):
@@ -115,6 +134,7 @@ class ValidityMonitor:
         """Forget the worst values and the warnings already given (warn again on the next violation)."""
         self.worst: dict[str, tuple[float, str, float]] = {}
         self.warned: set[str] = set()
+        self.flow_checks: dict[str, list[int]] = {}     # body: [checks in flow, of which stopped within the step]
 
     def observe(self, names, speed, length, depth, media: Media, gravity: float, time: float, *,
                 sinking=None, stacklevel: int | None = None) -> None:
@@ -184,6 +204,36 @@ class ValidityMonitor:
         speed = np.linalg.norm(v, axis=1) + radius * np.linalg.norm(np.asarray(omega)[loaded], axis=1)
         names = [handle.body_names[i] for i in r]
         g_hat, g_mag = gravity_direction(handle.model.opt.gravity)
-        sinking = (v @ g_hat > SINKING_SPEED) & ~np.asarray(handle.diagnostics(data).resting, dtype=bool)[r]
+        diag = handle.diagnostics(data)
+        sinking = (v @ g_hat > SINKING_SPEED) & ~np.asarray(diag.resting, dtype=bool)[r]
         self.observe(names, speed, 2.0 * radius, np.asarray(max_depth)[loaded], handle.media, g_mag,
                      float(data.time), sinking=sinking)
+        if handle.stabilize and handle.solve == "explicit":
+            flowing = ~np.asarray(diag.resting, dtype=bool)[r]
+            self.observe_flow([n for n, f in zip(names, flowing) if f], np.asarray(diag.scale)[r][flowing],
+                              float(handle.model.opt.timestep))
+
+    def observe_flow(self, names, scale, timestep: float, *, stacklevel: int | None = None) -> None:
+        """Count the explicit solve's flowing bodies ``names`` whose wrench was scaled (``scale`` (n,), the
+        applied over the law's) below :data:`LIGHT_SCALE`; warn (:class:`rft_mujoco.SandSetupWarning`, once) when
+        such stops are more than :data:`LIGHT_SHARE` of a body's checks in flow (at least :data:`LIGHT_SAMPLES`):
+        the body is light for the explicit solve at ``timestep`` (s), whose answer then misses the quasi-static
+        one (docs/rest.md, "Any mass")."""
+        for name, value in zip(names, scale):
+            counts = self.flow_checks.setdefault(name, [0, 0])
+            counts[0] += 1
+            counts[1] += int(value < LIGHT_SCALE)
+        light = sorted(((c[1] / c[0], n) for n, c in self.flow_checks.items()
+                        if c[0] >= LIGHT_SAMPLES and c[1] > LIGHT_SHARE * c[0]), reverse=True)
+        if light and "light" not in self.warned:
+            self.warned.add("light")
+            listed = ", ".join(f"{n!r} ({share:.0%} of {self.flow_checks[n][0]})" for share, n in light[:6])
+            warnings.warn(
+                f"rft_mujoco: the explicit sand solve stops these bodies' flow within a step in many of the checks "
+                f"that saw them flow: {listed} (their wrench scaled below {LIGHT_SCALE:g} of the law's so as not "
+                f"to reverse their motion, Diagnostics.scale). They are light for it at dt = {timestep:g} s, and "
+                "its answer then misses the quasi-static one (the bundled swimmer at its real 22 g swims 2-3x too "
+                "fast with it). Do: attach(..., solve='implicit') (docs/rest.md, 'Any mass'), or filter "
+                "SandSetupWarning if that error is acceptable. Warned once per sand handle; "
+                "handle.monitor.flow_checks keeps the counts.", SandSetupWarning,
+                stacklevel=user_stacklevel() if stacklevel is None else stacklevel)
