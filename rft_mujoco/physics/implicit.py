@@ -36,11 +36,13 @@ that it loads or unloads): without it a friction held in the linear model beyond
 hold a body that MuJoCo's own solve then moves."""
 
 NEWTON_RTOL = 1e-3
-"""The implicit flow solve stops when the residual of the end-of-step twists, through the law's slope where the
-last Newton step started, moves the flowing groups' wrenches by less than this fraction of the largest
-(:func:`wrench_change`: forces, and torques over the group's radius), or when that residual is below
-``SPEED_SCALE * NEWTON_RTOL`` (m/s). A tolerance in force, not in velocity: the law's slope near slow motion
-grows as ``1 / SPEED_SCALE``."""
+"""The implicit flow solve stops when the residual of the end-of-step twists is within this fraction of the twist
+change the step makes (twist speeds) *and*, through the law's slope where the last Newton step started, moves the
+flowing groups' wrenches by less than this fraction of the largest (:func:`wrench_change`: forces, and torques
+over the group's radius); or when the residual is below ``SPEED_SCALE * NEWTON_RTOL`` (m/s). Both: the velocity
+test alone leaves forces off by its tolerance times the law's slope, which near slow motion grows as
+``1 / SPEED_SCALE``; the force test alone, with the slope of the last step's start, stops on iterates where that
+slope is wrong (zero where a body moves out of the sand; docs/rest.md, "Any mass")."""
 
 
 def rest_operator(block: np.ndarray, weight: np.ndarray) -> np.ndarray:
