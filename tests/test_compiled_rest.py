@@ -228,3 +228,30 @@ def test_dofs_held_by_dry_friction_are_locked_alike_by_both_paths(integrator, st
     assert locked_ref == locked_got and locked_got >= 50
     assert kept_ref == kept_got
     np.testing.assert_allclose(got, ref, rtol=0.0, atol=1e-8)
+
+
+@pytest.mark.parametrize("dt,integrator", [(0.002, "implicitfast"), (0.005, "Euler")])
+def test_a_released_lock_slips_alike_on_both_paths(monkeypatch, dt, integrator):
+    """The frictionloss load path through the trunk's landing: where a released lock's lagged force would add
+    energy, the dof slips at its bound (physics.rest.locked_rest, step 3); the compiled path steps the same
+    motion as the numpy reference, which slips in 2-4 evaluations here."""
+    from rft_mujoco.studies import loadpaths
+    from rft_mujoco.studies.loadpath_scenes import SCENES
+
+    slips = []
+    release = rest._release
+    monkeypatch.setattr(rest, "_release", lambda *a: slips.append(a[-1]) or release(*a))
+    xml, bodies = SCENES["frictionloss"]
+    runs = {}
+    for backend in ("numpy", "numba"):
+        model = mujoco.MjModel.from_xml_string(xml.format(dt=dt, integrator=integrator))
+        data = mujoco.MjData(model)
+        with rft_mujoco.attach(model, loadpaths.MEDIA, bodies, resolution=loadpaths.RESOLUTION, monitor=False,
+                               backend=backend):
+            path = []
+            for _ in range(int(round(0.5 / dt))):
+                mujoco.mj_step(model, data)
+                path.append(np.concatenate([data.qpos, data.qvel]))
+        runs[backend] = np.array(path)
+    assert 2 <= sum(slips) <= 4
+    np.testing.assert_allclose(runs["numba"], runs["numpy"], rtol=0.0, atol=1e-8)

@@ -286,9 +286,10 @@ def test_locked_rest_solves_with_the_projected_motion_and_returns_what_it_solved
 
 def test_a_lock_the_friction_cannot_hold_is_released_and_the_unlocked_solve_kept():
     """lam = -S^-1 (y + C^T W) is the extra friction force the lock needs; over capacity, the dof is
-    released, and with no lock left the unlocked solve is the answer (not solved again)."""
+    released, and with no lock left the unlocked solve is the answer (not solved again; here it takes energy
+    from the motion with the dof held, the next test the other case)."""
     s = locked_system(1, locks=(2,))
-    w_out = np.ones((2, 6))
+    w_out = -1e-3 * (s["free"].reshape(-1) - 0.01 * s["coupling"] @ np.linalg.solve(s["gram"], s["acc"])).reshape(2, 6)
     lam = -np.linalg.solve(s["gram"], s["acc"] + s["coupling"].T @ w_out.reshape(-1))
     calls = []
 
@@ -303,6 +304,32 @@ def test_a_lock_the_friction_cannot_hold_is_released_and_the_unlocked_solve_kept
         assert len(calls) == 2 and bool(locked[0]) == held
     np.testing.assert_allclose(calls[1], s["mobility"] - s["coupling"] @ np.linalg.solve(s["gram"], s["coupling"].T),
                                rtol=1e-10, atol=1e-12)
+
+
+def test_a_released_dof_slips_at_its_bound_where_the_lagged_force_would_add_energy():
+    """A released dof keeps the lagged force unless the answer would add kinetic energy to the motion with the
+    dofs held (``A_l``, ``Vf_l``: what MuJoCo's friction does where the answer leaves it within its bound); then
+    the locks are tried again with each released dof slipping, its friction at the bound in the direction the
+    lock needed (the free twists move by ``dt C (sign(force + lam) capacity - force)``). Issue 26: the lagged
+    force let the sand pull down a foot that MuJoCo's friction then held to the falling trunk."""
+    s = locked_system(1, locks=(2,))
+    held = s["free"].reshape(-1) - 0.01 * s["coupling"] @ np.linalg.solve(s["gram"], s["acc"])
+    for sign, slips in ((-1.0, False), (1.0, True)):          # against the held motion, then along it
+        w_out = sign * 1e-3 * held.reshape(2, 6)
+        need = 0.3 - np.linalg.solve(s["gram"], s["acc"] + s["coupling"].T @ w_out.reshape(-1))[0]
+        cap = 0.5 * abs(need)                                   # the lock needs twice the bound: released
+        calls = []
+
+        def solve(free, mob):
+            calls.append((free, mob))
+            return w_out, np.ones(2, dtype=bool)
+        _, _, locked = rest.locked_rest(s["free"], s["mobility"], s["coupling"], s["gram"], s["acc"], np.array([0.3]),
+                                        np.array([cap]), 0.01, solve, np.zeros((2, 6)), np.ones(2), check=False)
+        assert not locked[0] and len(calls) == (4 if slips else 2)
+    free, mob = calls[3]
+    assert mob is s["mobility"]
+    np.testing.assert_allclose(free.reshape(-1), s["free"].reshape(-1) + 0.01 * s["coupling"][:, 0] *
+                               (np.sign(need) * cap - 0.3), rtol=1e-12, atol=1e-12)
 
 
 def test_no_lock_where_the_unlocked_solve_already_holds_the_dofs():

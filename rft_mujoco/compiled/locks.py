@@ -246,17 +246,55 @@ def _plus_xw(m, n6, w, lock_x, lock_f):
 
 
 @njit(**JIT)
+def _slip(lr, df, nl, n6, dt, free, lock_f, lock_s, lock_c):
+    """A released dof ``lr`` slips: its friction changes by ``df`` (to its bound; N or N m), which moves the free
+    twists ``free`` by ``dt C df`` and the dofs' free accelerations ``y`` (``lock_f[2]``) by ``S df``."""
+    for l in range(nl):
+        lock_f[2, l] += lock_s[l, lr] * df
+    for i in range(n6):
+        free[i // 6, i % 6] += dt * (lock_c[lr, i] * df)
+
+
+@njit(**JIT)
+def _adds_energy(nl, ng, dt, free, mob, w, lock, tiny):
+    """Step 3 of :func:`rft_mujoco.physics.rest.locked_rest`: whether the wrenches ``w`` (G, 6) would add kinetic
+    energy to the motion with all ``nl`` dofs held (:func:`rft_mujoco.physics.rest.passive_scale` below 1 on
+    ``A - X^T X`` and ``Vf - dt X^T z``; ``X``, ``z`` into ``lock_x``, ``lock_f[3]`` of ``lock``)."""
+    lock_i, lock_f, lock_s, lock_c, lock_r, lock_x = lock[0], lock[1], lock[4], lock[5], lock[6], lock[7]
+    n6 = 6 * ng
+    for l in range(nl):
+        lock_i[2, l] = l
+    _lock_factor(nl, n6, lock_i, lock_f, lock_s, lock_c, lock_r, lock_x, tiny)
+    h = 0.0
+    q = 0.0
+    for i in range(n6):
+        wi = w[i // 6, i % 6]
+        h += wi * free[i // 6, i % 6]
+        t = 0.0
+        for k in range(n6):
+            t += mob[i, k] * w[k // 6, k % 6]
+        q += wi * t
+    for r in range(nl):
+        xw = 0.0
+        for i in range(n6):
+            xw += lock_x[r, i] * w[i // 6, i % 6]
+        h -= dt * xw * lock_f[3, r]
+        q -= xw * xw
+    return h + 0.5 * (dt * q) > 0.0
+
+
+@njit(**JIT)
 def locked_rest(nl, groups, dt, ng, settings, out, work, kept, motion, lock, check):
     """:func:`rft_mujoco.physics.rest.locked_rest` on the matrices of :func:`lock_matrices`, with
     :func:`rest_wrenches` (``groups``, ``dt``, ``ng``, ``settings``, ``out``, ``work``, ``kept``: its arguments;
     no factor is kept: ``state[KEPT_GROUPS]`` is 0); ``motion`` (:data:`MOTION`): the groups' twists now and the
     scaled Jacobians of ``_mobility``; ``check``: whether step 1 runs. Returns the number of dofs held in the
-    final solve; which: ``lock_i[1]`` (1/0); the other arrays of ``lock`` (:data:`LOCK`) are work space."""
-    free, mob, rft, direction, radius = groups
+    final solve; which: ``lock_i[1]`` (1/0); the other arrays of ``lock`` (:data:`LOCK`) are work space. Where a
+    released dof slips (step 3), its friction at the bound moves ``groups``' free twists (:func:`_slip`)."""
+    free, mob, radius = groups[0], groups[1], groups[4]
     w, rest = out
     chain, zt = motion[1], motion[2]
-    lock_i, lock_f, lock_z, lock_chain, lock_s, lock_c, lock_r, lock_x, lock_mob, lock_free, lock_w, lock_rest = lock
-    n6 = 6 * ng
+    lock_i, lock_f, lock_c, lock_w, lock_rest = lock[0], lock[1], lock[5], lock[10], lock[11]
     tiny = settings[3]
     if check:                                        # step 1 needs the unlocked solve; without it (a dof held at
         rest_wrenches(groups, dt, ng, settings, out, work, kept, False)
@@ -268,7 +306,23 @@ def locked_rest(nl, groups, dt, ng, settings, out, work, kept, motion, lock, che
             lock_rest[g] = rest[g]
             for c in range(6):
                 lock_w[g, c] = w[g, c]
-    _lock_coupling(nl, ng, chain, zt, lock_z, lock_chain, lock_c)
+    _lock_coupling(nl, ng, chain, zt, lock[2], lock[3], lock_c)
+    m = _release(nl, groups, dt, ng, settings, out, work, kept, lock, check, False)
+    if m == nl or not _adds_energy(nl, ng, dt, free, mob, w, lock, tiny):
+        return m
+    return _release(nl, groups, dt, ng, settings, out, work, kept, lock, check, True)
+
+
+@njit(**JIT)
+def _release(nl, groups, dt, ng, settings, out, work, kept, lock, check, slip):
+    """Step 2 of :func:`rft_mujoco.physics.rest.locked_rest` from every dof locked (``slip``: with step 3's
+    friction at the bound); returns the number of dofs held. With none left and no ``slip``, the unlocked
+    solve (kept in ``lock_w``, ``lock_rest`` by step 1, made here without ``check``)."""
+    free, mob, rft, direction, radius = groups
+    w, rest = out
+    lock_i, lock_f, lock_z, lock_chain, lock_s, lock_c, lock_r, lock_x, lock_mob, lock_free, lock_w, lock_rest = lock
+    n6 = 6 * ng
+    tiny = settings[3]
     for l in range(nl):
         lock_i[1, l] = 1
     locked = (lock_free, lock_mob, rft, direction, radius)
@@ -279,7 +333,7 @@ def locked_rest(nl, groups, dt, ng, settings, out, work, kept, motion, lock, che
                 lock_i[2, m] = l
                 m += 1
         if m == 0:                                   # every lock released: the unlocked solve
-            if not check:
+            if slip or not check:
                 rest_wrenches(groups, dt, ng, settings, out, work, kept, False)
                 return 0
             for g in range(ng):
@@ -309,8 +363,12 @@ def locked_rest(nl, groups, dt, ng, settings, out, work, kept, motion, lock, che
         over = False
         for r in range(m):
             lr = lock_i[2, r]
-            if abs(lock_f[0, lr] - lock_f[3, r]) > lock_f[1, lr]:
+            need = lock_f[0, lr] - lock_f[3, r]      # the friction the lock needs
+            if abs(need) > lock_f[1, lr]:
                 lock_i[1, lr] = 0
                 over = True
+                if slip:
+                    _slip(lr, math.copysign(lock_f[1, lr], need) - lock_f[0, lr], nl, n6, dt, free, lock_f, lock_s,
+                          lock_c)
         if not over:
             return m

@@ -346,7 +346,18 @@ def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarr
        the test alone would alternate locked and unlocked steps at a residual of LOCK_TOL).
     2. Otherwise every dof is locked; a lock holds while the friction force it needs, ``force + lam``,
        is within ``capacity``; the dofs over it are released (all at once) and the rest solve is
-       repeated, until every lock left holds; with none left, ``W_u`` is the answer.
+       repeated, until every lock left holds; with none left, ``W_u`` is the answer. A released dof keeps
+       the lagged ``force``.
+    3. If that answer would add kinetic energy to the motion with every dof held (``A_l``, ``Vf_l`` of all
+       L locks, :func:`passive_scale` below 1), the motion MuJoCo's friction makes wherever the answer
+       leaves it within its bound, step 2 is repeated with each released dof slipping in the step, its
+       friction at the bound, ``sign(force + lam) capacity`` (the free twists move by ``dt C df``, ``y``
+       by ``S df``).
+       The lagged force alone let the sand pull down a foot that it pushed up, while MuJoCo's friction
+       held the knee and the foot fell with the trunk (the ``frictionloss`` load path as the trunk lands:
+       1.1e-4 J added at 2 ms). Slipping always, the standing quadruped (twelve servo joints, 0.05 N m of
+       friction each) did not rest: its joints are released all at once, with signs that the unlocked
+       solve contradicts (docs/rest.md).
 
     Args:
         free_twist: (G, 6) and mobility (6G, 6G): those of :func:`rest_wrenches`, without locks.
@@ -370,21 +381,39 @@ def locked_rest(free_twist: np.ndarray, mobility: np.ndarray, coupling: np.ndarr
     coupling, gram, acc = (np.asarray(x, dtype=float) for x in (coupling, gram, acc))
     w_u, rest_u = solve(free_twist, mobility)
     lock = np.ones(n, dtype=bool)
+    low, x, z = _lock_factor(coupling, gram, acc, lock)
     if check:
-        low, x, z = _lock_factor(coupling, gram, acc, lock)
         moved = (-dt * (x.T @ (z + x @ w_u.reshape(-1)))).reshape(free_twist.shape)
         if np.all(twist_speed(moved, radius) <= LOCK_TOL * twist_speed(free_twist - twist, radius)):
             return w_u, rest_u, ~lock
+    args = (free_twist, mobility, coupling, gram, acc, force, capacity, dt, solve, (w_u, rest_u))
+    w, resting, lock = _release(*args, False)
+    held = (free_twist - dt * (x.T @ z).reshape(free_twist.shape)).reshape(-1)
+    if lock.all() or passive_scale(w.reshape(-1), held, dt * (mobility - x.T @ x)) >= 1.0:
+        return w, resting, lock
+    return _release(*args, True)
+
+
+def _release(free_twist, mobility, coupling, gram, acc, force, capacity, dt, solve, unlocked, slip):
+    """Step 2 of :func:`locked_rest` from every dof locked: (wrenches, resting, locked). A released dof keeps
+    the lagged ``force`` (the unlocked solve ``unlocked`` is the answer when none is left), or with ``slip``
+    gets its friction at the bound (step 3)."""
+    lock = np.ones(np.shape(coupling)[1], dtype=bool)
     while lock.any():
         i = np.flatnonzero(lock)
         low, x, z = _lock_factor(coupling, gram, acc, lock)
         w, resting = solve(free_twist - dt * (x.T @ z).reshape(free_twist.shape), mobility - x.T @ x)
-        lam = -_backward(low, z + x @ w.reshape(-1))
-        over = np.abs(force[i] + lam) > capacity[i]
+        need = force[i] - _backward(low, z + x @ w.reshape(-1))     # the friction the lock needs
+        over = np.abs(need) > capacity[i]
         if not over.any():
             return w, resting, lock
-        lock[i[over]] = False
-    return w_u, rest_u, lock
+        r = i[over]
+        lock[r] = False
+        if slip:                        # the dof slips in the step, its friction at the bound the lock needed
+            df = np.sign(need[over]) * capacity[r] - force[r]
+            free_twist = free_twist + dt * (coupling[:, r] @ df).reshape(free_twist.shape)
+            acc = acc + gram[:, r] @ df
+    return (*solve(free_twist, mobility), lock) if slip else (*unlocked, lock)
 
 
 def _lock_factor(coupling, gram, acc, lock):
