@@ -305,6 +305,8 @@ def test_the_swimmer_env_scales_the_animal_for_the_explicit_solve_and_the_animal
     animal.close()
     with pytest.raises(ValueError, match="density_scale must be > 0"):
         gymnasium.make("rft_mujoco/SandSwimmer-v0", density_scale=0.0)
+    with pytest.warns(rft_mujoco.SandSetupWarning, match="pass solve='implicit'"):
+        gymnasium.make("rft_mujoco/SandSwimmer-v0", density_scale=1.0).close()
     assert swim(+1.0, 1.0, density_scale=1.0, solve="implicit") > SWIMMER_MIN_SPEED_M_S
 
 

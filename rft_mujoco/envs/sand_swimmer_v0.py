@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from gymnasium import utils
 from gymnasium.spaces import Box
 
+from rft_mujoco.geometry.elements import SandSetupWarning
 from rft_mujoco.physics.media import Media
 
 from .sand_bed import MediaRanges
@@ -15,6 +18,9 @@ DEFAULT_CAMERA_CONFIG = {"trackbodyid": 1, "distance": 0.35, "elevation": -60.0,
 
 N_JOINTS = 6
 """Body joints (head to tail) of ``models/sand_swimmer.xml``."""
+EXPLICIT_DENSITY_SCALE = 100.0
+"""The density over the animal's at which the explicit sand solve swims this body at its quasi-static limit
+(docs/rest.md, "Any mass"); lighter with the explicit solve is warned."""
 
 
 def serpenoid_action(time_s: float, *, amplitude_rad: float = 0.6, frequency_hz: float = 2.0,
@@ -116,7 +122,7 @@ class SandSwimmerEnv(SandTaskEnv, utils.EzPickle):
     | `resolution`                  | str or float        | `"coarse"`              | sand element size (preset or m) |
     | `media_ranges`                | MediaRanges or None | `None`                  | per-episode medium randomization |
     | `include_sand_in_observation` | bool                | `False`                 | append per-link sand force and sinkage |
-    | `density_scale`               | float               | `100.0`                 | density over the animal's (> 0) |
+    | `density_scale`               | float               | `100.0`                 | density over the animal's (> 0; below 100 with the explicit solve: warned) |
     | plus ``render_mode``, ``width``, ``height``, ``camera_id``, ``camera_name`` of ``MujocoEnv`` |
 
     ## Version History
@@ -143,7 +149,7 @@ class SandSwimmerEnv(SandTaskEnv, utils.EzPickle):
         resolution: str | float = "coarse",
         media_ranges: MediaRanges | None = None,
         include_sand_in_observation: bool = False,
-        density_scale: float = 100.0,
+        density_scale: float = EXPLICIT_DENSITY_SCALE,
         **kwargs,
     ):
         utils.EzPickle.__init__(self, xml_file, frame_skip, timestep_s, default_camera_config,
@@ -153,6 +159,12 @@ class SandSwimmerEnv(SandTaskEnv, utils.EzPickle):
         if not density_scale > 0.0:
             raise ValueError(f"density_scale must be > 0 (the swimmer's density over the animal's; 100 by default, "
                              f"1 for the animal with solve='implicit'), got {density_scale!r}")
+        if density_scale < EXPLICIT_DENSITY_SCALE and kwargs.get("solve", "explicit") == "explicit":
+            warnings.warn(f"rft_mujoco: SandSwimmer-v0 with density_scale={density_scale!r} and the explicit sand "
+                          f"solve: the body is lighter than the {EXPLICIT_DENSITY_SCALE:g}x the explicit solve "
+                          "needs on it, and its swimming is off the quasi-static answer (the animal, density_scale=1: "
+                          "2-3x too fast). Do: pass solve='implicit' (right at any mass), or keep the default "
+                          "density_scale.", SandSetupWarning, stacklevel=2)
         if not depth_m > 0.0:
             raise ValueError(f"depth_m must be > 0 (the swimmer is buried), got {depth_m!r}")
         if not timestep_s > 0.0:
