@@ -18,8 +18,8 @@ the sand-swimming robot, eta = 0.34 +- 0.02 (Maladen et al., IJRR 30, 2011). 3D-
 intrusions from a free surface, not to bodies fully submerged and moving sideways; where it lands is a
 prediction, not a fit.
 
-Also measured (:func:`mass_check`): the model's 100x density scaling, introduced for the earlier rest
-treatment, against the real density, at two timesteps.
+Also measured (:func:`mass_check`): the study's 100x density scaling (:data:`DENSITY_SCALE`, which the explicit
+sand solve needs on this body), against the real density (the bundled model's, the animal's), at two timesteps.
 """
 
 from __future__ import annotations
@@ -248,7 +248,8 @@ def run(quick: bool = False, out: str | Path = "out/swim", plots: bool = True) -
                  if a["cull"] and b["cull"] and a["amplitude_rad"] == b["amplitude_rad"]
                  and a["frequency_hz"] == freqs[0] and b["frequency_hz"] == freqs[-1])
     print(f"frequency dependence (cull): largest |eta({freqs[0]:g} Hz) - eta({freqs[-1]:g} Hz)| = {spread:.4f}")
-    print("\nmass scaling (A/lambda {:.3f}, 1 Hz): the model's 100x density against the real one".format(
+    print("\nmass scaling (A/lambda {:.3f}, 1 Hz): the study's 100x density against the real one (the bundled "
+          "model's)".format(
         mass[0]["a_over_lambda"]))
     print("\n".join(_table(mass, ["density_scale", "timestep_s", "eta", "tracking_rms_rad", "wall_s"],
                            [".2g", "g", ".4f", ".4f", ".1f"])))
