@@ -61,12 +61,18 @@ def test_quick_bench_runs_every_section(tmp_path, capsys):
                                                            for m in ("standing", "trotting")}
     assert all(np.isfinite(r["ratio"]) and r["ratio"] > 1.0 for r in quad)    # sand never makes a step cheaper
     assert all(r["touch_elements"] >= 500 for r in quad)                        # the robot really is in the sand
+    from rft_mujoco.compiled import native
+    if native.support()[0]:                      # the phase timings need the native route
+        assert "Quadruped standing (default resolution, every body), one evaluation's compiled phases" in text
+        split = res["phases"]
+        assert [r["setting"] for r in split] == ["rest", "naive"]
+        assert all(r["loaded_elements"] >= 500 for r in split)                  # timed standing in the sand
+        assert all(np.isfinite(r[k]) and r[k] > 0.0 for r in split for k in ("phase1_us", "phase2_us", "bare_us"))
     rates = res["rates"]
     if rates is not None:
         assert {"Ant-v5", "rft_mujoco/SandAnt-v0", "rft_mujoco/SandQuadruped-v0"} <= {r["env"] for r in rates}
         assert all(r["zero_sps"] > 0 and r["random_sps"] > 0 for r in rates)
-        from rft_mujoco.compiled import native
-        if native.support()[0]:                  # the phase timings need the native route
+        if native.support()[0]:
             assert "SandAnt-v0 standing, one evaluation's compiled phases" in text
     assert np.isfinite(res["above"]["per_body_ns"]) and res["above"]["fixed_us"] > 0.0
     assert {r["name"] for r in res["robots"]} == {"mesh humanoid", "mesh quadruped"}

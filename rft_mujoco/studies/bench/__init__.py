@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from rft_mujoco.studies.bench import coupling, plots
-from rft_mujoco.studies.bench.coupling import (above_sand, env_rates, quadruped_overhead, rk4_stages_accuracy,
-                                                sand_phases)
+from rft_mujoco.studies.bench.coupling import (above_sand, env_rates, quadruped_overhead, quadruped_phases,
+                                                rk4_stages_accuracy, sand_phases)
 from rft_mujoco.studies.bench.kernels import DIRECTIONS_DEG, TARGET_ERROR, public_law, speed_accuracy, throughput
 from rft_mujoco.studies.bench.timing import machine
 from rft_mujoco.tables import table
@@ -221,6 +221,14 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = Tru
     quad = quadruped_overhead(resolutions, named(["rest", "naive"]))
     quad += quadruped_overhead(["default"], named(["no culling"] if quick else ["no culling", "numpy"]))
     _print_quadruped(quad)
+    split = quadruped_phases()
+    if split:
+        print("Quadruped standing (default resolution, every body), one evaluation's compiled phases (native route, "
+              "one fixed state) against its bare mj_step:")
+        print(table(["setting", "loaded el.", "phase 1 us", "phase 2 us", "bare mj_step us", "phases / bare"],
+                    [[r["setting"], r["loaded_elements"], f"{r['phase1_us']:.2f}", f"{r['phase2_us']:.2f}",
+                      f"{r['bare_us']:.2f}", f"{(r['phase1_us'] + r['phase2_us']) / r['bare_us']:.2f}x"]
+                     for r in split]))
 
     print("\n2b. Env steps per second, zero action (standing still) and random actions", flush=True)
     rates = env_rates(300 if quick else 1000)
@@ -272,8 +280,8 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = Tru
     files = plots.all_plots(out, thr, quad, rates, acc) if plots_on else []
     if files:
         print("\nwrote " + ", ".join(str(f) for f in files))
-    return dict(throughput=thr, public_law=public, quadruped=quad, rates=rates, stages=stages, above=above, accuracy=acc,
-                robots=robot_rows, files=files)
+    return dict(throughput=thr, public_law=public, quadruped=quad, phases=split, rates=rates, stages=stages,
+                above=above, accuracy=acc, robots=robot_rows, files=files)
 
 
 def main(argv: list[str] | None = None, command: str = "bench") -> int:

@@ -3,6 +3,7 @@ trotting), env steps per second with zero and random actions, RK4 stages, bodies
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 
@@ -150,17 +151,7 @@ def sand_phases(env_id: str = "rft_mujoco/SandAnt-v0", settle_steps: int = 100, 
         from rft_mujoco import envs  # noqa: F401  (registers the sand ids)
     except ImportError:
         return None
-    from rft_mujoco.compiled.jit import njit
     from rft_mujoco.coupling.dispatch import DISPATCHER
-
-    @njit
-    def loop(f1, f2, both, n, addr, t, dt):
-        s = 0
-        for _ in range(n):
-            s += f1(addr, t, dt)
-            if both:
-                s += f2(addr, t, dt)
-        return s
 
     rows = []
     with warnings.catch_warnings():
@@ -175,20 +166,77 @@ def sand_phases(env_id: str = "rft_mujoco/SandAnt-v0", settle_steps: int = 100, 
             if book is None or book.native is None:
                 env.close()
                 return None
-            route = book.native[1]
             mujoco.mj_forward(model, data)                # a first stage: the mobility of this state is kept
-            args = (route.address, data.time, model.opt.timestep)
             stages = ((name, 1.0), (f"{name}, RK4 stages 2-4", 2.0)) if name == "rest" else ((name, 1.0),)
             for setting, stage in stages:
                 book.state[2] = stage                     # the stage the callback would record
-                timed = {}
-                for both in (False, True):
-                    loop(route.phase1, route.phase2, both, 10, *args)
-                    timed[both] = median_time(lambda: loop(route.phase1, route.phase2, both, calls, *args)) / calls
-                rows.append(dict(setting=setting, phase1_us=timed[False] * 1e6,
-                                 phase2_us=(timed[True] - timed[False]) * 1e6))
+                phase1, phase2 = _route_phases(book, model, data, calls)
+                rows.append(dict(setting=setting, phase1_us=phase1, phase2_us=phase2))
             env.close()
     return rows
+
+
+def quadruped_phases(calls: int = 3000) -> list[dict] | None:
+    """Where the bundled quadruped's standing cost goes: one evaluation's two compiled phases (native route,
+    called ``calls`` times in a compiled loop at one fixed state), us per call, with the rest treatment
+    (``"rest"``) and with the naive coupling (``"naive"``), beside the bare ``mj_step`` (no floor, no sand) from
+    the same state; every body attached, default resolution, the floor replaced by the sand, standing after
+    0.5 s (:func:`quadruped_overhead`'s scene). Rows: ``setting``, ``phase1_us``, ``phase2_us``, ``bare_us``,
+    ``loaded_elements``. None without a native route."""
+    from rft_mujoco.coupling.dispatch import DISPATCHER
+
+    rows = []
+    for name in ("rest", "naive"):
+        model = quadruped()
+        data = mujoco.MjData(model)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            handle = attach(model, LI_LOOSE_GLASS_BEADS, None, 0.0, "default", monitor=False,
+                            stabilize=name == "rest")
+            handle.replace_rigid(["floor"])
+            stand = settled_state(model, data)
+        book = DISPATCHER._books.get(data)
+        if book is None or book.native is None:
+            handle.detach()
+            return None
+        mujoco.mj_forward(model, data)
+        phase1, phase2 = _route_phases(book, model, data, calls)
+        loaded = int(handle.diagnostics(data).submerged.sum())
+        handle.detach()
+        model.geom_contype[0] = model.geom_conaffinity[0] = 0   # bare: the same model, no floor
+        bare = step_time(model, data, stand, 7)
+        rows.append(dict(setting=name, phase1_us=phase1, phase2_us=phase2, bare_us=bare * 1e6,
+                         loaded_elements=loaded))
+    return rows
+
+
+def _route_phases(book, model, data, calls: int) -> tuple[float, float]:
+    """us per call of the native route's phase 1 alone and of phase 2 (phases 1 + 2 less phase 1) at ``data``'s
+    state, each the median of :func:`median_time`'s repeats of ``calls`` calls in a compiled loop."""
+    loop = _phase_loop()
+    route = book.native[1]
+    args = (route.address, data.time, model.opt.timestep)
+    timed = {}
+    for both in (False, True):
+        loop(route.phase1, route.phase2, both, 10, *args)
+        timed[both] = median_time(lambda: loop(route.phase1, route.phase2, both, calls, *args)) / calls
+    return timed[False] * 1e6, (timed[True] - timed[False]) * 1e6
+
+
+@functools.lru_cache(maxsize=1)
+def _phase_loop():
+    """A compiled loop calling the route's phase 1 (and phase 2 with ``both``) ``n`` times."""
+    from rft_mujoco.compiled.jit import njit
+
+    @njit
+    def loop(f1, f2, both, n, addr, t, dt):
+        s = 0
+        for _ in range(n):
+            s += f1(addr, t, dt)
+            if both:
+                s += f2(addr, t, dt)
+        return s
+    return loop
 
 
 def _ant_gait(mode: str, dt: float, seed: int, settle_s: float = 2.0, gait_s: float = 4.0):
