@@ -202,7 +202,7 @@ def test_the_named_slots_are_the_schemas():
         for i, name in enumerate(names):
             assert getattr(schema, prefix + name.upper()) == i
             checked += 1
-    assert checked == len(schema.HANDLE_FIELDS) + len(schema.WORK_FIELDS) + 17 + 12 + 12 + 6 + 8 + 9 + 8 + 10
+    assert checked == len(schema.HANDLE_FIELDS) + len(schema.WORK_FIELDS) + 17 + 13 + 13 + 6 + 8 + 9 + 8 + 10
     literal = re.compile(r"\b(hc|ws|md)\[\d+\]")
     for name in ("evaluate", "implicit_eval", "share", "route", "deform_route", "implicit_route"):
         text = (PACKAGE / "compiled" / f"{name}.py").read_text()

@@ -42,6 +42,20 @@ SCRATCH_ROWS = 16
 SPARSE = 4
 """A cluster with fewer than 1/SPARSE of its elements submerged is tested element by element (scalar, on
 the submerged ones); otherwise the test runs vectorized over the whole cluster."""
+# A body's row of the reuse buffer (``attach(reuse_tol=)``, :func:`wrenches`): at its last full evaluation, the
+# unit key of its twist (6), gravity in its frame (3), the flat depth of its origin (m), its wrench summed in its
+# frame (6: N, N m about the COM), loaded elements, deepest loaded element (m), occluded area (m^2), valid (0/1),
+# a ball holding its submerged elements (centre in its frame, radius; m).
+_R_KEY, _R_G, _R_DEPTH, _R_SUM, _R_COUNT, _R_DEEPEST, _R_OCCLUDED, REUSE_VALID, _R_BALL = 0, 6, 9, 10, 16, 17, 18, 19, 20
+REUSE_COLUMNS = 24
+"""Columns of the reuse buffer (the workspace's ``reuse``, one row per attached body)."""
+REUSE_ARM = 0.1
+"""m: the twist's key is the unit vector of (v, REUSE_ARM w), v the COM velocity, w the angular velocity."""
+REUSE_PAD = 0.002
+"""m added to the radius of the ball around a body's submerged elements within which another body's geom stops
+its wrench from being reused (elements within ``reuse_tol`` of that pose may have gone in meanwhile)."""
+REUSE_DEPTH = 0.01
+"""m: a body's origin may move ``reuse_tol * REUSE_DEPTH`` deeper or shallower before its wrench is evaluated again."""
 
 
 @njit(**INLINE)
@@ -231,21 +245,17 @@ def _occlude(dep, sub, ms, cl, cluster, frame, surface, occluders, hidden):
 
 
 @njit(**JIT_LAW)
-def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work, out, speed_scale):
-    """The RFT wrench about each COM of the bodies ``bodies[:n_on]`` moving with twists ``twists`` = (``lin``,
-    ``ang``).
-
-    Row j < n_on of ``poses`` = (``body_pos`` (3), ``body_mat`` (9), ``body_com`` (3)) and of ``lin`` (3, m/s,
-    linear velocity of the COM), ``ang`` (3, rad/s) belongs to body ``b = bodies[j]`` (clusters
-    ``body_clusters[b]:...[b + 1]`` of ``surface``, :data:`SURFACE`). ``terrain``, ``law``, ``occluders``:
-    :data:`TERRAIN`, :data:`LAW`, :data:`OCCLUDERS`; elements inside an occluder of body b carry nothing.
-    Outputs, ``out`` = (``wrench``, ``count``, ``max_depth``, ``occluded``), rows 0..n_on-1: ``wrench`` (6: force
-    N, torque N m about the COM, world frame), ``count`` (loaded elements), ``max_depth`` (m, deepest loaded
-    element), ``occluded`` (m^2, submerged area inside occluders). ``work`` = (``scratch`` (SCRATCH_ROWS, >=
-    cluster size) float, ``index`` (2, >= cluster size) int). ``speed_scale`` (m/s): 0 for the published law;
-    c > 0 for the implicit solve's regularized law, each element's stress times ``|v| / sqrt(|v|^2 + c^2)`` on
-    the ramped leading edge (:func:`rft_mujoco.compiled.implicit_law.body_law`).
-    """
+def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work, out, speed_scale, reuse=None):
+    """The RFT wrench about each COM of bodies ``bodies[:n_on]`` (b; clusters ``body_clusters[b]:[b + 1]`` of
+    ``surface``, :data:`SURFACE`) posed by row j of ``poses`` = (``body_pos`` (3), ``body_mat`` (9), ``body_com``
+    (3)), moving with ``twists`` = (``lin`` (3, m/s, of the COM), ``ang`` (3, rad/s)); ``terrain``, ``law``,
+    ``occluders``: :data:`TERRAIN`, :data:`LAW`, :data:`OCCLUDERS` (elements inside an occluder carry nothing).
+    Into rows j of ``out`` = (``wrench`` (6: N, N m about the COM, world frame), ``count`` (loaded elements),
+    ``max_depth`` (m), ``occluded`` (m^2 submerged inside occluders)); ``work`` = (``scratch`` (SCRATCH_ROWS, >=
+    cluster size), ``index`` (2, >= cluster size) int). ``speed_scale`` (m/s): 0, the published law; c > 0, the
+    implicit solve's (stress times ``|v| / sqrt(|v|^2 + c^2)``, ramped leading edge: ``implicit_law.body_law``).
+    ``reuse`` = (buffer (B, REUSE_COLUMNS), tol > 0): on flat sand a body whose last full evaluation still holds
+    (:func:`_reusable`) gets its wrench and diagnostics again. Returns the number of bodies reused."""
     centroids, normals, areas, cluster_start, cluster_center, cluster_radius, body_clusters = surface
     body_pos, body_mat, body_com = poses
     lin, ang = twists
@@ -258,6 +268,8 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
     lanes = np.empty(LANES)
     dep, keep = scratch[_DEPTH], scratch[_KEEP]
     sub, load = index[0], index[1]
+    reused = 0
+    box = np.array((np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf))    # submerged elements' bounds (_grow_box)
     for j in range(n_on):
         b = bodies[j]
         wrench[j, :] = 0.0
@@ -277,6 +289,10 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
         ub = ub0, ub1, ub2 = r0 * ux + r3 * uy + r6 * uz, r1 * ux + r4 * uy + r7 * uz, r2 * ux + r5 * uy + r8 * uz
         wb = wb0, wb1, wb2 = r0 * wx + r3 * wy + r6 * wz, r1 * wx + r4 * wy + r7 * wz, r2 * wx + r5 * wy + r8 * wz
         c0 = tp[ts.TP_HEIGHT] + (px * g0 + py * g1 + pz * g2)            # flat depth of the body origin
+        row, tol = _reuse_row(reuse, b, mode == _FLAT, scratch[_DEPTH, :0])   # (empty: not remembered)
+        if row.shape[0] > 0 and _reusable(row, tol, (ub, wb, (gb0, gb1, gb2), c0), b, frame, g_hat, occluders):
+            reused += _restore(row, j, r, out)
+            continue
         a0 = a1 = a2 = a3 = a4 = a5 = 0.0
         deepest = 0.0
         for q in range(body_clusters[b], body_clusters[b + 1]):
@@ -303,6 +319,8 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
                 ms += dep[i] > 0.0
             if ms == 0:
                 continue
+            if row.shape[0] > 0:
+                _grow_box(box, sub, ms, cl)
             # 2. the submerged elements inside another body's geom: depth -inf, their area reported
             occluded[j] = _occlude(dep, sub, ms, cl, (q, s, occ_start[b], occ_start[b + 1], qx, qy,
                                    qz), frame, surface, occluders, occluded[j])
@@ -323,16 +341,7 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
                     ml += keep[i] != 0.0
             if ml == 0:
                 continue
-            for jj in range(ml):
-                i = load[jj]
-                scratch[_P_ARM, jj] = cl0[i] - cb0
-                scratch[_P_ARM + 1, jj] = cl1[i] - cb1
-                scratch[_P_ARM + 2, jj] = cl2[i] - cb2
-                scratch[_P_NRM, jj] = nr0[i]
-                scratch[_P_NRM + 1, jj] = nr1[i]
-                scratch[_P_NRM + 2, jj] = nr2[i]
-                scratch[_P_DEPTH, jj] = dep[i]
-                scratch[_P_AREA, jj] = areas[s + i]
+            _pack(scratch, load[:ml], cl, (nr0, nr1, nr2), (dep, areas[s:s + n]), (cb0, cb1, cb2))
             # 4. the law on the packed elements (body frame): vectorized, no branches
             for i in range(ml):
                 l0, l1, l2 = scratch[_P_ARM, i], scratch[_P_ARM + 1, i], scratch[_P_ARM + 2, i]
@@ -362,10 +371,132 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
             count[j] += ml
             deepest = max(deepest, _lane_max(scratch[_P_DEPTH], ml, lanes))
         max_depth[j] = deepest
-        wrench[j, 0], wrench[j, 1], wrench[j, 2] = (r0 * a0 + r1 * a1 + r2 * a2, r3 * a0 + r4 * a1 + r5 * a2,
-                                                    r6 * a0 + r7 * a1 + r8 * a2)    # back to the world frame
-        wrench[j, 3], wrench[j, 4], wrench[j, 5] = (r0 * a3 + r1 * a4 + r2 * a5, r3 * a3 + r4 * a4 + r5 * a5,
-                                                    r6 * a3 + r7 * a4 + r8 * a5)
+        _to_world(wrench, j, r, (a0, a1, a2, a3, a4, a5))                 # back to the world frame
+        if row.shape[0] > 0:                                                # remembered for reuse
+            _remember(row, (ub, wb, (gb0, gb1, gb2), c0), (a0, a1, a2, a3, a4, a5), count[j], deepest, occluded[j], box)
+    return reused
+
+
+@njit(**INLINE)
+def _pack(scratch, load, cl, nr, dep_area, cb):
+    """Step 3 of :func:`wrenches`: a cluster's loaded elements ``load`` (body-frame centroids ``cl``, normals ``nr``,
+    depths and areas ``dep_area``) packed to the front of ``scratch``'s rows: lever arms about the COM ``cb``,
+    normals, depths, areas."""
+    cl0, cl1, cl2 = cl
+    nr0, nr1, nr2 = nr
+    dep, area = dep_area
+    for jj in range(load.shape[0]):
+        i = load[jj]
+        scratch[_P_ARM, jj] = cl0[i] - cb[0]
+        scratch[_P_ARM + 1, jj] = cl1[i] - cb[1]
+        scratch[_P_ARM + 2, jj] = cl2[i] - cb[2]
+        scratch[_P_NRM, jj] = nr0[i]
+        scratch[_P_NRM + 1, jj] = nr1[i]
+        scratch[_P_NRM + 2, jj] = nr2[i]
+        scratch[_P_DEPTH, jj] = dep[i]
+        scratch[_P_AREA, jj] = area[i]
+
+
+@njit(**INLINE)
+def _reuse_row(reuse, b, flat, none):
+    """(body b's row of the reuse buffer, the tolerance) where ``reuse`` asks for it on flat sand, else (``none``,
+    0): see :func:`wrenches`."""
+    if reuse is None:
+        return none, 0.0
+    if reuse[1] > 0.0 and flat:
+        return reuse[0][b], reuse[1]
+    return none, 0.0
+
+
+@njit(**INLINE)
+def _restore(row, j, r, out):
+    """Row j of ``out`` (:func:`wrenches`) from a remembered evaluation ``row`` of a body with rotation ``r``; 1."""
+    wrench, count, max_depth, occluded = out
+    count[j], max_depth[j], occluded[j] = int(row[_R_COUNT]), row[_R_DEEPEST], row[_R_OCCLUDED]
+    _to_world(wrench, j, r, row[_R_SUM:_R_SUM + 6])
+    return 1
+
+
+@njit(**INLINE)
+def _grow_box(box, sub, ms, cl):
+    """``box`` (min x, y, z, max x, y, z) grown by the elements ``sub[:ms]`` of a cluster (body-frame centroids ``cl``)."""
+    cl0, cl1, cl2 = cl
+    for jj in range(ms):
+        i = sub[jj]
+        box[0], box[1], box[2] = min(box[0], cl0[i]), min(box[1], cl1[i]), min(box[2], cl2[i])
+        box[3], box[4], box[5] = max(box[3], cl0[i]), max(box[4], cl1[i]), max(box[5], cl2[i])
+
+
+@njit(**INLINE)
+def _key(ub, wb):
+    """The unit vector of (v, REUSE_ARM w) of a twist in a body's frame (v m/s, w rad/s; not both zero)."""
+    k3, k4, k5 = REUSE_ARM * wb[0], REUSE_ARM * wb[1], REUSE_ARM * wb[2]
+    inv = 1.0 / math.sqrt(ub[0] * ub[0] + ub[1] * ub[1] + ub[2] * ub[2] + k3 * k3 + k4 * k4 + k5 * k5)
+    return ub[0] * inv, ub[1] * inv, ub[2] * inv, k3 * inv, k4 * inv, k5 * inv
+
+
+@njit(**INLINE)
+def _reusable(row, tol, now, b, frame, g_hat, occluders):
+    """Whether body b's remembered evaluation (``row`` of the reuse buffer) holds ``now`` = (twist ``ub``, ``wb``
+    and gravity in its frame, flat depth of its origin): see :func:`wrenches`' ``reuse``."""
+    if row[REUSE_VALID] == 0.0:
+        return False
+    ub, wb, gb, c0 = now
+    key = _key(ub, wb)
+    d = 0.0
+    for c in range(6):
+        d += abs(key[c] - row[_R_KEY + c])
+    e = abs(gb[0] - row[_R_G]) + abs(gb[1] - row[_R_G + 1]) + abs(gb[2] - row[_R_G + 2])
+    if not (d < tol and e < tol and abs(c0 - row[_R_DEPTH]) < tol * REUSE_DEPTH):
+        return False
+    rad = row[_R_BALL + 3]
+    if rad < 0.0:                                                    # nothing was submerged: nothing to hide
+        return True
+    occ_start, occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin, geom_xpos, geom_xmat = occluders
+    qx, qy, qz, _ = _cluster_place(row[_R_BALL:_R_BALL + 3], rad, frame, g_hat)
+    for o in range(occ_start[b], occ_start[b + 1]):                 # another body's geom that could hide elements
+        gid = occ_geom[o]
+        e0, e1, e2 = qx - geom_xpos[gid, 0], qy - geom_xpos[gid, 1], qz - geom_xpos[gid, 2]
+        reach = occ_rbound[o] + rad
+        if e0 * e0 + e1 * e1 + e2 * e2 >= reach * reach:
+            continue
+        gm = geom_xmat[gid]                                          # the ball's centre in the geom frame
+        x0, x1, x2 = gm[0] * e0 + gm[3] * e1 + gm[6] * e2, gm[1] * e0 + gm[4] * e1 + gm[7] * e2, \
+            gm[2] * e0 + gm[5] * e1 + gm[8] * e2
+        if not _outside_ball(x0, x1, x2, rad, occ_kind[o], occ_size[o, 0], occ_size[o, 1], occ_size[o, 2], occ_hs,
+                             occ_hs_start[o], occ_hs_start[o + 1], margin):
+            return False                                             # it may hide elements in the sand
+    return True
+
+
+@njit(**INLINE)
+def _remember(row, now, sums, count, deepest, occluded, box):
+    """Body b's full evaluation into its ``row`` of the reuse buffer (:func:`_reusable` reads it); ``box``: the
+    body-frame bounds of its submerged elements (min x, y, z, max x, y, z; m; empty: none submerged)."""
+    ub, wb, gb, c0 = now
+    key = _key(ub, wb)
+    for c in range(6):
+        row[_R_KEY + c] = key[c]
+        row[_R_SUM + c] = sums[c]
+    row[_R_G], row[_R_G + 1], row[_R_G + 2], row[_R_DEPTH] = gb[0], gb[1], gb[2], c0
+    row[_R_COUNT], row[_R_DEEPEST], row[_R_OCCLUDED], row[REUSE_VALID] = count, deepest, occluded, 1.0
+    r = 0.0
+    for c in range(3):
+        row[_R_BALL + c] = 0.5 * (box[c] + box[3 + c]) if box[c] <= box[3 + c] else 0.0
+        r += (0.5 * (box[3 + c] - box[c])) ** 2 if box[c] <= box[3 + c] else 0.0
+    row[_R_BALL + 3] = math.sqrt(r) + REUSE_PAD if box[0] <= box[3] else -1.0
+    for c in range(3):                                   # empty again for the next body
+        box[c], box[3 + c] = np.inf, -np.inf
+
+
+@njit(**INLINE)
+def _to_world(wrench, j, r, sums):
+    """``wrench[j]`` from a wrench summed in the frame of a body with rotation ``r`` (9, row-major)."""
+    for c in range(0, 6, 3):
+        a0, a1, a2 = sums[c], sums[c + 1], sums[c + 2]
+        wrench[j, c] = r[0] * a0 + r[1] * a1 + r[2] * a2
+        wrench[j, c + 1] = r[3] * a0 + r[4] * a1 + r[5] * a2
+        wrench[j, c + 2] = r[6] * a0 + r[7] * a1 + r[8] * a2
 
 
 # --- the element pass on its own (tests, benchmarks) -----------------------------------------------------

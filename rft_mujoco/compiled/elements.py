@@ -155,7 +155,18 @@ def _inside(x, y, z, kind, s0, s1, s2, hs, h0, h1, margin):
 def _outside_ball(x, y, z, radius, kind, s0, s1, s2, hs, h0, h1, margin):
     """True when no point within ``radius`` of (x, y, z) (geom frame) is inside the geom as :func:`_inside`
     tests it: a cluster of elements that can be skipped whole. Boxes and meshes (one separating face
-    suffices) and spheres; other kinds answer False (their elements are tested one by one)."""
+    suffices), spheres, capsules and cylinders (the distance to the axis or the ends), ellipsoids (their
+    largest semi-axis's ball); other kinds answer False (their elements are tested one by one)."""
+    if kind == _CAPSULE:
+        a = z - min(max(z, -s1), s1)
+        r = s0 - margin
+        return r <= 0.0 or x * x + y * y + a * a >= (r + radius) * (r + radius)
+    if kind == _CYLINDER:
+        r = s0 - margin
+        return r <= 0.0 or x * x + y * y >= (r + radius) * (r + radius) or abs(z) >= s1 - margin + radius
+    if kind == _ELLIPSOID:
+        r = max(s0, s1, s2) - margin
+        return min(s0, s1, s2) <= margin or x * x + y * y + z * z >= (r + radius) * (r + radius)
     if kind == _BOX:
         return abs(x) >= s0 - margin + radius or abs(y) >= s1 - margin + radius or abs(z) >= s2 - margin + radius
     if kind == _MESH:

@@ -28,7 +28,8 @@ import math
 import numpy as np
 
 from rft_mujoco import tol
-from rft_mujoco.compiled.element_pass import SCRATCH_ROWS, law_of, occluders_of, surface_of, terrain_of, wrenches
+from rft_mujoco.compiled.element_pass import (REUSE_COLUMNS, REUSE_VALID, SCRATCH_ROWS, law_of, occluders_of, surface_of,
+                                           terrain_of, wrenches)
 from rft_mujoco.compiled.elements import finish_naive, touching
 from rft_mujoco.compiled.jit import INLINE, JIT, njit
 from rft_mujoco.compiled.locks import lock_matrices, locked_rest, stuck_dofs
@@ -63,7 +64,7 @@ def build_workspace(n_bodies: int, n_groups: int, nv: int, n_rows: int) -> dict:
         perm=(2 * n6,), x=(n6,), index=(2, n_rows), chain=(g, nv + 1), keep_active=(g,), keep_rest=(g,),
         lock_i=(3, nv1), lock_f=(5, nv1), lock_z=(nv1, nv1), lock_chain=(nv1, nv1 + 1), lock_s=(nv1, nv1),
         lock_c=(nv1, max(n6, 1)), lock_r=(nv1, nv1), lock_x=(nv1, max(n6, 1)), lock_mob=(n6, n6), lock_free=(g, 6),
-        lock_w=(g, 6), lock_rest=(g,), group_tree=(g,), lock_prev=(nv1,))
+        lock_w=(g, 6), lock_rest=(g,), group_tree=(g,), lock_prev=(nv1,), reuse=(b, REUSE_COLUMNS))
     dtype = {"i": np.int64, "f": np.float64, "b": np.bool_}
     out = {name: np.zeros(shapes[name], dtype=dtype[kind[0]]) for name, kind in WORK_FIELDS}
     out["scale"][:] = 1.0
@@ -329,9 +330,14 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
     body_arms(k, slot, (active, ids, group_ref), body_com, xipos, arm)
     group_twists(u, None, k, slot, arm, u_lin, u_ang, None)
     # 5. RFT wrenches at the blended twists; the groups' wrenches about their reference points
-    wrenches(touch, k, surface_of(hc), (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com), (u_lin, u_ang),
-             terrain_of(hc, g_hat), law_of(hc, xi_n), occluders_of(hc, md), (ws[sc.W_SCRATCH], ws[sc.W_INDEX]),
-             (wrench, count, depth_max, occluded), 0.0)
+    reuse = ws[sc.W_REUSE]
+    if not lagged:                                  # a reset or a jump in time: nothing is reused across it
+        for j in range(reuse.shape[0]):
+            reuse[j, REUSE_VALID] = 0.0
+    state[sc.S_REUSED_WRENCHES] += wrenches(
+        touch, k, surface_of(hc), (ws[sc.W_BODY_POS], ws[sc.W_BODY_MAT], body_com), (u_lin, u_ang), terrain_of(hc, g_hat),
+        law_of(hc, xi_n), occluders_of(hc, md), (ws[sc.W_SCRATCH], ws[sc.W_INDEX]), (wrench, count, depth_max, occluded),
+        0.0, (reuse, hc[sc.H_PARAMS][sc.P_REUSE_TOL]))
     group_sums(ng, None, k, slot, arm, None, wrench, rft_g)
     # 6. the rest solve (rest.rest_wrenches), in the groups' radii
     state[sc.S_LOCKED_DOFS] = 0.0
@@ -358,11 +364,11 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
 
 def params_array(max_height: float, xi_per_g: float, mu_surf: float, guards, kind: int, stabilize: bool,
                  passive: bool, margin: float, monitor_every: int = 0, rk4_first: bool = False,
-                 out=None) -> np.ndarray:
+                 reuse_tol: float = 0.0, out=None) -> np.ndarray:
     """``hc.params`` (:data:`PARAMS`), written into ``out`` when given (a live handle's array)."""
     values = (max_height, xi_per_g, mu_surf, float(guards.no_tension), float(guards.no_forward_tangential),
               float(guards.no_positive_power), float(kind), float(stabilize), float(passive), margin,
-              float(monitor_every), float(rk4_first))
+              float(monitor_every), float(rk4_first), float(reuse_tol))
     if out is None:
         return np.array(values, dtype=np.float64)
     out[:] = values

@@ -75,17 +75,17 @@ WORK_FIELDS = (
     ("perm", "i1"), ("x", "f1"), ("index", "i2"), ("chain", "i2"), ("keep_active", "i1"), ("keep_rest", "b1"),
     ("lock_i", "i2"), ("lock_f", "f2"), ("lock_z", "f2"), ("lock_chain", "i2"), ("lock_s", "f2"), ("lock_c", "f2"),
     ("lock_r", "f2"), ("lock_x", "f2"), ("lock_mob", "f2"), ("lock_free", "f2"), ("lock_w", "f2"), ("lock_rest", "b1"),
-    ("group_tree", "i1"), ("lock_prev", "b1"))
+    ("group_tree", "i1"), ("lock_prev", "b1"), ("reuse", "f2"))
 """(name, kind) of the arrays of ``ws``, in order."""
 
 
 PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
-          "passive", "margin", "monitor_every", "rk4_first")
+          "passive", "margin", "monitor_every", "rk4_first", "reuse_tol")
 """Entries of ``hc.params``: highest sand (m), ``xi_n / |g|`` (N/m^3 per m/s^2), surface friction, the
 three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
-validity checks (0: no monitor), ``rk4_stages="first"`` (0/1)."""
+validity checks (0: no monitor), ``rk4_stages="first"`` (0/1), ``attach(reuse_tol=)`` (0: off)."""
 STATE = ("last_time", "clean", "touching", "lagged", "evaluations", "rk4_stage", "kept_groups", "kept_rank",
-         "kept_evaluations", "locked_dofs", "locked_evaluations", "newton_iterations")
+         "kept_evaluations", "locked_dofs", "locked_evaluations", "newton_iterations", "reused_wrenches")
 """Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
 the number of touching bodies found by the last broadphase, whether MuJoCo's previous constraint solve
 belongs to this motion, evaluations so far; the RK4 stage of this evaluation (written by the caller
@@ -94,7 +94,7 @@ the later stages of this step (0: none), the kept rest factor's rank (-1: none, 
 :func:`rft_mujoco.compiled.rest.rest_wrenches`), the evaluations that used a kept mobility; the dofs
 held by their dry friction in this evaluation's rest solve (:func:`rft_mujoco.physics.rest.locked_rest`)
 and the evaluations that held any; the Newton iterations of this evaluation's implicit solve
-(``solve="implicit"``)."""
+(``solve="implicit"``); the bodies' RFT wrenches reused so far (``attach(reuse_tol=)``)."""
 
 BOOK_STATE = ("nonzero", "sand_dirty", "rk4_stage", "rk4_stage_time", "time_rtol", "pending")
 """Entries of the dispatcher's book ``state`` (:class:`rft_mujoco.coupling.book._DataBook`, read and written by
@@ -139,13 +139,13 @@ and ``ZONE_PASSES`` (:func:`rft_mujoco.compiled.implicit.settings`)."""
  W_FORCE, W_TORQUE, W_SUBMERGED, W_MAX_DEPTH, W_SCALE, W_RFT_FORCE, W_RESTING, W_OCCLUDED_AREA, W_STATE, W_LIN,
  W_PERM, W_X, W_INDEX, W_CHAIN, W_KEEP_ACTIVE, W_KEEP_REST, W_LOCK_I, W_LOCK_F, W_LOCK_Z, W_LOCK_CHAIN,
  W_LOCK_S, W_LOCK_C, W_LOCK_R, W_LOCK_X, W_LOCK_MOB, W_LOCK_FREE, W_LOCK_W, W_LOCK_REST, W_GROUP_TREE,
- W_LOCK_PREV) = range(len(WORK_FIELDS))
+ W_LOCK_PREV, W_REUSE) = range(len(WORK_FIELDS))
 
 (P_MAX_HEIGHT, P_XI_PER_G, P_MU_SURF, P_NO_TENSION, P_NO_FORWARD, P_NO_POWER, P_KIND, P_STABILIZE, P_PASSIVE,
- P_MARGIN, P_MONITOR_EVERY, P_RK4_FIRST) = range(len(PARAMS))
+ P_MARGIN, P_MONITOR_EVERY, P_RK4_FIRST, P_REUSE_TOL) = range(len(PARAMS))
 
 (S_LAST_TIME, S_CLEAN, S_TOUCHING, S_LAGGED, S_EVALUATIONS, S_RK4_STAGE, S_KEPT_GROUPS, S_KEPT_RANK,
- S_KEPT_EVALUATIONS, S_LOCKED_DOFS, S_LOCKED_EVALUATIONS, S_NEWTON_ITERATIONS) = range(len(STATE))
+ S_KEPT_EVALUATIONS, S_LOCKED_DOFS, S_LOCKED_EVALUATIONS, S_NEWTON_ITERATIONS, S_REUSED_WRENCHES) = range(len(STATE))
 
 (B_NONZERO, B_SAND_DIRTY, B_RK4_STAGE, B_RK4_STAGE_TIME, B_TIME_RTOL, B_PENDING) = range(len(BOOK_STATE))
 

@@ -29,6 +29,8 @@ import warnings
 import weakref
 from collections.abc import Sequence
 
+import numbers
+
 import mujoco
 import numpy as np
 
@@ -61,6 +63,8 @@ zones (the default), or MuJoCo's previous constraint forces (the first of the im
 alone, a measurement: docs/rest.md, "The implicit solve")."""
 RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
+REUSE_TOL_MAX = 0.1
+"""The largest ``attach(reuse_tol=...)``: beyond it a reused wrench could be off by more than a few percent."""
 
 
 class SandHandle:
@@ -93,7 +97,7 @@ class SandHandle:
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
         self._ready = False
-        self._params = np.zeros(12)
+        self._params = np.zeros(len(sc.PARAMS))
         self._model = weakref.ref(model)     # the dispatcher unregisters the handle when the model is collected
         self.element_size = size
         self.body_ids = np.asarray(body_ids, dtype=np.int64)
@@ -119,6 +123,7 @@ class SandHandle:
         self._opt_gravity = model.opt.gravity            # a live view: gravity changes are seen
         self._gravity_seen = None
         self.rk4_stages = "all"
+        self.reuse_tol = 0.0
         self.solve = "explicit"
         self.constraints = "linearized"                   # CONSTRAINTS
         self._observers: list = []
@@ -138,10 +143,12 @@ class SandHandle:
     def __setattr__(self, name, value) -> None:
         if name == "constraints" and value not in CONSTRAINTS:
             raise ValueError(f"constraints must be one of {CONSTRAINTS}, got {value!r}")
+        if name == "reuse_tol":
+            value = checked_reuse_tol(value)
         object.__setattr__(self, name, value)
         if name in ("solve", "constraints") and getattr(self, "_ready", False):
             DISPATCHER.invalidate()                      # the native route is built with both
-        if name in ("_media", "guards", "stabilize", "passive", "monitor", "_terrain", "rk4_stages") \
+        if name in ("_media", "guards", "stabilize", "passive", "monitor", "_terrain", "rk4_stages", "reuse_tol") \
                 and getattr(self, "_ready", False):
             self._refresh()
 
@@ -155,7 +162,7 @@ class SandHandle:
         every = self.monitor.every if self.monitor is not None else 0
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
                               spec.kind, self.stabilize, self.passive, self.layout.occluders.margin, every,
-                              self.rk4_stages == "first", out=self._params)   # read live by the native route
+                              self.rk4_stages == "first", self.reuse_tol, out=self._params)   # read live by the route
         for work in self._work.values():
             if work.press is not None:                   # a deformable surface's own copy, its own highest point
                 np.copyto(work.hc[sc.H_PARAMS], self._params)
@@ -468,11 +475,19 @@ class SandHandle:
         return self._g_hat
 
 
+def checked_reuse_tol(value) -> float:
+    """``attach(reuse_tol=...)`` as a float, or ValueError saying what is allowed."""
+    if isinstance(value, bool) or not (isinstance(value, numbers.Real) and 0.0 <= value <= REUSE_TOL_MAX):
+        raise ValueError(f"reuse_tol must be a number from 0 (off, the default) to {REUSE_TOL_MAX}, got {value!r}; "
+                         "1e-3 reuses a body's wrench while its motion's direction and its pose change by about 0.1%")
+    return float(value)
+
+
 def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
            surface_height: float | Terrain = 0.0, resolution: str | float = "default", *,
            guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True,
            monitor: bool | ValidityMonitor = True, backend: str = "auto", rk4_stages: str = "all",
-           cull: bool = True, solve: str = "explicit") -> SandHandle:
+           cull: bool = True, solve: str = "explicit", reuse_tol: float = 0.0) -> SandHandle:
     """Attach 3D-RFT sand to ``model``: from now on ``mujoco.mj_step(model, data)`` includes it.
 
     Args:
@@ -513,6 +528,15 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             constraint forces of the previous solve) or "implicit" (the law at the twist the step ends with, per
             direction, this step's constraints linearized in the zones the step ends in; not on warp:
             docs/rest.md "The implicit solve").
+        reuse_tol: with the rest treatment's explicit solve on flat sand (compiled backend), a body's RFT
+            wrench is taken again from its last full evaluation while, in the body's frame, the unit vector of
+            its twist (COM velocity, 0.1 m x angular velocity) and the gravity direction have each moved by less
+            than ``reuse_tol`` (sums of absolute component changes) and its origin by less than ``reuse_tol``
+            x 10 mm in depth, and no other body's geom is near its elements in the sand (the law is rate
+            independent and flat sand is the same everywhere: a standing robot, or a body sliding steadily,
+            keeps its wrench). 0 (default): every evaluation evaluates every element. 1e-3 halves the
+            standing quadruped's sand cost (docs/performance.md, "Reusing a body's wrench");
+            ``SandHandle.counters(data).reused_wrenches`` counts the reuses. At most 0.1.
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """
@@ -522,6 +546,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         raise ValueError(f"solve must be one of {SOLVES}, got {solve!r}")
     if rk4_stages not in RK4_STAGES:
         raise ValueError(f"rk4_stages must be one of {RK4_STAGES}, got {rk4_stages!r}")
+    checked_reuse_tol(reuse_tol)
     if not isinstance(guards, Guards):
         raise TypeError(f"guards must be a rft_mujoco.Guards (default: rft_mujoco.PUBLISHED, no clean-ups), got "
                         f"{guards!r}; e.g. rft_mujoco.Guards(no_tension=True)")
@@ -539,6 +564,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
                                                                    minlength=len(ids)) + handle.culled_area)
     checks.check_resolution(model, handle.body_ids, handle.element_size)
     handle.rk4_stages = rk4_stages
+    handle.reuse_tol = reuse_tol
     handle.solve = solve
     DISPATCHER.register(handle)
     handle.attached = True

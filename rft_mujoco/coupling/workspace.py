@@ -62,19 +62,22 @@ class Diagnostics:
 
 class SolveCounters(NamedTuple):
     """How the sand solve went on one MjData since its workspace was made (at its first evaluation, or copied
-    with it): :meth:`rft_mujoco.SandHandle.counters`. The same on every backend.
+    with it): :meth:`rft_mujoco.SandHandle.counters`. The same on every backend but ``reused_wrenches``.
 
     Attributes:
         kept_evaluations: evaluations at RK4 stages 2-4 that kept the first stage's mobility and rest factor.
         locked_dofs: dofs held by their dry friction (``frictionloss``) in the last evaluation's rest solve.
         locked_evaluations: evaluations whose rest solve held any dof by its dry friction.
         newton_iterations: Newton iterations of the last evaluation's implicit solve (``solve="implicit"``).
+        reused_wrenches: bodies' RFT wrenches taken again from an earlier evaluation (``attach(reuse_tol=)``;
+            the compiled backend's: the numpy reference evaluates every body every time).
     """
 
     kept_evaluations: int
     locked_dofs: int
     locked_evaluations: int
     newton_iterations: int
+    reused_wrenches: int = 0
 
 
 class _Workspace:
@@ -137,7 +140,7 @@ class _Workspace:
         """The solve's counters of this MjData (:class:`SolveCounters`)."""
         s = self.arrays["state"]
         return SolveCounters(int(s[sc.S_KEPT_EVALUATIONS]), int(s[sc.S_LOCKED_DOFS]), int(s[sc.S_LOCKED_EVALUATIONS]),
-                             int(s[sc.S_NEWTON_ITERATIONS]))
+                             int(s[sc.S_NEWTON_ITERATIONS]), int(s[sc.S_REUSED_WRENCHES]))
 
     def record(self, outcome: reference.Outcome) -> None:
         """Count what one evaluation of the numpy reference did (the compiled kernels count in ``state``

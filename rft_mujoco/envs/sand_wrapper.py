@@ -79,6 +79,7 @@ is the medium of the current episode.
 | `media_ranges`                | MediaRanges or None| `None`                   | per-episode uniform ranges for rho_c, mu_int, mu_surf |
 | `stabilize`                   | bool               | `True`                   | the coupling's implicit direction and impulse limiter |
 | `solve`                       | str or None        | `None`                   | the sand solve: `"explicit"` or `"implicit"` (docs/rest.md); None: `attach`'s default (`"explicit"`) |
+| `reuse_tol`                   | float              | `0.0`                    | `attach`'s: a body's wrench reused while its motion and pose hold (0: off) |
 
 ## Version History
 * v0: first version (mujoco 4.0.0, gymnasium 1.4 ``{base}`` v5 assets).
@@ -94,7 +95,7 @@ class _SandEnv:
                  sand_bodies: str | Sequence[str | int] = "auto", bed_depth_m: float | None = None,
                  sand_in_contact_forces: bool = False, include_sand_in_observation: bool = False,
                  media_ranges: MediaRanges | None = None, stabilize: bool = True, solve: str | None = None,
-                 **base_kwargs):
+                 reuse_tol: float = 0.0, **base_kwargs):
         resolution = self._sand_resolution if resolution is None else resolution
         self.sand = None
         self._bed_depth_m = bed_depth_m
@@ -104,12 +105,13 @@ class _SandEnv:
         utils.EzPickle.__init__(self, media=media, resolution=resolution, sand_bodies=sand_bodies,
                                 bed_depth_m=bed_depth_m, sand_in_contact_forces=sand_in_contact_forces,
                                 include_sand_in_observation=include_sand_in_observation,
-                                media_ranges=media_ranges, stabilize=stabilize, solve=solve, **base_kwargs)
+                                media_ranges=media_ranges, stabilize=stabilize, solve=solve, reuse_tol=reuse_tol,
+                                **base_kwargs)
         self._sand_in_contact_forces = bool(sand_in_contact_forces)
         self._include_sand_in_observation = bool(include_sand_in_observation)
         self.sand = SandBed(self.model, media, bodies=sand_bodies, resolution=resolution,
                             surface=self._surface_geoms, media_ranges=media_ranges, stabilize=stabilize,
-                            solve=solve)
+                            solve=solve, reuse_tol=reuse_tol)
         if self._include_sand_in_observation:
             extra = FEATURES_PER_BODY * self.sand.n_bodies
             base = self.observation_space

@@ -92,6 +92,10 @@ def _env_run(env, actions, seed: int) -> float:
     return len(actions) / (time.perf_counter() - t0)
 
 
+ENV_SETTINGS = {None: {}, "reuse 1e-3": {"reuse_tol": 1e-3}}
+"""``gym.make`` keywords of :func:`env_rates`' named entries other than a solve's name."""
+
+
 def env_rates(steps: int, rounds: int = 5, solves: tuple = (None,)) -> list[dict] | None:
     """Env steps per second of :data:`ENV_IDS` with zero actions (a robot standing still) and uniform
     random actions; None without gymnasium.
@@ -100,8 +104,9 @@ def env_rates(steps: int, rounds: int = 5, solves: tuple = (None,)) -> list[dict
     ``rounds`` rounds runs every env with both action sets once (``steps`` steps from a reset with seed =
     the round), and a ratio (zero / random, SandAnt / Ant) is the median of its per-round ratios; the
     rates are the medians of the rounds. ``solves``: the sand envs once per entry (None: the envs' default;
-    ``"explicit"`` / ``"implicit"``: ``gym.make(..., solve=...)``), interleaved in the same rounds; each row's
-    ``solve`` says which ("default" for None and for Ant-v5)."""
+    ``"explicit"`` / ``"implicit"``: ``gym.make(..., solve=...)``; ``"reuse 1e-3"``: ``reuse_tol=1e-3``,
+    :data:`ENV_SETTINGS`), interleaved in the same rounds; each row's ``solve`` says which ("default" for None
+    and for Ant-v5)."""
     try:
         import gymnasium as gym
 
@@ -115,7 +120,7 @@ def env_rates(steps: int, rounds: int = 5, solves: tuple = (None,)) -> list[dict
             if env_id not in gym.registry:
                 continue
             for solve in solves if env_id.startswith("rft_mujoco/") else (None,):
-                env = gym.make(env_id, **({} if solve is None else {"solve": solve}))
+                env = gym.make(env_id, **ENV_SETTINGS.get(solve, {"solve": solve}))
                 n = env.action_space.shape[0]
                 rng = np.random.default_rng(0)
                 made[env_id, solve] = (env, np.zeros((steps, n)),
@@ -323,10 +328,11 @@ def above_sand(counts=(1, 1000)) -> dict:
 
 IMPLICIT_SETTINGS = {"explicit": {}, "explicit, Python path": {"observe": True}, "implicit": {"solve": "implicit"},
                      "implicit, Python path": {"solve": "implicit", "observe": True},
-                     "implicit, numpy": {"solve": "implicit", "backend": "numpy"}}
+                     "implicit, numpy": {"solve": "implicit", "backend": "numpy"},
+                     "explicit, reuse 1e-3": {"reuse_tol": 1e-3}}
 """Named settings of :func:`implicit_cost`: the default explicit solve and the implicit solve on the native
-route, each also forced onto the dispatcher's Python callback path (a no-op observer), and the implicit solve
-on the numpy reference."""
+route, each also forced onto the dispatcher's Python callback path (a no-op observer), the implicit solve
+on the numpy reference, and the explicit solve reusing wrenches (``attach(reuse_tol=1e-3)``)."""
 
 
 def implicit_cost(names=("explicit", "explicit, Python path", "implicit", "implicit, Python path"), reps: int = 7,
