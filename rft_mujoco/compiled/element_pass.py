@@ -200,18 +200,17 @@ def _occlude(dep, sub, ms, cl, cluster, frame, surface, occluders, hidden):
     :data:`OCCLUDERS` rows ``o0:o1``) get depth -inf; returns ``hidden`` (m^2) plus their area. ``cluster`` =
     (q, its first element s, o0, o1, its centre in the world qx, qy, qz)."""
     cluster_center, cluster_radius, areas = surface[4], surface[5], surface[2]
-    occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin = occluders[1:8]
+    occ_geom, occ_kind, occ_size, _, occ_hs_start, occ_hs, margin = occluders[1:8]
     geom_xpos, geom_xmat = occluders[8], occluders[9]
     q, s, o0, o1, qx, qy, qz = cluster
     r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz = frame
     cl0, cl1, cl2 = cl
     q0, q1, q2 = cluster_center[q, 0], cluster_center[q, 1], cluster_center[q, 2]
     for o in range(o0, o1):
+        if _clear_of(o, (qx, qy, qz), cluster_radius[q], occluders):
+            continue                                     # the geom cannot hide any of the cluster's elements
         gid = occ_geom[o]
         ox, oy, oz = geom_xpos[gid, 0], geom_xpos[gid, 1], geom_xpos[gid, 2]
-        reach = occ_rbound[o] + cluster_radius[q]
-        if (qx - ox) ** 2 + (qy - oy) ** 2 + (qz - oz) ** 2 >= reach * reach:
-            continue
         gm = geom_xmat[gid]                              # the element in the geom frame: M l + t
         m00, m01, m02 = gm[0] * r0 + gm[3] * r3 + gm[6] * r6, gm[0] * r1 + gm[3] * r4 + gm[6] * r7, \
             gm[0] * r2 + gm[3] * r5 + gm[6] * r8
@@ -226,8 +225,6 @@ def _occlude(dep, sub, ms, cl, cluster, frame, surface, occluders, hidden):
         hs0, hs1, ok = occ_hs_start[o], occ_hs_start[o + 1], occ_kind[o]
         x0, x1, x2 = t0 + (m00 * q0 + m01 * q1 + m02 * q2), t1 + (m10 * q0 + m11 * q1 + m12 * q2), \
             t2 + (m20 * q0 + m21 * q1 + m22 * q2)
-        if _outside_ball(x0, x1, x2, cluster_radius[q], ok, s0, s1, s2, occ_hs, hs0, hs1, margin):
-            continue                                     # a face of the geom separates the whole cluster
         kf = _nearest_face(x0, x1, x2, ok, occ_hs, hs0, hs1)
         for jj in range(ms):
             i = sub[jj]
@@ -290,7 +287,8 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
         wb = wb0, wb1, wb2 = r0 * wx + r3 * wy + r6 * wz, r1 * wx + r4 * wy + r7 * wz, r2 * wx + r5 * wy + r8 * wz
         c0 = tp[ts.TP_HEIGHT] + (px * g0 + py * g1 + pz * g2)            # flat depth of the body origin
         row, tol = _reuse_row(reuse, b, mode == _FLAT, scratch[_DEPTH, :0])   # (empty: not remembered)
-        if row.shape[0] > 0 and _reusable(row, tol, (ub, wb, (gb0, gb1, gb2), c0), b, frame, g_hat, occluders):
+        now = (_key(ub, wb) if row.shape[0] > 0 else (0.0,) * 6, (gb0, gb1, gb2), c0)
+        if row.shape[0] > 0 and _reusable(row, tol, now, b, frame, g_hat, occluders):
             reused += _restore(row, j, r, out)
             continue
         a0 = a1 = a2 = a3 = a4 = a5 = 0.0
@@ -373,7 +371,7 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
         max_depth[j] = deepest
         _to_world(wrench, j, r, (a0, a1, a2, a3, a4, a5))                 # back to the world frame
         if row.shape[0] > 0:                                                # remembered for reuse
-            _remember(row, (ub, wb, (gb0, gb1, gb2), c0), (a0, a1, a2, a3, a4, a5), count[j], deepest, occluded[j], box)
+            _remember(row, now, (a0, a1, a2, a3, a4, a5), count[j], deepest, occluded[j], box)
     return reused
 
 
@@ -437,12 +435,11 @@ def _key(ub, wb):
 
 @njit(**INLINE)
 def _reusable(row, tol, now, b, frame, g_hat, occluders):
-    """Whether body b's remembered evaluation (``row`` of the reuse buffer) holds ``now`` = (twist ``ub``, ``wb``
-    and gravity in its frame, flat depth of its origin): see :func:`wrenches`' ``reuse``."""
+    """Whether body b's remembered evaluation (``row`` of the reuse buffer) holds ``now`` = (its twist's key
+    (:func:`_key`), gravity in its frame, the flat depth of its origin): see :func:`wrenches`' ``reuse``."""
     if row[REUSE_VALID] == 0.0:
         return False
-    ub, wb, gb, c0 = now
-    key = _key(ub, wb)
+    key, gb, c0 = now
     d = 0.0
     for c in range(6):
         d += abs(key[c] - row[_R_KEY + c])
@@ -452,29 +449,36 @@ def _reusable(row, tol, now, b, frame, g_hat, occluders):
     rad = row[_R_BALL + 3]
     if rad < 0.0:                                                    # nothing was submerged: nothing to hide
         return True
-    occ_start, occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin, geom_xpos, geom_xmat = occluders
     qx, qy, qz, _ = _cluster_place(row[_R_BALL:_R_BALL + 3], rad, frame, g_hat)
+    occ_start = occluders[0]
     for o in range(occ_start[b], occ_start[b + 1]):                 # another body's geom that could hide elements
-        gid = occ_geom[o]
-        e0, e1, e2 = qx - geom_xpos[gid, 0], qy - geom_xpos[gid, 1], qz - geom_xpos[gid, 2]
-        reach = occ_rbound[o] + rad
-        if e0 * e0 + e1 * e1 + e2 * e2 >= reach * reach:
-            continue
-        gm = geom_xmat[gid]                                          # the ball's centre in the geom frame
-        x0, x1, x2 = gm[0] * e0 + gm[3] * e1 + gm[6] * e2, gm[1] * e0 + gm[4] * e1 + gm[7] * e2, \
-            gm[2] * e0 + gm[5] * e1 + gm[8] * e2
-        if not _outside_ball(x0, x1, x2, rad, occ_kind[o], occ_size[o, 0], occ_size[o, 1], occ_size[o, 2], occ_hs,
-                             occ_hs_start[o], occ_hs_start[o + 1], margin):
-            return False                                             # it may hide elements in the sand
+        if not _clear_of(o, (qx, qy, qz), rad, occluders):
+            return False
     return True
+
+
+@njit(**INLINE)
+def _clear_of(o, centre, radius, occluders):
+    """Whether occluder ``o`` (row of ``occluders``, :data:`OCCLUDERS`) cannot hide any point within ``radius`` (m)
+    of ``centre`` (world, m): beyond its bounding sphere, or outside it as :func:`_outside_ball` tests."""
+    occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin, geom_xpos, geom_xmat = occluders[1:10]
+    gid = occ_geom[o]
+    e0, e1, e2 = centre[0] - geom_xpos[gid, 0], centre[1] - geom_xpos[gid, 1], centre[2] - geom_xpos[gid, 2]
+    reach = occ_rbound[o] + radius
+    if e0 * e0 + e1 * e1 + e2 * e2 >= reach * reach:
+        return True
+    gm = geom_xmat[gid]                                              # the centre in the geom frame
+    x0, x1, x2 = gm[0] * e0 + gm[3] * e1 + gm[6] * e2, gm[1] * e0 + gm[4] * e1 + gm[7] * e2, \
+        gm[2] * e0 + gm[5] * e1 + gm[8] * e2
+    return _outside_ball(x0, x1, x2, radius, occ_kind[o], occ_size[o, 0], occ_size[o, 1], occ_size[o, 2], occ_hs,
+                         occ_hs_start[o], occ_hs_start[o + 1], margin)
 
 
 @njit(**INLINE)
 def _remember(row, now, sums, count, deepest, occluded, box):
     """Body b's full evaluation into its ``row`` of the reuse buffer (:func:`_reusable` reads it); ``box``: the
     body-frame bounds of its submerged elements (min x, y, z, max x, y, z; m; empty: none submerged)."""
-    ub, wb, gb, c0 = now
-    key = _key(ub, wb)
+    key, gb, c0 = now
     for c in range(6):
         row[_R_KEY + c] = key[c]
         row[_R_SUM + c] = sums[c]

@@ -25,11 +25,10 @@ Steps 1-4 run compiled (:mod:`rft_mujoco.compiled`, the default) or in the numpy
 from __future__ import annotations
 
 import copy
+import numbers
 import warnings
 import weakref
 from collections.abc import Sequence
-
-import numbers
 
 import mujoco
 import numpy as np
