@@ -88,7 +88,7 @@ def evaluate_at(model, states, backend, terrain, guards):
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     out = []
     with rft_mujoco.attach(model, MEDIA, BODIES, terrain, 0.01, guards=guards, monitor=False,
-                           backend=backend) as handle:
+                           backend=backend, reuse_tol=0.0) as handle:   # the reference never reuses
         assert handle.backend == backend
         for i, state in enumerate(states):
             mujoco.mj_setState(model, data, state, spec)
@@ -135,7 +135,7 @@ def test_rk4_later_stages_agree_with_the_reference_and_keep_the_first_stage_mobi
         data = mujoco.MjData(model)
         data.qvel[:] = np.random.default_rng(0).normal(size=model.nv) * 0.3
         with rft_mujoco.attach(model, MEDIA, BODIES, FlatSurface(0.0), 0.01, monitor=False,
-                               backend=backend) as handle:
+                               backend=backend, reuse_tol=0.0) as handle:   # the reference never reuses
             path = []
             for _ in range(300):
                 mujoco.mj_step(model, data)
@@ -217,7 +217,7 @@ def test_dofs_held_by_dry_friction_are_locked_alike_by_both_paths(integrator, st
         data = mujoco.MjData(model)
         data.qvel[:] = np.random.default_rng(1).normal(size=model.nv) * 0.3
         with rft_mujoco.attach(model, MEDIA, BODIES, FlatSurface(0.0), 0.01, monitor=False,
-                               backend=backend) as handle:
+                               backend=backend, reuse_tol=0.0) as handle:   # the reference never reuses
             path = []
             for _ in range(steps):
                 mujoco.mj_step(model, data)

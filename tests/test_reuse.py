@@ -40,6 +40,20 @@ def test_reuse_tol_outside_0_to_0_1_is_refused_with_what_is_allowed(value):
         handle.detach()
 
 
+def test_reuse_is_on_by_default_in_attach_and_in_every_task_and_can_be_switched_off():
+    model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><body><freejoint/><geom size='0.05'/></body>"
+                                           "</worldbody></mujoco>")
+    with rft_mujoco.attach(model, MEDIA) as handle:
+        assert handle.reuse_tol == rft_mujoco.coupling.handle.REUSE_TOL_DEFAULT == 1e-3
+    for env_id in ("rft_mujoco/SandAnt-v0", "rft_mujoco/SandQuadruped-v1"):       # a wrapped env and a task
+        for kwargs, expected in (({}, 1e-3), ({"reuse_tol": 0.0}, 0.0), ({"reuse_tol": 0.01}, 0.01)):
+            env = gym.make(env_id, **kwargs)
+            try:
+                assert env.unwrapped.sand.handle.reuse_tol == expected, (env_id, kwargs)
+            finally:
+                env.close()
+
+
 def _quadruped_run(reuse_tol: float):
     """The bundled quadruped, every body, default resolution, floor replaced: 1 s standing from ``home``, then
     0.5 s of the scripted trot; (trunk position after standing, after trotting (m), reuses after each)."""
@@ -71,7 +85,7 @@ def test_a_standing_quadruped_reuses_its_wrenches_and_moves_as_without():
     to 0.05 mm (measured: the same to 0.1 um)."""
     stand0, trot0, none_stand, none_all = _quadruped_run(0.0)
     stand, trot, reused_stand, reused_all = _quadruped_run(1e-3)
-    assert none_stand == none_all == 0                       # off by default
+    assert none_stand == none_all == 0                       # 0: off
     assert reused_stand > 1000, reused_stand                 # of 8 bodies x 500 evaluations
     assert reused_all >= reused_stand
     np.testing.assert_allclose(stand, stand0, rtol=0, atol=5e-5)

@@ -64,7 +64,7 @@ def _warp_data(model, states, ctrl=None):
 
 def _cpu_snapshots(model, bodies, steps=CPU_SNAPSHOT_STEPS, **kwargs):
     """States before the given steps of a CPU run from ``home`` (trunk 1 cm low) and the sand forces of each."""
-    handle = rft_mujoco.attach(model, MEDIA, bodies, monitor=False, **kwargs)
+    handle = rft_mujoco.attach(model, MEDIA, bodies, monitor=False, reuse_tol=0.0, **kwargs)  # warp never reuses
     d = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, d, model.key("home").id)
     d.qpos[2] -= 0.01

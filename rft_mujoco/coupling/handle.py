@@ -64,6 +64,9 @@ RK4_STAGES = ("all", "first")
 """Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
 REUSE_TOL_MAX = 0.1
 """The largest ``attach(reuse_tol=...)``: beyond it a reused wrench could be off by more than a few percent."""
+REUSE_TOL_DEFAULT = 1e-3
+"""``attach(reuse_tol=...)``'s default: a body's wrench is reused while its motion's direction and its pose change by
+less than about 0.1% (docs/performance.md, "Reusing a body's wrench": the answers measured the same as with 0)."""
 
 
 class SandHandle:
@@ -122,7 +125,7 @@ class SandHandle:
         self._opt_gravity = model.opt.gravity            # a live view: gravity changes are seen
         self._gravity_seen = None
         self.rk4_stages = "all"
-        self.reuse_tol = 0.0
+        self.reuse_tol = REUSE_TOL_DEFAULT
         self.solve = "explicit"
         self.constraints = "linearized"                   # CONSTRAINTS
         self._observers: list = []
@@ -477,8 +480,8 @@ class SandHandle:
 def checked_reuse_tol(value) -> float:
     """``attach(reuse_tol=...)`` as a float, or ValueError saying what is allowed."""
     if isinstance(value, bool) or not (isinstance(value, numbers.Real) and 0.0 <= value <= REUSE_TOL_MAX):
-        raise ValueError(f"reuse_tol must be a number from 0 (off, the default) to {REUSE_TOL_MAX}, got {value!r}; "
-                         "1e-3 reuses a body's wrench while its motion's direction and its pose change by about 0.1%")
+        raise ValueError(f"reuse_tol must be a number from 0 (off) to {REUSE_TOL_MAX}, got {value!r}; "
+                         f"{REUSE_TOL_DEFAULT} (the default) reuses a body's wrench while its motion's direction and its pose change by about 0.1%")
     return float(value)
 
 
@@ -486,7 +489,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
            surface_height: float | Terrain = 0.0, resolution: str | float = "default", *,
            guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True,
            monitor: bool | ValidityMonitor = True, backend: str = "auto", rk4_stages: str = "all",
-           cull: bool = True, solve: str = "explicit", reuse_tol: float = 0.0) -> SandHandle:
+           cull: bool = True, solve: str = "explicit", reuse_tol: float = REUSE_TOL_DEFAULT) -> SandHandle:
     """Attach 3D-RFT sand to ``model``: from now on ``mujoco.mj_step(model, data)`` includes it.
 
     Args:
@@ -533,9 +536,10 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             than ``reuse_tol`` (sums of absolute component changes) and its origin by less than ``reuse_tol``
             x 10 mm in depth, and no other body's geom is near its elements in the sand (the law is rate
             independent and flat sand is the same everywhere: a standing robot, or a body sliding steadily,
-            keeps its wrench). 0 (default): every evaluation evaluates every element. 1e-3 halves the
-            standing quadruped's sand cost (docs/performance.md, "Reusing a body's wrench");
-            ``SandHandle.counters(data).reused_wrenches`` counts the reuses. At most 0.1.
+            keeps its wrench). The default 1e-3 halves the standing quadruped's sand cost and leaves the answers
+            measured the same (docs/performance.md, "Reusing a body's wrench"); 0: every evaluation evaluates
+            every element; ``SandHandle.counters(data).reused_wrenches`` counts the reuses. At most 0.1. The
+            numpy reference never reuses.
     Returns:
         a :class:`SandHandle`; call ``handle.detach()`` (or use it as a context manager) to remove it.
     """

@@ -66,7 +66,8 @@ class SandTaskEnv(MujocoEnv):
 
     Every task also takes ``solve`` (keyword; default: :func:`rft_mujoco.attach`'s, ``"explicit"``): the sand
     solve (``"implicit"``: right at any mass, docs/rest.md, "The implicit solve"), and ``reuse_tol`` (keyword,
-    default 0: off): :func:`rft_mujoco.attach`'s, a body's wrench reused while its motion and pose hold.
+    default: attach's, 1e-3; 0: off): :func:`rft_mujoco.attach`'s, a body's wrench reused while its motion and pose
+    hold.
     """
 
     def __init__(self, xml_file: str, frame_skip: int, *, media: Media | str, resolution: str | float,
@@ -79,7 +80,7 @@ class SandTaskEnv(MujocoEnv):
         self._bed_depth_m = bed_depth_m
         deformable = kwargs.pop("deformable", None)
         solve = kwargs.pop("solve", None)
-        reuse_tol = kwargs.pop("reuse_tol", 0.0)
+        reuse_tol = kwargs.pop("reuse_tol", None)
         MujocoEnv.__init__(self, model_path(xml_file), frame_skip, observation_space=None, **kwargs)
         self.sand = SandBed(self.model, media, bodies=sand_bodies, resolution=resolution,
                             surface=self._surface_geoms, media_ranges=media_ranges, solve=solve, reuse_tol=reuse_tol)

@@ -79,7 +79,7 @@ is the medium of the current episode.
 | `media_ranges`                | MediaRanges or None| `None`                   | per-episode uniform ranges for rho_c, mu_int, mu_surf |
 | `stabilize`                   | bool               | `True`                   | the coupling's implicit direction and impulse limiter |
 | `solve`                       | str or None        | `None`                   | the sand solve: `"explicit"` or `"implicit"` (docs/rest.md); None: `attach`'s default (`"explicit"`) |
-| `reuse_tol`                   | float              | `0.0`                    | `attach`'s: a body's wrench reused while its motion and pose hold (0: off) |
+| `reuse_tol`                   | float or None      | `None`                   | `attach`'s: a body's wrench reused while its motion and pose hold (0: off); None: `attach`'s default (`1e-3`) |
 
 ## Version History
 * v0: first version (mujoco 4.0.0, gymnasium 1.4 ``{base}`` v5 assets).
@@ -95,7 +95,7 @@ class _SandEnv:
                  sand_bodies: str | Sequence[str | int] = "auto", bed_depth_m: float | None = None,
                  sand_in_contact_forces: bool = False, include_sand_in_observation: bool = False,
                  media_ranges: MediaRanges | None = None, stabilize: bool = True, solve: str | None = None,
-                 reuse_tol: float = 0.0, **base_kwargs):
+                 reuse_tol: float | None = None, **base_kwargs):
         resolution = self._sand_resolution if resolution is None else resolution
         self.sand = None
         self._bed_depth_m = bed_depth_m

@@ -92,7 +92,7 @@ def _env_run(env, actions, seed: int) -> float:
     return len(actions) / (time.perf_counter() - t0)
 
 
-ENV_SETTINGS = {None: {}, "reuse 1e-3": {"reuse_tol": 1e-3}}
+ENV_SETTINGS = {None: {}, "no reuse": {"reuse_tol": 0.0}}
 """``gym.make`` keywords of :func:`env_rates`' named entries other than a solve's name."""
 
 
@@ -104,7 +104,7 @@ def env_rates(steps: int, rounds: int = 5, solves: tuple = (None,)) -> list[dict
     ``rounds`` rounds runs every env with both action sets once (``steps`` steps from a reset with seed =
     the round), and a ratio (zero / random, SandAnt / Ant) is the median of its per-round ratios; the
     rates are the medians of the rounds. ``solves``: the sand envs once per entry (None: the envs' default;
-    ``"explicit"`` / ``"implicit"``: ``gym.make(..., solve=...)``; ``"reuse 1e-3"``: ``reuse_tol=1e-3``,
+    ``"explicit"`` / ``"implicit"``: ``gym.make(..., solve=...)``; ``"no reuse"``: ``reuse_tol=0``,
     :data:`ENV_SETTINGS`), interleaved in the same rounds; each row's ``solve`` says which ("default" for None
     and for Ant-v5)."""
     try:
@@ -329,10 +329,10 @@ def above_sand(counts=(1, 1000)) -> dict:
 IMPLICIT_SETTINGS = {"explicit": {}, "explicit, Python path": {"observe": True}, "implicit": {"solve": "implicit"},
                      "implicit, Python path": {"solve": "implicit", "observe": True},
                      "implicit, numpy": {"solve": "implicit", "backend": "numpy"},
-                     "explicit, reuse 1e-3": {"reuse_tol": 1e-3}}
+                     "explicit, no reuse": {"reuse_tol": 0.0}}
 """Named settings of :func:`implicit_cost`: the default explicit solve and the implicit solve on the native
 route, each also forced onto the dispatcher's Python callback path (a no-op observer), the implicit solve
-on the numpy reference, and the explicit solve reusing wrenches (``attach(reuse_tol=1e-3)``)."""
+on the numpy reference, and the explicit solve evaluating every body every time (``attach(reuse_tol=0)``)."""
 
 
 def implicit_cost(names=("explicit", "explicit, Python path", "implicit", "implicit, Python path"), reps: int = 7,
