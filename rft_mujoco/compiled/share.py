@@ -199,3 +199,25 @@ def group_sums(ng, groups_on, k, slot, arm, on, wrench, f):
         f[g, 3] += wrench[j, 3] + (ay * fz - az * fy)
         f[g, 4] += wrench[j, 4] + (az * fx - ax * fz)
         f[g, 5] += wrench[j, 5] + (ax * fy - ay * fx)
+
+
+@njit(**JIT)
+def take_out_rows(xfrc, rows, force, torque, saved):
+    """Rows ``rows`` of ``xfrc`` (nbody, 6: MjData's ``xfrc_applied``) into ``saved`` (B, 6), then less ``force``
+    (B, 3) N and ``torque`` (B, 3) N m: a handle's sand wrench taken out for one MuJoCo call
+    (:meth:`rft_mujoco.envs.SandBed.post_constraint`); :func:`put_back_rows` restores them bit for bit."""
+    for i in range(rows.shape[0]):
+        b = rows[i]
+        for c in range(3):
+            saved[i, c] = xfrc[b, c]
+            saved[i, 3 + c] = xfrc[b, 3 + c]
+            xfrc[b, c] -= force[i, c]
+            xfrc[b, 3 + c] -= torque[i, c]
+
+
+@njit(**JIT)
+def put_back_rows(xfrc, rows, saved):
+    """Rows ``rows`` of ``xfrc`` as :func:`take_out_rows` saved them."""
+    for i in range(rows.shape[0]):
+        for c in range(6):
+            xfrc[rows[i], c] = saved[i, c]

@@ -26,6 +26,7 @@ import mujoco
 import numpy as np
 
 import rft_mujoco
+from rft_mujoco.compiled.share import put_back_rows, take_out_rows
 from rft_mujoco.coupling.checks import COARSE_MESSAGE
 from rft_mujoco.physics.media import MU_INT_RANGE, RHO_C_RANGE, Media
 from rft_mujoco.physics.terrain import HeightfieldSurface
@@ -267,14 +268,12 @@ class SandBed:
             mujoco.mj_rnePostConstraint(self.model, data)
             return
         diag = self.handle.diagnostics(data)
-        rows = self.body_ids
-        saved = data.xfrc_applied[rows].copy()
-        data.xfrc_applied[rows, :3] -= diag.force
-        data.xfrc_applied[rows, 3:] -= diag.torque
-        try:
+        xfrc, saved = data.xfrc_applied, np.empty((self.n_bodies, 6))
+        take_out_rows(xfrc, self.body_ids, diag.force, diag.torque, saved)     # compiled: a third of the numpy
+        try:                                                                    # indexing's 11 us (SandAnt-v0)
             mujoco.mj_rnePostConstraint(self.model, data)
         finally:
-            data.xfrc_applied[rows] = saved
+            put_back_rows(xfrc, self.body_ids, saved)
 
     def features(self, data) -> np.ndarray:
         """(4 B,) float: per sand body, world force x, y, z in N and sinkage (deepest loaded element) in m."""
