@@ -104,3 +104,36 @@ def test_env_rates_measure_each_solve_side_by_side(capsys):
     bench._print_solves(rates)
     text = capsys.readouterr().out
     assert "implicit / explicit steps per second" in text and "rft_mujoco/SandQuadruped-v1" in text
+
+
+def test_the_standing_scene_holds_its_targets_after_the_trot_left_others():
+    """Section 2a times "standing" after the trot ran on the same MjData; mj_setState leaves ctrl alone, so the
+    standing runs pass the settled targets (``_hold``): the trunk then stays put (without them it walks off to
+    the trot's last targets)."""
+    import warnings
+
+    import mujoco
+
+    from rft_mujoco import attach
+    from rft_mujoco.physics.media import LI_LOOSE_GLASS_BEADS
+    from rft_mujoco.studies.bench.coupling import _hold, _trot
+    from rft_mujoco.studies.bench.timing import quadruped, settled_state, step_time
+
+    model = quadruped()
+    data = mujoco.MjData(model)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        handle = attach(model, LI_LOOSE_GLASS_BEADS, None, 0.0, "coarse", monitor=False)
+    handle.replace_rigid(["floor"])
+    try:
+        stand = settled_state(model, data)
+        hold = _hold(data)
+        start = data.qpos.copy()
+        moved = {}
+        for name, ctrl in (("left", None), ("held", hold)):        # "left" first: the trot's last targets
+            _trot(model, data, stand)
+            step_time(model, data, stand, 1, ctrl=ctrl)
+            moved[name] = np.abs(data.qpos[7:] - start[7:]).max()  # rad, the joints after 0.4 s
+    finally:
+        handle.detach()
+    assert moved["held"] < 1e-3 and moved["left"] > 0.05, moved

@@ -35,6 +35,12 @@ def _trot(model, data, state) -> tuple[np.ndarray, np.ndarray]:
     return state_of(model, data), ctrl
 
 
+def _hold(data) -> np.ndarray:
+    """The controls of STEPS_PER_RUN steps holding ``data``'s targets (the standing scene: ``mj_setState`` leaves
+    the controls alone, so without them a standing run would chase whatever targets the last run left)."""
+    return np.repeat(data.ctrl[None, :], STEPS_PER_RUN, axis=0)
+
+
 def _touching_elements(handle, data) -> int:
     """Elements of the bodies that touch the sand at ``data``'s state."""
     counts = np.diff(handle.layout.elem_slices)
@@ -58,7 +64,7 @@ def quadruped_overhead(resolutions, settings) -> list[dict]:
                 handle = attach(model, LI_LOOSE_GLASS_BEADS, None, 0.0, res, monitor=False, **kwargs)
                 handle.replace_rigid(["floor"])
                 stand = settled_state(model, data)
-                scenes = {"standing": (stand, None), "trotting": _trot(model, data, stand)}
+                scenes = {"standing": (stand, _hold(data)), "trotting": _trot(model, data, stand)}
                 reps = 3 if kwargs.get("backend") == "numpy" else 7
                 timed = {}
                 for motion, (state, ctrl) in scenes.items():
