@@ -172,3 +172,33 @@ def test_a_ball_said_to_be_outside_a_geom_holds_no_point_inside_it(kind):
         pts = c + d / np.linalg.norm(d, axis=1)[:, None] * r * rng.uniform(0, 1, (200, 1)) ** (1 / 3)
         assert not any(_inside(p[0], p[1], p[2], k, size[0], size[1], size[2], hs, 0, 0, 1e-4) for p in pts)
     assert outside > 100
+
+
+@pytest.mark.parametrize("change", ["media", "gravity", "guards"])
+def test_a_setting_changed_mid_run_is_felt_at_the_next_step_not_hidden_by_a_reused_wrench(change):
+    """A box resting in the sand reuses its wrench; a new medium, a stronger gravity or other guards change the
+    law, so the next evaluation must be a full one: the same force as a run that never reuses."""
+    xml = ("<mujoco><option timestep='0.002'/><worldbody><body pos='0 0 0.02'><freejoint/>"
+           "<geom type='box' size='0.05 0.05 0.05' mass='2'/></body></worldbody></mujoco>")
+    forces = {}
+    for tol in (0.0, 1e-3):
+        model = mujoco.MjModel.from_xml_string(xml)
+        data = mujoco.MjData(model)
+        handle = rft_mujoco.attach(model, MEDIA, monitor=False, reuse_tol=tol)
+        try:
+            for _ in range(300):
+                mujoco.mj_step(model, data)
+            before = handle.counters(data).reused_wrenches
+            if change == "media":
+                handle.media = rft_mujoco.get_media("mpm_validation")
+            elif change == "gravity":
+                model.opt.gravity[2] = -12.0
+            else:
+                handle.guards = rft_mujoco.Guards.all()
+            mujoco.mj_step(model, data)
+            forces[tol] = handle.diagnostics(data).rft_force[0].copy()
+            if tol:
+                assert before > 100                                  # it was reusing before the change
+        finally:
+            handle.detach()
+    np.testing.assert_allclose(forces[1e-3], forces[0.0], rtol=1e-9, atol=1e-12)

@@ -35,6 +35,7 @@ import numpy as np
 
 from rft_mujoco import compiled, tol
 from rft_mujoco.compiled import schema as sc
+from rft_mujoco.compiled.element_pass import REUSE_VALID
 from rft_mujoco.coupling import checks, deformable, layout, setup
 from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.evaluators import CompiledEvaluator, NumpyEvaluator
@@ -165,6 +166,7 @@ class SandHandle:
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
                               spec.kind, self.stabilize, self.passive, self.layout.occluders.margin, every,
                               self.rk4_stages == "first", self.reuse_tol, out=self._params)   # read live by the route
+        self._forget_wrenches()
         for work in self._work.values():
             if work.press is not None:                   # a deformable surface's own copy, its own highest point
                 np.copyto(work.hc[sc.H_PARAMS], self._params)
@@ -463,6 +465,15 @@ class SandHandle:
         (:func:`rft_mujoco.coupling.checks.check_model_edits`); the dispatcher calls this at the first evaluation
         of each MjData and whenever the model's timestep, gravity or geom sizes change."""
         checks.check_model_edits(self)
+        self._forget_wrenches()
+
+    def _forget_wrenches(self) -> None:
+        """No wrench remembered for reuse (``attach(reuse_tol=)``) survives a change of the law's settings (medium,
+        guards, ...) or of the model (gravity, timestep, geom sizes): every MjData's next evaluation is a full one."""
+        for work in self._work.values():
+            reuse = work.arrays.get("reuse")
+            if reuse is not None:
+                reuse[:, REUSE_VALID] = 0.0
 
     def _gravity(self) -> np.ndarray:
         """Unit gravity direction (3,), recomputed only when ``model.opt.gravity`` changed."""
