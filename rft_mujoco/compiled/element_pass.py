@@ -56,6 +56,10 @@ REUSE_PAD = 0.002
 its wrench from being reused (elements within ``reuse_tol`` of that pose may have gone in meanwhile)."""
 REUSE_DEPTH = 0.01
 """m: a body's origin may move ``reuse_tol * REUSE_DEPTH`` deeper or shallower before its wrench is evaluated again."""
+REUSE_STEADY = 10.0
+"""A full evaluation is remembered for reuse only where the body's key, gravity and depth moved by less than
+``REUSE_STEADY * reuse_tol`` since its previous one (:func:`_reuse_state`): a moving body's would not be reused,
+and the ball around its submerged elements costs a pass over them."""
 
 
 @njit(**INLINE)
@@ -252,7 +256,7 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
     cluster size), ``index`` (2, >= cluster size) int). ``speed_scale`` (m/s): 0, the published law; c > 0, the
     implicit solve's (stress times ``|v| / sqrt(|v|^2 + c^2)``, ramped leading edge: ``implicit_law.body_law``).
     ``reuse`` = (buffer (B, REUSE_COLUMNS), tol > 0): on flat sand a body whose last full evaluation still holds
-    (:func:`_reusable`) gets its wrench and diagnostics again. Returns the number of bodies reused."""
+    (:func:`_reuse_state`) gets its wrench and diagnostics again. Returns the number of bodies reused."""
     centroids, normals, areas, cluster_start, cluster_center, cluster_radius, body_clusters = surface
     body_pos, body_mat, body_com = poses
     lin, ang = twists
@@ -287,8 +291,8 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
         wb = wb0, wb1, wb2 = r0 * wx + r3 * wy + r6 * wz, r1 * wx + r4 * wy + r7 * wz, r2 * wx + r5 * wy + r8 * wz
         c0 = tp[ts.TP_HEIGHT] + (px * g0 + py * g1 + pz * g2)            # flat depth of the body origin
         row, tol = _reuse_row(reuse, b, mode == _FLAT, scratch[_DEPTH, :0])   # (empty: not remembered)
-        now = (_key(ub, wb) if row.shape[0] > 0 else (0.0,) * 6, (gb0, gb1, gb2), c0)
-        if row.shape[0] > 0 and _reusable(row, tol, now, b, frame, g_hat, occluders):
+        again, steady, now = _reuse_state(row, tol, (ub, wb, (gb0, gb1, gb2), c0), b, frame, g_hat, occluders)
+        if again:
             reused += _restore(row, j, r, out)
             continue
         a0 = a1 = a2 = a3 = a4 = a5 = 0.0
@@ -317,7 +321,7 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
                 ms += dep[i] > 0.0
             if ms == 0:
                 continue
-            if row.shape[0] > 0:
+            if steady:
                 _grow_box(box, sub, ms, cl)
             # 2. the submerged elements inside another body's geom: depth -inf, their area reported
             occluded[j] = _occlude(dep, sub, ms, cl, (q, s, occ_start[b], occ_start[b + 1], qx, qy,
@@ -371,7 +375,7 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
         max_depth[j] = deepest
         _to_world(wrench, j, r, (a0, a1, a2, a3, a4, a5))                 # back to the world frame
         if row.shape[0] > 0:                                                # remembered for reuse
-            _remember(row, now, (a0, a1, a2, a3, a4, a5), count[j], deepest, occluded[j], box)
+            _remember(row, now, (a0, a1, a2, a3, a4, a5), count[j], deepest, occluded[j], box, steady)
     return reused
 
 
@@ -434,27 +438,46 @@ def _key(ub, wb):
 
 
 @njit(**INLINE)
-def _reusable(row, tol, now, b, frame, g_hat, occluders):
-    """Whether body b's remembered evaluation (``row`` of the reuse buffer) holds ``now`` = (its twist's key
-    (:func:`_key`), gravity in its frame, the flat depth of its origin): see :func:`wrenches`' ``reuse``."""
-    if row[REUSE_VALID] == 0.0:
+def _reuse_state(row, tol, motion, b, frame, g_hat, occluders):
+    """(reuse body b's remembered evaluation, remember this one, ``now``) for its ``row`` of the reuse buffer (empty:
+    no reuse) and ``motion`` = (its twist in its frame (v, w), gravity in its frame, the flat depth of its origin);
+    ``now``: the key of its twist (:func:`_key`), gravity and depth. A remembered evaluation is reused while ``now``
+    lies within ``tol`` of it (:func:`_near`) and no other body's geom comes near the ball around its submerged
+    elements (:func:`_shadowed`); this one is remembered, with a new ball, only while ``now`` lies within
+    :data:`REUSE_STEADY` ``* tol`` of the last evaluation and nothing shadows the last ball (a body moving, or
+    resting against another body's geom, would not be reused: it skips the ball's pass over its elements)."""
+    ub, wb, gb, c0 = motion
+    now = (_key(ub, wb) if row.shape[0] > 0 else (0.0,) * 6, gb, c0)
+    if row.shape[0] == 0 or not _near(row, now, REUSE_STEADY * tol) or _shadowed(row, b, frame, g_hat, occluders):
+        return False, False, now
+    return row[REUSE_VALID] != 0.0 and _near(row, now, tol), True, now
+
+
+@njit(**INLINE)
+def _shadowed(row, b, frame, g_hat, occluders):
+    """Whether another body's geom comes near the ball kept in ``row`` (around the submerged elements of the last
+    evaluation that kept one, in the body frame; radius <= 0: none kept, or nothing was submerged)."""
+    rad = row[_R_BALL + 3]
+    if not rad > 0.0:
         return False
+    qx, qy, qz, _ = _cluster_place(row[_R_BALL:_R_BALL + 3], rad, frame, g_hat)
+    occ_start = occluders[0]
+    for o in range(occ_start[b], occ_start[b + 1]):                 # another body's geom that could hide elements
+        if not _clear_of(o, (qx, qy, qz), rad, occluders):
+            return True
+    return False
+
+
+@njit(**INLINE)
+def _near(row, now, tol):
+    """Whether ``now`` (:func:`_reuse_state`) lies within ``tol`` of the last full evaluation in ``row``: the twist's key
+    and gravity (sums of absolute component changes), the origin's depth within ``tol * REUSE_DEPTH`` m."""
     key, gb, c0 = now
     d = 0.0
     for c in range(6):
         d += abs(key[c] - row[_R_KEY + c])
     e = abs(gb[0] - row[_R_G]) + abs(gb[1] - row[_R_G + 1]) + abs(gb[2] - row[_R_G + 2])
-    if not (d < tol and e < tol and abs(c0 - row[_R_DEPTH]) < tol * REUSE_DEPTH):
-        return False
-    rad = row[_R_BALL + 3]
-    if rad < 0.0:                                                    # nothing was submerged: nothing to hide
-        return True
-    qx, qy, qz, _ = _cluster_place(row[_R_BALL:_R_BALL + 3], rad, frame, g_hat)
-    occ_start = occluders[0]
-    for o in range(occ_start[b], occ_start[b + 1]):                 # another body's geom that could hide elements
-        if not _clear_of(o, (qx, qy, qz), rad, occluders):
-            return False
-    return True
+    return d < tol and e < tol and abs(c0 - row[_R_DEPTH]) < tol * REUSE_DEPTH
 
 
 @njit(**INLINE)
@@ -475,20 +498,23 @@ def _clear_of(o, centre, radius, occluders):
 
 
 @njit(**INLINE)
-def _remember(row, now, sums, count, deepest, occluded, box):
-    """Body b's full evaluation into its ``row`` of the reuse buffer (:func:`_reusable` reads it); ``box``: the
-    body-frame bounds of its submerged elements (min x, y, z, max x, y, z; m; empty: none submerged)."""
+def _remember(row, now, sums, count, deepest, occluded, box, steady):
+    """Body b's full evaluation into its ``row`` of the reuse buffer (:func:`_reuse_state` reads it), reusable only if
+    ``steady`` (:data:`REUSE_STEADY`: else just its key, gravity and depth, for the next evaluation's test); ``box``:
+    the body-frame bounds of its submerged elements (min x, y, z, max x, y, z; m; empty: none submerged)."""
     key, gb, c0 = now
     for c in range(6):
         row[_R_KEY + c] = key[c]
         row[_R_SUM + c] = sums[c]
     row[_R_G], row[_R_G + 1], row[_R_G + 2], row[_R_DEPTH] = gb[0], gb[1], gb[2], c0
-    row[_R_COUNT], row[_R_DEEPEST], row[_R_OCCLUDED], row[REUSE_VALID] = count, deepest, occluded, 1.0
-    r = 0.0
-    for c in range(3):
-        row[_R_BALL + c] = 0.5 * (box[c] + box[3 + c]) if box[c] <= box[3 + c] else 0.0
-        r += (0.5 * (box[3 + c] - box[c])) ** 2 if box[c] <= box[3 + c] else 0.0
-    row[_R_BALL + 3] = math.sqrt(r) + REUSE_PAD if box[0] <= box[3] else -1.0
+    row[_R_COUNT], row[_R_DEEPEST], row[_R_OCCLUDED] = count, deepest, occluded
+    row[REUSE_VALID] = 1.0 if steady else 0.0
+    if steady:                                           # else the last ball is kept (box is empty)
+        r = 0.0
+        for c in range(3):
+            row[_R_BALL + c] = 0.5 * (box[c] + box[3 + c]) if box[c] <= box[3 + c] else 0.0
+            r += (0.5 * (box[3 + c] - box[c])) ** 2 if box[c] <= box[3 + c] else 0.0
+        row[_R_BALL + 3] = math.sqrt(r) + REUSE_PAD if box[0] <= box[3] else -1.0
     for c in range(3):                                   # empty again for the next body
         box[c], box[3 + c] = np.inf, -np.inf
 

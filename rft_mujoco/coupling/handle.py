@@ -125,6 +125,7 @@ class SandHandle:
         self._floor_checked = False
         self._opt_gravity = model.opt.gravity            # a live view: gravity changes are seen
         self._gravity_seen = None
+        self._gravity_of_wrenches = tuple(self._opt_gravity)   # gravity of the wrenches remembered for reuse
         self.rk4_stages = "all"
         self.reuse_tol = REUSE_TOL_DEFAULT
         self.solve = "explicit"
@@ -154,6 +155,8 @@ class SandHandle:
         if name in ("_media", "guards", "stabilize", "passive", "monitor", "_terrain", "rk4_stages", "reuse_tol") \
                 and getattr(self, "_ready", False):
             self._refresh()
+            if name in ("_media", "guards", "stabilize", "passive"):   # the law's answer changes
+                self._forget_wrenches()
 
     def _refresh(self) -> None:
         """Rewrite ``hc.params`` (:data:`rft_mujoco.compiled.evaluate.PARAMS`) from the settings."""
@@ -166,7 +169,6 @@ class SandHandle:
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
                               spec.kind, self.stabilize, self.passive, self.layout.occluders.margin, every,
                               self.rk4_stages == "first", self.reuse_tol, out=self._params)   # read live by the route
-        self._forget_wrenches()
         for work in self._work.values():
             if work.press is not None:                   # a deformable surface's own copy, its own highest point
                 np.copyto(work.hc[sc.H_PARAMS], self._params)
@@ -465,13 +467,14 @@ class SandHandle:
         (:func:`rft_mujoco.coupling.checks.check_model_edits`); the dispatcher calls this at the first evaluation
         of each MjData and whenever the model's timestep, gravity or geom sizes change."""
         checks.check_model_edits(self)
-        self._forget_wrenches()
+        if tuple(self._opt_gravity) != self._gravity_of_wrenches:      # |g| scales the law (xi_n)
+            self._gravity_of_wrenches = tuple(self._opt_gravity)
+            self._forget_wrenches()
 
     def _forget_wrenches(self) -> None:
-        """No wrench remembered for reuse (``attach(reuse_tol=)``) survives a change of the law's settings (medium,
-        guards, ...) or of the model (gravity, timestep, geom sizes): every MjData's next evaluation is a full one."""
-        for work in self._work.values():
-            reuse = work.arrays.get("reuse")
+        """No wrench remembered for reuse (``attach(reuse_tol=)``) survives a change of the law (medium, guards, the
+        rest treatment's settings, gravity): every MjData's next evaluation is a full one."""
+        for reuse in (work.arrays.get("reuse") for work in self._work.values()):
             if reuse is not None:
                 reuse[:, REUSE_VALID] = 0.0
 
