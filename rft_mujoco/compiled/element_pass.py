@@ -470,8 +470,8 @@ def _shadowed(row, b, frame, g_hat, occluders):
 
 @njit(**INLINE)
 def _near(row, now, tol):
-    """Whether ``now`` (:func:`_reuse_state`) lies within ``tol`` of the last full evaluation in ``row``: the twist's key
-    and gravity (sums of absolute component changes), the origin's depth within ``tol * REUSE_DEPTH`` m."""
+    """Whether ``now`` (:func:`_reuse_state`) lies within ``tol`` of the last full evaluation in ``row``: the twist's
+    key and gravity (sums of absolute component changes), the origin's depth within ``tol * REUSE_DEPTH`` m."""
     key, gb, c0 = now
     d = 0.0
     for c in range(6):

@@ -495,7 +495,7 @@ def checked_reuse_tol(value) -> float:
     """``attach(reuse_tol=...)`` as a float, or ValueError saying what is allowed."""
     if isinstance(value, bool) or not (isinstance(value, numbers.Real) and 0.0 <= value <= REUSE_TOL_MAX):
         raise ValueError(f"reuse_tol must be a number from 0 (off) to {REUSE_TOL_MAX}, got {value!r}; "
-                         f"{REUSE_TOL_DEFAULT} (the default) reuses a body's wrench while its motion's direction and its pose change by about 0.1%")
+                         f"{REUSE_TOL_DEFAULT} (the default) reuses a body's wrench while its motion and pose hold")
     return float(value)
 
 
