@@ -56,6 +56,8 @@ REUSE_PAD = 0.002
 its wrench from being reused (elements within ``reuse_tol`` of that pose may have gone in meanwhile)."""
 REUSE_DEPTH = 0.01
 """m: a body's origin may move ``reuse_tol * REUSE_DEPTH`` deeper or shallower before its wrench is evaluated again."""
+_NO_BOX = (math.inf, math.inf, math.inf, -math.inf, -math.inf, -math.inf)
+"""The bounds of no element (:func:`_grow_box`)."""
 REUSE_STEADY = 10.0
 """A full evaluation is remembered for reuse only where the body's key, gravity and depth moved by less than
 ``REUSE_STEADY * reuse_tol`` since its previous one (:func:`_reuse_state`): a moving body's would not be reused,
@@ -270,7 +272,6 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
     dep, keep = scratch[_DEPTH], scratch[_KEEP]
     sub, load = index[0], index[1]
     reused = 0
-    box = np.array((np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf))    # submerged elements' bounds (_grow_box)
     for j in range(n_on):
         b = bodies[j]
         wrench[j, :] = 0.0
@@ -296,7 +297,7 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
             reused += _restore(row, j, r, out)
             continue
         a0 = a1 = a2 = a3 = a4 = a5 = 0.0
-        deepest = 0.0
+        deepest, box = 0.0, _NO_BOX                              # box: its submerged elements' bounds (_grow_box)
         for q in range(body_clusters[b], body_clusters[b + 1]):
             qx, qy, qz, low = _cluster_place(cluster_center[q], cluster_radius[q], frame, g_hat)
             if low > max_height:                             # the whole cluster is above the sand
@@ -322,7 +323,7 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
             if ms == 0:
                 continue
             if steady:
-                _grow_box(box, sub, ms, cl)
+                box = _grow_box(box, sub, ms, cl)
             # 2. the submerged elements inside another body's geom: depth -inf, their area reported
             occluded[j] = _occlude(dep, sub, ms, cl, (q, s, occ_start[b], occ_start[b + 1], qx, qy,
                                    qz), frame, surface, occluders, occluded[j])
@@ -421,12 +422,15 @@ def _restore(row, j, r, out):
 
 @njit(**INLINE)
 def _grow_box(box, sub, ms, cl):
-    """``box`` (min x, y, z, max x, y, z) grown by the elements ``sub[:ms]`` of a cluster (body-frame centroids ``cl``)."""
+    """``box`` (min x, y, z, max x, y, z) grown by the elements ``sub[:ms]`` of a cluster (body-frame centroids ``cl``):
+    a new tuple (no array on the heap per evaluation)."""
     cl0, cl1, cl2 = cl
+    lo0, lo1, lo2, hi0, hi1, hi2 = box
     for jj in range(ms):
         i = sub[jj]
-        box[0], box[1], box[2] = min(box[0], cl0[i]), min(box[1], cl1[i]), min(box[2], cl2[i])
-        box[3], box[4], box[5] = max(box[3], cl0[i]), max(box[4], cl1[i]), max(box[5], cl2[i])
+        lo0, lo1, lo2 = min(lo0, cl0[i]), min(lo1, cl1[i]), min(lo2, cl2[i])
+        hi0, hi1, hi2 = max(hi0, cl0[i]), max(hi1, cl1[i]), max(hi2, cl2[i])
+    return lo0, lo1, lo2, hi0, hi1, hi2
 
 
 @njit(**INLINE)
@@ -515,8 +519,6 @@ def _remember(row, now, sums, count, deepest, occluded, box, steady):
             row[_R_BALL + c] = 0.5 * (box[c] + box[3 + c]) if box[c] <= box[3 + c] else 0.0
             r += (0.5 * (box[3 + c] - box[c])) ** 2 if box[c] <= box[3 + c] else 0.0
         row[_R_BALL + 3] = math.sqrt(r) + REUSE_PAD if box[0] <= box[3] else -1.0
-    for c in range(3):                                   # empty again for the next body
-        box[c], box[3 + c] = np.inf, -np.inf
 
 
 @njit(**INLINE)
