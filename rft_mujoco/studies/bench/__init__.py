@@ -93,8 +93,8 @@ def _print_quadruped(quad) -> None:
             print(f"culling costs {100 * (base['sand_us'] / r['sand_us'] - 1):+.1f}% ({res}, {motion})")
     stand = by.get(("default", "rest", "standing"))
     if stand:
-        print(_verdict("quadruped standing, default settings, sand step / bare step", stand["ratio"], QUADRUPED_TARGET,
-                       "<=", "x"))
+        print(_verdict("quadruped standing, default settings, sand step / bare step", stand["ratio"],
+                       QUADRUPED_TARGET, "<=", "x"))
 
 
 def _print_rates(rates) -> None:
