@@ -302,6 +302,50 @@ def test_a_collected_data_leaves_the_registry():
     assert key not in DISPATCHER.held()["native_routes"]
 
 
+_COLLECTED_DURING_REWRITE = """
+import gc, mujoco, rft_mujoco
+from rft_mujoco.coupling.dispatch import DISPATCHER
+from tests.test_native import MEDIA, SCENE
+model = mujoco.MjModel.from_xml_string(SCENE.format(integrator="Euler"))
+handle = rft_mujoco.attach(model, MEDIA, None, 0.0, 0.01)
+data = mujoco.MjData(model)
+for _ in range(3):
+    mujoco.mj_step(model, data)
+registry = DISPATCHER._registry
+key = (model._address, data._address)
+assert key in registry.held()[1]
+cycle = [data]
+cycle.append(cycle)                  # only a collection frees it
+del data, cycle
+write = registry._write
+def write_while_collecting():        # an allocation of the rewrite starts a collection
+    gc.collect()
+    write()
+registry._write = write_while_collecting
+registry.models([model])             # the data's finalizer runs inside, in this thread
+registry._write = write
+assert key not in registry.held()[1], registry.held()
+print("dropped")
+"""
+
+
+@needs_native
+def test_a_data_collected_while_the_registry_is_rewritten_leaves_it_without_a_deadlock():
+    """The data's finalizer runs inside the registry's rewrite (the garbage collector starts where Python
+    allocates): its route is dropped when the rewrite ends. With a plain lock this hung: making an env again
+    after detaching another one stopped in ``attach``. In a subprocess, so that a hang fails this test only."""
+    import os
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    try:
+        out = subprocess.run([sys.executable, "-c", _COLLECTED_DURING_REWRITE], cwd=root, capture_output=True,
+                             text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.fail("the registry deadlocked: a data collected during its rewrite")
+    assert out.returncode == 0 and "dropped" in out.stdout, out.stderr[-2000:]
+
+
 def test_unsupported_mujoco_falls_back_with_one_message(monkeypatch, capsys):
     if compiled.AVAILABLE:
         monkeypatch.setattr(native, "support", lambda: (False, "written for mujoco 9.9.9, found 4.0.0"))

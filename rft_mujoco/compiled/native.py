@@ -32,6 +32,7 @@ runs in Python, through the bindings, where errors become Python exceptions.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import glob
 import os
@@ -301,16 +302,42 @@ class Registry:
     """The table the native callbacks read: models with sand and the routes of their datas.
 
     Rewritten whole (a new array, then one aligned store of its address into the cell) so that a callback
-    running in another thread sees either the old or the new table; old arrays are kept a while."""
+    running in another thread sees either the old or the new table; old arrays are kept a while.
+
+    A data's route is dropped by the data's finalizer, which runs wherever the garbage collector does: also
+    inside this registry's own rewrite (its allocations can start a collection), in the thread holding the
+    lock. There the drop is queued and made before that rewrite ends (with a plain lock this deadlocked:
+    making an env again after a detach could hang in ``attach``)."""
 
     def __init__(self, info: dict) -> None:
         self.info = info
         self._models: dict = {}          # model address -> disableflags address
         self._routes: dict = {}          # (model address, data address) -> (route, model, data addresses...)
         self._old: list = []
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()   # (reentered only by a finalizer: see _changing)
+        self._busy = 0                   # rewriting: a data collected meanwhile waits in _dropped
+        self._dropped: list = []
         self.trampolines = (0, 0)
-        self._write()
+        with self._changing():
+            pass
+
+    @contextlib.contextmanager
+    def _changing(self):
+        """The lock; at the end of the outermost block the table is written, without the routes of the datas
+        collected meanwhile (their finalizers ran in this thread, inside the block)."""
+        with self._lock:
+            self._busy += 1
+            try:
+                yield
+            finally:
+                self._busy -= 1
+            if not self._busy:
+                self._write()
+                while self._dropped:                 # (collected during the write itself: once more)
+                    gone = set(self._dropped)
+                    self._dropped.clear()
+                    self._routes = {k: v for k, v in self._routes.items() if k[1] not in gone}
+                    self._write()
 
     def held(self) -> tuple[tuple, tuple]:
         """(model addresses, (model, data) address pairs): what the native callbacks hold now."""
@@ -318,26 +345,24 @@ class Registry:
             return tuple(self._models), tuple(self._routes)
 
     def set_trampolines(self, control: int, passive: int) -> None:
-        self.trampolines = (int(control), int(passive))
-        self._write()
+        with self._changing():
+            self.trampolines = (int(control), int(passive))
 
     def models(self, models) -> None:
         """The models with sand attached (routes of others are dropped)."""
-        with self._lock:
+        with self._changing():
             off = self.info["offsets"]
             self._models = {m._address: m._address + off["disableflags"] for m in models}
             self._routes = {k: v for k, v in self._routes.items() if k[0] in self._models}
-            self._write()
 
     def clear_routes(self) -> None:
-        with self._lock:
+        with self._changing():
             self._routes.clear()
-            self._write()
 
     def add(self, model, data, route) -> None:
         """Route ``route`` for (model, data); dropped again when ``data`` is garbage collected."""
         import weakref
-        with self._lock:
+        with self._changing():
             if model._address not in self._models:
                 return
             key = (model._address, data._address)
@@ -346,12 +371,15 @@ class Registry:
             off = self.info["offsets"]
             self._routes[key] = (route, data._address + off["time"], model._address + off["timestep"],
                                  model._address + off["integrator"], model._address + off["disableflags"])
-            self._write()
 
     def drop_data(self, address: int) -> None:
+        """The finalizer of the data at ``address``: its routes leave the table (queued while rewriting)."""
         with self._lock:
-            self._routes = {k: v for k, v in self._routes.items() if k[1] != address}
-            self._write()
+            if self._busy:
+                self._dropped.append(address)
+                return
+            with self._changing():
+                self._routes = {k: v for k, v in self._routes.items() if k[1] != address}
 
     def routed(self, model, data) -> bool:
         return (model._address, data._address) in self._routes
