@@ -264,9 +264,11 @@ def touching(bodies, kinematics, surface, terrain, out):
                 if tp[ts.TP_HEIGHT] - (low + 2.0 * cluster_radius[q]) > 0.0:     # wholly below flat sand
                     hit = True
                     break
-                under = 0
-                for k in range(cluster_start[q], cluster_start[q + 1]):
-                    under += c0 + (gb0 * centroids[0, k] + gb1 * centroids[1, k] + gb2 * centroids[2, k]) > 0.0
+                s, e = cluster_start[q], cluster_start[q + 1]
+                cx, cy, cz = centroids[0, s:e], centroids[1, s:e], centroids[2, s:e]
+                under = 0                                 # (over slices from 0: numba's index wraparound would
+                for k in range(cx.shape[0]):              # make LLVM gather the centroids, 2x slower in a step)
+                    under += c0 + (gb0 * cx[k] + gb1 * cy[k] + gb2 * cz[k]) > 0.0
                 if under > 0:
                     hit = True
                     break
