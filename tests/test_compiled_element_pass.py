@@ -184,6 +184,26 @@ def test_clusters_wholly_partly_and_not_in_the_sand():
         assert 0 < cnt[0] < n
 
 
+def test_any_number_of_loaded_elements_takes_the_law_whole():
+    """The law's loop runs over whole vectors (``element_pass.LAW_LANES``), padded with copies at zero depth and
+    area: every count of loaded elements, each remainder modulo the vector included, and a full cluster whose
+    count rounds up past the scratch's width, gives the reference's wrench and count."""
+    rng = np.random.default_rng(23)
+    for n, loaded in [(40, k) for k in range(1, 2 * fastkernel.LAW_LANES + 2)] + [(127, 127)]:
+        z = np.where(np.arange(n) < loaded, -rng.uniform(0.001, 0.03, n), rng.uniform(0.001, 0.03, n))
+        c = np.column_stack([rng.uniform(-0.02, 0.02, n), rng.uniform(-0.02, 0.02, n), z])
+        nrm = rng.normal(size=(n, 3)) * 0.2 + [0.0, 0.0, -1.0]       # facing down: leading when moving down
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        args = bundled(c, nrm, rng.uniform(1e-5, 1e-4, n), np.zeros(n, dtype=np.int64), 1, np.zeros((1, 3)),
+                       np.eye(3)[None], np.zeros((1, 3)), np.array([[0.02, -0.01, -0.1]]), np.array([[0.1, 0.2, 0.0]]),
+                       FlatSurface(0.0), np.array([0.0, 0.0, -1.0]), (0.0, 0.0, -9.81), MEDIA, law.PUBLISHED)
+        w_ref, cnt_ref, dep_ref = kernel.body_wrenches(*args)
+        w, cnt, dep = fastkernel.body_wrenches(*args)
+        assert cnt_ref[0] == loaded and np.array_equal(cnt, cnt_ref), (n, loaded)
+        assert close(w, w_ref) and close(dep, dep_ref), (n, loaded)
+        assert np.abs(w_ref).max() > 0.0
+
+
 def test_heightfield_needs_vertical_gravity_in_both():
     rng = np.random.default_rng(3)
     c, n, a, eb, pos, mat, com, vcom, om = random_problem(rng, 2, 50)

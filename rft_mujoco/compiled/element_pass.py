@@ -39,9 +39,10 @@ _DEPTH, _KEEP = 0, 1
 _P_ARM, _P_NRM, _P_DEPTH, _P_AREA, _P_F, _P_T = 2, 5, 8, 9, 10, 13
 SCRATCH_ROWS = 16
 """Rows of the element pass's scratch buffer."""
+LAW_LANES = 8
+"""The law's loop runs over whole vectors of LAW_LANES elements (:func:`_pack`)."""
 SPARSE = 4
-"""A cluster with fewer than 1/SPARSE of its elements submerged is tested element by element (scalar, on
-the submerged ones); otherwise the test runs vectorized over the whole cluster."""
+"""A cluster with under 1/SPARSE of its elements submerged is tested on those (scalar), else all (vectorized)."""
 # A body's row of the reuse buffer (``attach(reuse_tol=)``, :func:`wrenches`): at its last full evaluation, the
 # unit key of its twist (6), gravity in its frame (3), the flat depth of its origin (m), its wrench summed in its
 # frame (6: N, N m about the COM), loaded elements, deepest loaded element (m), occluded area (m^2), valid (0/1),
@@ -344,9 +345,9 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
                     ml += keep[i] != 0.0
             if ml == 0:
                 continue
-            _pack(scratch, load[:ml], cl, (nr0, nr1, nr2), (dep, areas[s:s + n]), (cb0, cb1, cb2))
-            # 4. the law on the packed elements (body frame): vectorized, no branches
-            for i in range(ml):
+            mp = _pack(scratch, load[:ml], cl, (nr0, nr1, nr2), (dep, areas[s:s + n]), (cb0, cb1, cb2))
+            # 4. the law on the packed elements (body frame): vectorized, no branches, whole vectors
+            for i in range(mp):
                 l0, l1, l2 = scratch[_P_ARM, i], scratch[_P_ARM + 1, i], scratch[_P_ARM + 2, i]
                 vx = ub0 + (wb1 * l2 - wb2 * l1)
                 vy = ub1 + (wb2 * l0 - wb0 * l2)
@@ -384,11 +385,13 @@ def wrenches(bodies, n_on, surface, poses, twists, terrain, law, occluders, work
 def _pack(scratch, load, cl, nr, dep_area, cb):
     """Step 3 of :func:`wrenches`: a cluster's loaded elements ``load`` (body-frame centroids ``cl``, normals ``nr``,
     depths and areas ``dep_area``) packed to the front of ``scratch``'s rows: lever arms about the COM ``cb``,
-    normals, depths, areas."""
+    normals, depths, areas; then copies of the first at zero depth and area (no force) to whole vectors of LAW_LANES
+    (its return): the law's loop takes leftovers one at a time, ~5 lanes each (20 elements 296 ns, 24: 184 ns)."""
     cl0, cl1, cl2 = cl
     nr0, nr1, nr2 = nr
     dep, area = dep_area
-    for jj in range(load.shape[0]):
+    ml = load.shape[0]
+    for jj in range(ml):
         i = load[jj]
         scratch[_P_ARM, jj] = cl0[i] - cb[0]
         scratch[_P_ARM + 1, jj] = cl1[i] - cb[1]
@@ -398,6 +401,11 @@ def _pack(scratch, load, cl, nr, dep_area, cb):
         scratch[_P_NRM + 2, jj] = nr2[i]
         scratch[_P_DEPTH, jj] = dep[i]
         scratch[_P_AREA, jj] = area[i]
+    mp = min((ml + LAW_LANES - 1) // LAW_LANES * LAW_LANES, scratch.shape[1])
+    for jj in range(ml, mp):
+        for row in range(_P_ARM, _P_AREA + 1):
+            scratch[row, jj] = scratch[row, 0] if row < _P_DEPTH else 0.0
+    return mp
 
 
 @njit(**INLINE)
