@@ -32,7 +32,6 @@ runs in Python, through the bindings, where errors become Python exceptions.
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import glob
 import os
@@ -43,6 +42,7 @@ import numpy as np
 
 from rft_mujoco.compiled import route as rt
 from rft_mujoco.compiled import schema as sc
+from rft_mujoco.compiled.deferred import DeferredLock
 from rft_mujoco.compiled.jit import AVAILABLE, INLINE, JIT, carray, cfunc, njit, types
 
 MUJOCO_VERSION = "4.0.0"
@@ -304,44 +304,35 @@ class Registry:
     Rewritten whole (a new array, then one aligned store of its address into the cell) so that a callback
     running in another thread sees either the old or the new table; old arrays are kept a while.
 
-    A data's route is dropped by the data's finalizer, which runs wherever the garbage collector does: also
-    inside this registry's own rewrite (its allocations can start a collection), in the thread holding the
-    lock. There the drop is queued and made before that rewrite ends (with a plain lock this deadlocked:
-    making an env again after a detach could hang in ``attach``)."""
+    A data's route is dropped by the data's finalizer, also when that runs inside a rewrite (its allocations
+    can start a collection): queued then, and made before the rewrite ends (:mod:`rft_mujoco.compiled.deferred`)."""
 
     def __init__(self, info: dict) -> None:
         self.info = info
         self._models: dict = {}          # model address -> disableflags address
         self._routes: dict = {}          # (model address, data address) -> (route, model, data addresses...)
         self._old: list = []
-        self._lock = threading.RLock()   # (reentered only by a finalizer: see _changing)
-        self._busy = 0                   # rewriting: a data collected meanwhile waits in _dropped
-        self._dropped: list = []
+        self._lock = DeferredLock()      # its queue: addresses of datas collected during a rewrite
         self.trampolines = (0, 0)
         with self._changing():
             pass
 
-    @contextlib.contextmanager
     def _changing(self):
-        """The lock; at the end of the outermost block the table is written, without the routes of the datas
-        collected meanwhile (their finalizers ran in this thread, inside the block)."""
-        with self._lock:
-            self._busy += 1
-            try:
-                yield
-            finally:
-                self._busy -= 1
-            if not self._busy:
-                self._write()
-                while self._dropped:                 # (collected during the write itself: once more)
-                    gone = set(self._dropped)
-                    self._dropped.clear()
-                    self._routes = {k: v for k, v in self._routes.items() if k[1] not in gone}
-                    self._write()
+        """The lock for a change; the table is written at the end of the outermost block."""
+        return self._lock.changing(self._flush)
+
+    def _flush(self) -> None:
+        self._write()
+        queue = self._lock.queue
+        while queue:                                 # datas collected meanwhile (during the write too: once more)
+            gone = set(queue)
+            queue.clear()
+            self._routes = {k: v for k, v in self._routes.items() if k[1] not in gone}
+            self._write()
 
     def held(self) -> tuple[tuple, tuple]:
         """(model addresses, (model, data) address pairs): what the native callbacks hold now."""
-        with self._lock:
+        with self._lock.lock:
             return tuple(self._models), tuple(self._routes)
 
     def set_trampolines(self, control: int, passive: int) -> None:
@@ -374,10 +365,7 @@ class Registry:
 
     def drop_data(self, address: int) -> None:
         """The finalizer of the data at ``address``: its routes leave the table (queued while rewriting)."""
-        with self._lock:
-            if self._busy:
-                self._dropped.append(address)
-                return
+        if not self._lock.defer(address):
             with self._changing():
                 self._routes = {k: v for k, v in self._routes.items() if k[1] != address}
 

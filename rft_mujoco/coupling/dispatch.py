@@ -31,7 +31,6 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import functools
-import threading
 import weakref
 
 import mujoco
@@ -41,6 +40,7 @@ from rft_mujoco import compiled
 from rft_mujoco.coupling import implicit as _IMPLICIT
 from rft_mujoco.compiled import deform_route as _DEFORM_ROUTE, route as _ROUTE
 from rft_mujoco.compiled import schema as sc
+from rft_mujoco.compiled.deferred import DeferredLock
 from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_components  # noqa: F401  (their home before)
 
 _COMPILE_ENTRY_POINTS = ((mujoco.MjModel, "from_xml_string", True), (mujoco.MjModel, "from_xml_path", True),
@@ -71,9 +71,8 @@ class Dispatcher:
         self._books: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
         self._routes: dict = {}              # id(model) -> (weakref to model, handles, rows), rebuilt on (un)register
         self._finalizers: dict = {}          # handle -> weakref.finalize of its model (unregisters it)
-        self._busy = 0                       # (un)registering: a model collected meanwhile waits in _pending
-        self._pending: list = []
-        self._lock = threading.RLock()
+        self._deferred = DeferredLock()      # its queue: handles whose model was collected while (un)registering
+        self._lock = self._deferred.lock
         self._generation = 0                 # bumped whenever a handle's setting changes (native routes)
         self.native = True                   # install native callbacks where possible (read at install)
         self._registry = None                # rft_mujoco.compiled.native.Registry while native callbacks are in
@@ -95,23 +94,17 @@ class Dispatcher:
     def collected(self, handle) -> None:
         """The model of ``handle`` was garbage collected (called by its finalizer, in whichever thread
         collected it): unregister the handle, now or, when this thread is (un)registering, right after."""
-        with self._lock:
-            if self._busy:
-                self._pending.append(handle)
-                return
-        handle._collected()
+        if not self._deferred.defer(handle):
+            handle._collected()
 
-    @contextlib.contextmanager
     def _changing(self):
         """The lock, and the collected models' handles unregistered at the end of the outermost block."""
-        with self._lock:
-            self._busy += 1
-            try:
-                yield
-            finally:
-                self._busy -= 1
-            while not self._busy and self._pending:
-                self._pending.pop()._collected()
+        return self._deferred.changing(self._unregister_collected)
+
+    def _unregister_collected(self) -> None:
+        queue = self._deferred.queue
+        while queue:
+            queue.pop()._collected()
 
     def invalidate(self) -> None:
         """A handle's setting, terrain or workspace changed: rebuild the native routes before the next use."""
