@@ -314,8 +314,7 @@ class Registry:
         self._old: list = []
         self._lock = DeferredLock()      # its queue: addresses of datas collected during a rewrite
         self.trampolines = (0, 0)
-        with self._changing():
-            pass
+        self._write()
 
     def _changing(self):
         """The lock for a change; the table is written at the end of the outermost block."""
