@@ -78,14 +78,30 @@ def test_wrench_is_sum_of_element_forces(seed):
         np.testing.assert_allclose(data.xfrc_applied[b], np.r_[force, torque], rtol=1e-9, atol=1e-9)
 
 
-def test_rk4_recomputes_every_stage():
+@pytest.mark.parametrize("ball, brick, per_step", [("all", "all", 4), ("midpoint", "midpoint", 2),
+                                                   ("first", "first", 1), ("first", "midpoint", 2), ("all", "first", 4)])
+def test_rk4_evaluates_the_leading_stages_that_the_handles_ask_for(ball, brick, per_step):
+    """With RK4 the sand is evaluated at the first 4, 2 or 1 stages of a step (``rk4_stages`` "all",
+    "midpoint", "first"), as many as any handle of the model asks for, and the wrench of the last stage
+    evaluated is what the rest of the step applies."""
     model, data = make("RK4")
-    sand = rft_mujoco.attach(model, MEDIA, resolution=0.02)
-    data.qpos[2] = -0.03
+    handles = [rft_mujoco.attach(model, MEDIA, [name], resolution=0.02, rk4_stages=mode)
+               for name, mode in (("ball", ball), ("brick", brick))]
+    seen = []
+    handles[0].observe(lambda d, wrenches, stage: seen.append((stage, wrenches.copy())))
+    data.qpos[2] = data.qpos[9] = -0.03
+    data.qvel[:] = 0.2
     mujoco.mj_forward(model, data)
-    before = sand.evaluations
+    before = [h.evaluations for h in handles]
+    seen.clear()
     mujoco.mj_step(model, data)
-    assert sand.evaluations - before == 4
+    assert [stage for stage, _ in seen] == list(range(1, per_step + 1))
+    assert [h.evaluations - n for h, n in zip(handles, before)] == [per_step] * 2
+    held = seen[-1][1][0]
+    assert np.any(held != 0.0) and not np.array_equal(held, seen[0][1][0]) or per_step == 1
+    np.testing.assert_array_equal(data.xfrc_applied[model.body("ball").id], held)
+    with pytest.raises(ValueError, match="rk4_stages must be one of"):
+        handles[0].rk4_stages = "odd"
 
 
 def test_body_above_sand_gets_exactly_zero():

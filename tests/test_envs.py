@@ -176,6 +176,21 @@ def test_solve_option_reaches_the_sand(env_id):
         gymnasium.make(env_id, solve="semi-implicit")
 
 
+@pytest.mark.parametrize("stages, per_step", [(None, 2), ("midpoint", 2), ("all", 4), ("first", 1)])
+def test_the_wrapped_envs_evaluate_the_rk4_stages_asked_for(stages, per_step):
+    """The Gymnasium sand envs (RK4) evaluate the sand at a step's first two stages by default
+    (``rk4_stages="midpoint"``), at every stage or at the first when asked; an env step is 5 MuJoCo steps."""
+    env = gymnasium.make("rft_mujoco/SandAnt-v0", **({} if stages is None else {"rk4_stages": stages}))
+    u = env.unwrapped
+    assert u.model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 and u.frame_skip == 5
+    assert u.sand.handle.rk4_stages == (stages or "midpoint")
+    env.reset(seed=0)
+    before = u.sand.handle.evaluations
+    env.step(np.zeros(env.action_space.shape))
+    assert u.sand.handle.evaluations - before == 5 * per_step
+    env.close()
+
+
 def test_bad_arguments_say_what_is_wrong():
     with pytest.raises(ValueError, match="drive"):
         gymnasium.make("rft_mujoco/SandWheel-v0", drive="speed")
@@ -183,6 +198,8 @@ def test_bad_arguments_say_what_is_wrong():
         gymnasium.make("rft_mujoco/SandQuadruped-v0", reward_weights={"speed": 1.0})
     with pytest.raises(ValueError, match="bed_depth_m"):
         gymnasium.make("rft_mujoco/SandAnt-v0", bed_depth_m=-0.1)
+    with pytest.raises(ValueError, match="rk4_stages must be one of"):
+        gymnasium.make("rft_mujoco/SandAnt-v0", rk4_stages="odd")
     with pytest.raises(ValueError, match="not a MuJoCo env"):
         make_sand_env("CartPole-v1")
 

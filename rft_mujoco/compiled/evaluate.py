@@ -363,12 +363,12 @@ def _rest(md, hc, ws, user_xfrc, dt, sand_out, fr, k, g_hat, xi_n, lagged):
 
 
 def params_array(max_height: float, xi_per_g: float, mu_surf: float, guards, kind: int, stabilize: bool,
-                 passive: bool, margin: float, monitor_every: int = 0, rk4_first: bool = False,
+                 passive: bool, margin: float, monitor_every: int = 0, rk4_evaluated: int = 4,
                  reuse_tol: float = 0.0, out=None) -> np.ndarray:
     """``hc.params`` (:data:`PARAMS`), written into ``out`` when given (a live handle's array)."""
     values = (max_height, xi_per_g, mu_surf, float(guards.no_tension), float(guards.no_forward_tangential),
               float(guards.no_positive_power), float(kind), float(stabilize), float(passive), margin,
-              float(monitor_every), float(rk4_first), float(reuse_tol))
+              float(monitor_every), float(rk4_evaluated), float(reuse_tol))
     if out is None:
         return np.array(values, dtype=np.float64)
     out[:] = values

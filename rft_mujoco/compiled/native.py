@@ -167,8 +167,8 @@ def run(reg, m, d, passive):
     time = _f8(reg[entry + sc.E_TIME])
     dt = _f8(reg[entry + sc.E_TIMESTEP])
     if _i4(reg[entry + sc.E_INTEGRATOR]) == _RK4:
-        if _later_rk4_stage(state, time, dt) and rt.all_first(t):
-            return                                   # xfrc_applied holds the first stage's user + sand wrench
+        if _later_rk4_stage(state, time, dt) and state[sc.B_RK4_STAGE] > rt.rk4_evaluated(t):
+            return                                   # xfrc_applied holds the last evaluated stage's user + sand
     else:
         state[sc.B_RK4_STAGE] = 0.0
     table = reg[entry + sc.E_TABLE]

@@ -174,20 +174,21 @@ def _fr(t, base, nv):
 
 _HC_SLOTS = len(ev.HANDLE_FIELDS) * SLOT
 _PARAMS = [name for name, _ in ev.HANDLE_FIELDS].index("params") * SLOT
-_RK4_FIRST = ev.PARAMS.index("rk4_first")
+_RK4_EVALUATED = ev.PARAMS.index("rk4_evaluated")
 _MONITOR_EVERY = ev.PARAMS.index("monitor_every")
 _STABILIZE = ev.PARAMS.index("stabilize")
 _STATE = _HC_SLOTS + [name for name, _ in ev.WORK_FIELDS].index("state") * SLOT
 
 
 @njit(**JIT)
-def all_first(t):
-    """Whether every handle of the route asks for ``rk4_stages="first"``."""
+def rk4_evaluated(t):
+    """The leading RK4 stages at which the route evaluates the sand: the most that any of its handles asks
+    for (``attach(rk4_stages=)``: 4, 2 or 1); 4 without handles."""
     n = t[sc.T_HANDLES]
+    most = 1.0 if n > 0 else 4.0
     for h in range(n):
-        if _f1(t, t[_HEADER + h] + _PARAMS)[_RK4_FIRST] == 0.0:
-            return False
-    return n > 0
+        most = max(most, _f1(t, t[_HEADER + h] + _PARAMS)[_RK4_EVALUATED])
+    return most
 
 
 @njit(**INLINE)

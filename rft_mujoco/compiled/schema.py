@@ -80,10 +80,11 @@ WORK_FIELDS = (
 
 
 PARAMS = ("max_height", "xi_per_g", "mu_surf", "no_tension", "no_forward", "no_power", "kind", "stabilize",
-          "passive", "margin", "monitor_every", "rk4_first", "reuse_tol")
+          "passive", "margin", "monitor_every", "rk4_evaluated", "reuse_tol")
 """Entries of ``hc.params``: highest sand (m), ``xi_n / |g|`` (N/m^3 per m/s^2), surface friction, the
 three guards (0/1), terrain kind, stabilize and passive (0/1), occlusion margin (m), evaluations between
-validity checks (0: no monitor), ``rk4_stages="first"`` (0/1), ``attach(reuse_tol=)`` (0: off)."""
+validity checks (0: no monitor), the leading RK4 stages evaluated (4, 2 or 1: ``attach(rk4_stages=)``),
+``attach(reuse_tol=)`` (0: off)."""
 STATE = ("last_time", "clean", "touching", "lagged", "evaluations", "rk4_stage", "kept_groups", "kept_rank",
          "kept_evaluations", "locked_dofs", "locked_evaluations", "newton_iterations", "reused_wrenches")
 """Entries of ``ws.state``: the time of the last evaluation (s), whether the diagnostics are already clear,
@@ -142,7 +143,7 @@ and ``ZONE_PASSES`` (:func:`rft_mujoco.compiled.implicit.settings`)."""
  W_LOCK_PREV, W_REUSE) = range(len(WORK_FIELDS))
 
 (P_MAX_HEIGHT, P_XI_PER_G, P_MU_SURF, P_NO_TENSION, P_NO_FORWARD, P_NO_POWER, P_KIND, P_STABILIZE, P_PASSIVE,
- P_MARGIN, P_MONITOR_EVERY, P_RK4_FIRST, P_REUSE_TOL) = range(len(PARAMS))
+ P_MARGIN, P_MONITOR_EVERY, P_RK4_EVALUATED, P_REUSE_TOL) = range(len(PARAMS))
 
 (S_LAST_TIME, S_CLEAN, S_TOUCHING, S_LAGGED, S_EVALUATIONS, S_RK4_STAGE, S_KEPT_GROUPS, S_KEPT_RANK,
  S_KEPT_EVALUATIONS, S_LOCKED_DOFS, S_LOCKED_EVALUATIONS, S_NEWTON_ITERATIONS, S_REUSED_WRENCHES) = range(len(STATE))

@@ -13,6 +13,9 @@ from rft_mujoco.compiled import schema as sc
 
 RK4_STAGE_TIMES = (0.5, 0.5, 1.0)
 """Times of RK4 stages 2-4 after the first, in steps (mj_RungeKutta evaluates at t + dt/2, t + dt/2, t + dt)."""
+RK4_STAGES = {"all": 4, "midpoint": 2, "first": 1}
+"""Values of ``attach(rk4_stages=...)`` and the leading RK4 stages at which each evaluates the sand (the wrench of
+the last one is held through the rest of the step)."""
 
 
 def untouched_components(xfrc: np.ndarray, written: np.ndarray) -> np.ndarray:

@@ -41,7 +41,7 @@ from rft_mujoco.coupling import implicit as _IMPLICIT
 from rft_mujoco.compiled import deform_route as _DEFORM_ROUTE, route as _ROUTE
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.deferred import DeferredLock
-from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_components  # noqa: F401  (their home before)
+from rft_mujoco.coupling.book import RK4_STAGE_TIMES, RK4_STAGES, _DataBook, untouched_components  # noqa: F401  (their home before)
 
 _COMPILE_ENTRY_POINTS = ((mujoco.MjModel, "from_xml_string", True), (mujoco.MjModel, "from_xml_path", True),
                          (mujoco.MjModel, "from_binary_path", True), (mujoco.MjSpec, "compile", False),
@@ -429,8 +429,8 @@ class Dispatcher:
             book.stage = 0
         elif not pending:                    # (a pending evaluation's stage is recorded already)
             later = book.later_rk4_stage(data.time, model.opt.timestep)
-            if later and all(h.rk4_stages == "first" for h in handles):
-                return                       # xfrc_applied still holds the first stage's user + sand wrench
+            if later and book.stage > max(RK4_STAGES[h.rk4_stages] for h in handles):
+                return                       # xfrc_applied still holds the last evaluated stage's user + sand
         if book.native is not None and book.native[0] != self._generation:
             book.native = None
         routable = book.native is None and all(h._native_ok for h in handles) \

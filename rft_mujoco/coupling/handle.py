@@ -37,6 +37,7 @@ from rft_mujoco import compiled, tol
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.element_pass import REUSE_VALID
 from rft_mujoco.coupling import checks, deformable, layout, setup
+from rft_mujoco.coupling.book import RK4_STAGES
 from rft_mujoco.coupling.dispatch import DISPATCHER
 from rft_mujoco.coupling.evaluators import CompiledEvaluator, NumpyEvaluator
 from rft_mujoco.coupling.monitor import ValidityMonitor
@@ -61,8 +62,6 @@ CONSTRAINTS = ("linearized", "lagged")
 """Values of ``handle.constraints``, the implicit solve's constraint forces: this step's rows linearized in their
 zones (the default), or MuJoCo's previous constraint forces (the first of the implicit solve's two changes
 alone, a measurement: docs/rest.md, "The implicit solve")."""
-RK4_STAGES = ("all", "first")
-"""Values of ``attach(rk4_stages=...)``: evaluate the sand at every RK4 stage, or at the first and hold it."""
 REUSE_TOL_MAX = 0.1
 """The largest ``attach(reuse_tol=...)``: beyond it a reused wrench could be off by more than a few percent."""
 REUSE_TOL_DEFAULT = 1e-3
@@ -86,7 +85,7 @@ class SandHandle:
             geom welded to it); the diagnostics' ``occluded_area`` reports run-time culling.
         evaluations: sand evaluations so far (all MjData together).
         stabilize: the rest treatment is on (see :func:`attach`).
-        rk4_stages: with integrator="RK4", "all" or "first" (see :func:`attach`).
+        rk4_stages: with integrator="RK4", "all", "midpoint" or "first" (see :func:`attach`).
         cull: only the exposed surface feels sand (see :func:`attach`).
         layout: the elements, weld groups, bounding spheres and run-time occluders built at attach
             (:class:`rft_mujoco.coupling.layout.Layout`; the warp path builds the same).
@@ -145,8 +144,9 @@ class SandHandle:
 
     # --- settings that the compiled code reads (hc.params): every setter refreshes them -------------------
     def __setattr__(self, name, value) -> None:
-        if name == "constraints" and value not in CONSTRAINTS:
-            raise ValueError(f"constraints must be one of {CONSTRAINTS}, got {value!r}")
+        for key, allowed in (("constraints", CONSTRAINTS), ("rk4_stages", RK4_STAGES)):
+            if name == key and value not in allowed:
+                raise ValueError(f"{key} must be one of {tuple(allowed)}, got {value!r}")
         if name == "reuse_tol":
             value = checked_reuse_tol(value)
         object.__setattr__(self, name, value)
@@ -168,7 +168,7 @@ class SandHandle:
         every = self.monitor.every if self.monitor is not None else 0
         evaluate.params_array(self._max_height, media.rho_c * f_hat(media.mu_int), media.mu_surf, self.guards,
                               spec.kind, self.stabilize, self.passive, self.layout.occluders.margin, every,
-                              self.rk4_stages == "first", self.reuse_tol, out=self._params)   # read live by the route
+                              RK4_STAGES[self.rk4_stages], self.reuse_tol, out=self._params)   # read live by the route
         for work in self._work.values():
             if work.press is not None:                   # a deformable surface's own copy, its own highest point
                 np.copyto(work.hc[sc.H_PARAMS], self._params)
@@ -530,12 +530,12 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
         backend: "numba" (compiled, cached after the first use on a machine), "numpy" (the readable
             reference), or "auto" (default: numba when it imports and supports the terrain, else numpy).
             Both give the same forces to round-off.
-        rk4_stages: with ``integrator="RK4"``, "all" (default) evaluates the sand at each of the four
-            stages of a step (at stages 2-4 the rest treatment keeps the first stage's mobility and rest
-            factor while the same bodies touch: :class:`rft_mujoco.coupling.reference.StepKeep`); "first"
-            evaluates it at the first stage (the state at the start of the step) and holds that wrench
-            through stages 2-4, a quarter of the cost. It applies only while every
-            handle of the model asks for it; other integrators evaluate once per step anyway.
+        rk4_stages: with ``integrator="RK4"``, "all" (default) evaluates the sand at every stage of a step;
+            "midpoint" (the Gymnasium sand envs') at the first two (its start; t + dt/2 along the first
+            stage's slope), the second's wrench held through stages 3-4; "first" at the first only. Later
+            stages keep the first stage's mobility and rest factor while the same bodies touch (``StepKeep``
+            in :mod:`rft_mujoco.coupling.reference`); errors and costs: docs/performance.md, "RK4 stages". A
+            stage is skipped only where every handle of the model skips it (other integrators: one per step).
         cull: True (default): only the surface that sand can reach feels it; elements inside another geom
             of the same body or weld group are dropped at attach, and elements inside a geom of another
             body (a calf inside its thigh at the knee, a rock) carry nothing while they are inside it.
@@ -562,7 +562,7 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
     if solve not in SOLVES:
         raise ValueError(f"solve must be one of {SOLVES}, got {solve!r}")
     if rk4_stages not in RK4_STAGES:
-        raise ValueError(f"rk4_stages must be one of {RK4_STAGES}, got {rk4_stages!r}")
+        raise ValueError(f"rk4_stages must be one of {tuple(RK4_STAGES)}, got {rk4_stages!r}")
     checked_reuse_tol(reuse_tol)
     if not isinstance(guards, Guards):
         raise TypeError(f"guards must be a rft_mujoco.Guards (default: rft_mujoco.PUBLISHED, no clean-ups), got "

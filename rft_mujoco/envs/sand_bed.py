@@ -214,11 +214,14 @@ class SandBed:
         solve: the sand solve, passed to :func:`rft_mujoco.attach` when given (``"explicit"`` or
             ``"implicit"``: docs/rest.md); None: attach's default.
         reuse_tol: passed to :func:`rft_mujoco.attach` when given (0: off); None: attach's default (1e-3).
+        rk4_stages: passed to :func:`rft_mujoco.attach` when given ("all", "midpoint" or "first": the RK4
+            stages at which the sand is evaluated); None: attach's default ("all").
     """
 
     def __init__(self, model, media: Media | str, bodies: str | Sequence[str | int] = "auto",
                  resolution: str | float = "coarse", surface=0.0, media_ranges: MediaRanges | None = None,
-                 stabilize: bool = True, solve: str | None = None, reuse_tol: float | None = None):
+                 stabilize: bool = True, solve: str | None = None, reuse_tol: float | None = None,
+                 rk4_stages: str | None = None):
         if media_ranges is not None and not isinstance(media_ranges, MediaRanges):
             raise TypeError(f"media_ranges must be a MediaRanges or None, got {type(media_ranges).__name__}")
         self.model = model
@@ -239,7 +242,8 @@ class SandBed:
             self.handle = rft_mujoco.attach(model, self.base_media, bodies=ids, surface_height=surface,
                                             resolution=resolution, stabilize=stabilize, monitor=False,
                                             **({} if solve is None else {"solve": solve}),
-                                            **({} if reuse_tol is None else {"reuse_tol": reuse_tol}))
+                                            **({} if reuse_tol is None else {"reuse_tol": reuse_tol}),
+                                            **({} if rk4_stages is None else {"rk4_stages": rk4_stages}))
         # A bed (an env) dropped without close() detaches its sand when collected, even where something else
         # still holds its model (the library detaches a handle by itself only when its model is collected).
         self._detach = weakref.finalize(self, self.handle.detach)

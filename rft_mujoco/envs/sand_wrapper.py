@@ -80,6 +80,7 @@ is the medium of the current episode.
 | `stabilize`                   | bool               | `True`                   | the coupling's implicit direction and impulse limiter |
 | `solve`                       | str or None        | `None`                   | the sand solve: `"explicit"` or `"implicit"` (docs/rest.md); None: `attach`'s default (`"explicit"`) |
 | `reuse_tol`                   | float or None      | `None`                   | `attach`'s: a body's wrench reused while its motion and pose hold (0: off); None: `attach`'s default (`1e-3`) |
+| `rk4_stages`                  | str                | `"midpoint"`             | `attach`'s, with RK4: the sand at a step's first two stages, the second's wrench held (`"all"`: every stage, about 25% more sand cost; docs/performance.md, "RK4 stages") |
 
 ## Version History
 * v0: first version (mujoco 4.0.0, gymnasium 1.4 ``{base}`` v5 assets).
@@ -95,7 +96,7 @@ class _SandEnv:
                  sand_bodies: str | Sequence[str | int] = "auto", bed_depth_m: float | None = None,
                  sand_in_contact_forces: bool = False, include_sand_in_observation: bool = False,
                  media_ranges: MediaRanges | None = None, stabilize: bool = True, solve: str | None = None,
-                 reuse_tol: float | None = None, **base_kwargs):
+                 reuse_tol: float | None = None, rk4_stages: str = "midpoint", **base_kwargs):
         resolution = self._sand_resolution if resolution is None else resolution
         self.sand = None
         self._bed_depth_m = bed_depth_m
@@ -106,12 +107,12 @@ class _SandEnv:
                                 bed_depth_m=bed_depth_m, sand_in_contact_forces=sand_in_contact_forces,
                                 include_sand_in_observation=include_sand_in_observation,
                                 media_ranges=media_ranges, stabilize=stabilize, solve=solve, reuse_tol=reuse_tol,
-                                **base_kwargs)
+                                rk4_stages=rk4_stages, **base_kwargs)
         self._sand_in_contact_forces = bool(sand_in_contact_forces)
         self._include_sand_in_observation = bool(include_sand_in_observation)
         self.sand = SandBed(self.model, media, bodies=sand_bodies, resolution=resolution,
                             surface=self._surface_geoms, media_ranges=media_ranges, stabilize=stabilize,
-                            solve=solve, reuse_tol=reuse_tol)
+                            solve=solve, reuse_tol=reuse_tol, rk4_stages=rk4_stages)
         if self._include_sand_in_observation:
             extra = FEATURES_PER_BODY * self.sand.n_bodies
             base = self.observation_space

@@ -41,11 +41,16 @@ class StageRecorder:
         the kinetic energy at the step's end velocity, or None when the sand did nothing this step.
 
         The impulse ``j = dt sum_s w_s q_s`` (RK4's stage weights; one stage otherwise) changes the kinetic
-        energy by ``j.qvel - j.M^-1.j / 2`` measured at the velocity after it."""
+        energy by ``j.qvel - j.M^-1.j / 2`` measured at the velocity after it. With RK4 and fewer than four
+        evaluations (``attach(rk4_stages="midpoint" or "first")``) the last one's force stands for the stages
+        that held it."""
         if not self.q:
             return None
-        w = weights if len(self.q) == len(weights) else np.ones(len(self.q)) / len(self.q)
-        jimp = dt * np.einsum("s,sn->n", w, np.array(self.q))
+        q = self.q
+        if len(weights) == 4 and len(q) < 4:
+            q = [q[min(s, len(q) - 1)] for s in range(4)]
+        w = weights if len(q) == len(weights) else np.ones(len(q)) / len(q)
+        jimp = dt * np.einsum("s,sn->n", w, np.array(q))
         if not np.any(jimp != 0.0):
             return None
         minv_j = np.zeros(model.nv)
