@@ -244,9 +244,9 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = Tru
                         [[r["setting"], f"{r['phase1_us']:.2f}", f"{r['phase2_us']:.2f}"] for r in phases]))
 
     print("\n2c. RK4 stages on SandAnt-v0: the sand at the first 2 stages, the second's wrench held ('midpoint', "
-          "default),\n    at every stage ('all') or at the first ('first'); one env step (50 ms) from sampled states "
-          "against 'all' at 0.5 ms\n    (mean torso position / velocity error), and the torso height after 2 s of "
-          "settling against 'all' at 1 ms", flush=True)
+          "the sand envs'),\n    at every stage ('all', attach's default) or at the first ('first'); one env step "
+          "(50 ms) from sampled states\n    against 'all' at 0.5 ms (mean torso position / velocity error), and the "
+          "torso height after 2 s of settling against 'all' at 1 ms", flush=True)
     stages = None if quick else rk4_stages_accuracy(quick)
     if stages is None:
         print("skipped (--quick, or gymnasium not installed)")
