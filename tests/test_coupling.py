@@ -79,7 +79,8 @@ def test_wrench_is_sum_of_element_forces(seed):
 
 
 @pytest.mark.parametrize("ball, brick, per_step", [("all", "all", 4), ("midpoint", "midpoint", 2),
-                                                   ("first", "first", 1), ("first", "midpoint", 2), ("all", "first", 4)])
+                                                   ("first", "first", 1), ("first", "midpoint", 2),
+                                                   ("all", "first", 4)])
 def test_rk4_evaluates_the_leading_stages_that_the_handles_ask_for(ball, brick, per_step):
     """With RK4 the sand is evaluated at the first 4, 2 or 1 stages of a step (``rk4_stages`` "all",
     "midpoint", "first"), as many as any handle of the model asks for, and the wrench of the last stage

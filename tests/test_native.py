@@ -108,8 +108,8 @@ def rollout(native, integrator="Euler", steps=150, rk4_stages="all", monitor=Tru
 
 @needs_native
 @pytest.mark.parametrize("kwargs", [
-    dict(), dict(integrator="RK4"), dict(integrator="RK4", rk4_stages="first"), dict(integrator="RK4", rk4_stages="midpoint"),
-    dict(integrator="implicitfast"),
+    dict(), dict(integrator="RK4"), dict(integrator="RK4", rk4_stages="first"),
+    dict(integrator="RK4", rk4_stages="midpoint"), dict(integrator="implicitfast"),
     dict(monitor=False, disable_at=60), dict(datas=2, models=2), dict(friction=True),
     dict(friction=True, integrator="RK4"), dict(solve="implicit", friction=True),
     dict(solve="implicit", integrator="implicitfast")])

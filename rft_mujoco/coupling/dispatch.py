@@ -41,7 +41,8 @@ from rft_mujoco.coupling import implicit as _IMPLICIT
 from rft_mujoco.compiled import deform_route as _DEFORM_ROUTE, route as _ROUTE
 from rft_mujoco.compiled import schema as sc
 from rft_mujoco.compiled.deferred import DeferredLock
-from rft_mujoco.coupling.book import RK4_STAGE_TIMES, RK4_STAGES, _DataBook, untouched_components  # noqa: F401  (their home before)
+from rft_mujoco.coupling.book import RK4_STAGE_TIMES, _DataBook, untouched_components  # noqa: F401  (their home before)
+from rft_mujoco.coupling.book import RK4_STAGES
 
 _COMPILE_ENTRY_POINTS = ((mujoco.MjModel, "from_xml_string", True), (mujoco.MjModel, "from_xml_path", True),
                          (mujoco.MjModel, "from_binary_path", True), (mujoco.MjSpec, "compile", False),

@@ -80,10 +80,11 @@ is the medium of the current episode.
 | `stabilize`                   | bool               | `True`                   | the coupling's implicit direction and impulse limiter |
 | `solve`                       | str or None        | `None`                   | the sand solve: `"explicit"` or `"implicit"` (docs/rest.md); None: `attach`'s default (`"explicit"`) |
 | `reuse_tol`                   | float or None      | `None`                   | `attach`'s: a body's wrench reused while its motion and pose hold (0: off); None: `attach`'s default (`1e-3`) |
-| `rk4_stages`                  | str                | `"midpoint"`             | `attach`'s, with RK4: the sand at a step's first two stages, the second's wrench held (`"all"`: every stage, about 25% more sand cost; docs/performance.md, "RK4 stages") |
+| `rk4_stages`                  | str                | `"midpoint"`             | `attach`'s, with RK4: the sand at a step's first two stages, the second's wrench held (`"all"`: every stage, 15% more time per SandAnt-v0 env step; docs/performance.md, "2c. RK4 stages") |
 
 ## Version History
-* v0: first version (mujoco 4.0.0, gymnasium 1.4 ``{base}`` v5 assets).
+* v0: first version (mujoco 4.0.0, gymnasium 1.4 ``{base}`` v5 assets). Since 2026-12-04 the sand is evaluated at
+  two of RK4's four stages (``rk4_stages="midpoint"``); ``rk4_stages="all"`` gives the dynamics from before.
 """
 
 
