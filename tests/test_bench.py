@@ -37,8 +37,12 @@ def test_plots_are_written_from_the_tables(tmp_path):
     acc = [dict(shape=shape, preset=preset, numba_us=us, max_error=err, elements=el)
            for shape, errs in (("sphere", (0.008, 0.004)), ("cube", (0.0, 0.0)))
            for (preset, us, el), err in zip((("coarse", 4.0, 240), ("default", 6.0, 400)), errs)]
-    files = plots.all_plots(tmp_path, thr, quad, rates, acc)
-    assert [f.name for f in files] == ["throughput.png", "overhead.png", "env_rates.png", "error_vs_cost.png"]
+    stages = [dict(mode=mode, dt=dt, evaluations=n * round(0.05 / dt), moving_mm_s=e * dt * 1e3,
+                   resting_mm_s=2 * e * dt * 1e3) for mode, n, e in (("all", 4, 4.0), ("first", 1, 9.0))
+              for dt in (0.01, 0.005)]
+    files = plots.all_plots(tmp_path, thr, quad, rates, acc, stages)
+    assert [f.name for f in files] == ["throughput.png", "overhead.png", "env_rates.png", "error_vs_cost.png",
+                                       "rk4_stages.png"]
     for f in files:
         assert f.stat().st_size > 10_000
         assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -279,7 +279,7 @@ def run(quick: bool = False, out: str | Path = "out/bench", plots_on: bool = Tru
           flush=True)
     robot_rows = mesh_robots(quick)
 
-    files = plots.all_plots(out, thr, quad, rates, acc) if plots_on else []
+    files = plots.all_plots(out, thr, quad, rates, acc, stages) if plots_on else []
     if files:
         print("\nwrote " + ", ".join(str(f) for f in files))
     return dict(throughput=thr, public_law=public, quadruped=quad, phases=split, rates=rates, stages=stages,

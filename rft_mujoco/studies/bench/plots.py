@@ -77,7 +77,7 @@ def env_rates(out: Path, rates) -> Path:
     ax.bar(x + 0.2, [r["random_sps"] for r in rates], 0.4, label="random actions")
     ax.set_xticks(x, [r["env"].replace("rft_mujoco/", "") for r in rates], fontsize=8)
     ax.set_ylabel("env steps per second (single thread)")
-    ax.set_title("env speed: standing costs what moving costs")
+    ax.set_title("env speed, standing still and moving (single thread)")
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -123,7 +123,37 @@ def error_vs_cost(out: Path, acc) -> Path:
     return path
 
 
-def all_plots(out: Path, thr, quad, rates, acc) -> list[Path]:
+def rk4_stages(out: Path, stages) -> Path:
+    """Section 2c: one env step's torso velocity error against the sand evaluations per env step, for each
+    ``rk4_stages`` mode (a line through its steps), moving and at touchdown and rest."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharey=True)
+    for ax, key, title in zip(axes, ("moving_mm_s", "resting_mm_s"),
+                              ("moving (random actions)", "touchdown and rest (zero action)")):
+        for mode in dict.fromkeys(r["mode"] for r in stages):
+            rows = [r for r in stages if r["mode"] == mode]
+            line, = ax.loglog([r["evaluations"] for r in rows], [r[key] for r in rows], "o-", label=mode, ms=4)
+            for r in rows:
+                ax.annotate(f"{r['dt'] * 1e3:g} ms", (r["evaluations"], r[key]), fontsize=7, color=line.get_color(),
+                            xytext=(4, 3), textcoords="offset points")
+        ticks = sorted({r["evaluations"] for r in stages})
+        ax.set_xticks(ticks, [str(t) for t in ticks])
+        ax.minorticks_off()
+        ax.set_xlabel("sand evaluations per env step (50 ms)")
+        ax.set_title(f"SandAnt-v0, one env step, {title}", fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8, title="rk4_stages", title_fontsize=8)
+    axes[0].set_ylabel("torso velocity error against 'all' at 0.5 ms (mm/s)")
+    fig.suptitle("rk4_stages: the sand's cost follows the evaluations, MuJoCo's own the step (5 ms: twice 10 ms's)",
+                 fontsize=9)
+    fig.tight_layout()
+    path = out / "rk4_stages.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def all_plots(out: Path, thr, quad, rates, acc, stages=None) -> list[Path]:
     """Every plot of one benchmark run (those whose table is not empty)."""
     files = [throughput(out, thr)]
     if quad:
@@ -131,4 +161,6 @@ def all_plots(out: Path, thr, quad, rates, acc) -> list[Path]:
     if rates:
         files.append(env_rates(out, rates))
     files.append(error_vs_cost(out, acc))
+    if stages:
+        files.append(rk4_stages(out, stages))
     return files
