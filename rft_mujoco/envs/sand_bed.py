@@ -241,9 +241,8 @@ class SandBed:
             warnings.filterwarnings("ignore", message=COARSE_MESSAGE, category=rft_mujoco.SandSetupWarning)
             self.handle = rft_mujoco.attach(model, self.base_media, bodies=ids, surface_height=surface,
                                             resolution=resolution, stabilize=stabilize, monitor=False,
-                                            **({} if solve is None else {"solve": solve}),
-                                            **({} if reuse_tol is None else {"reuse_tol": reuse_tol}),
-                                            **({} if rk4_stages is None else {"rk4_stages": rk4_stages}))
+                                            **{k: v for k, v in (("solve", solve), ("reuse_tol", reuse_tol),
+                                                                 ("rk4_stages", rk4_stages)) if v is not None})
         # A bed (an env) dropped without close() detaches its sand when collected, even where something else
         # still holds its model (the library detaches a handle by itself only when its model is collected).
         self._detach = weakref.finalize(self, self.handle.detach)

@@ -251,16 +251,17 @@ def _phase_loop():
     return loop
 
 
-def _sand_ant(mode: str, dt: float):
-    """A SandAnt-v0 env with step ``dt`` (its env dt kept at 0.05 s) and ``rk4_stages=mode``."""
+def _sand_ant(mode: str | None = None, dt: float | None = None):
+    """A SandAnt-v0 env with step ``dt`` (its env dt kept at 0.05 s) and ``rk4_stages=mode`` (None: the env's)."""
     import gymnasium as gym
 
     from rft_mujoco import envs  # noqa: F401  (registers the sand ids)
-    env = gym.make("rft_mujoco/SandAnt-v0", max_episode_steps=10 ** 6)
-    u = env.unwrapped
-    u.sand.handle.rk4_stages = mode
-    u.model.opt.timestep = dt
-    u.frame_skip = int(round(0.05 / dt))
+    env = gym.make("rft_mujoco/SandAnt-v0", max_episode_steps=10 ** 6, **({} if mode is None else
+                                                                         {"rk4_stages": mode}))
+    if dt is not None:
+        u = env.unwrapped
+        u.model.opt.timestep = dt
+        u.frame_skip = int(round(0.05 / dt))
     return env
 
 
@@ -282,7 +283,7 @@ def ant_states(n: int, moving: bool, seed: int = 1) -> list[tuple[np.ndarray, np
     """``n`` SandAnt-v0 states (qpos, qvel, the action of the env step to take from it), at the defaults:
     ``moving``: every 20th env step of one random-action rollout (uniform actions); else touchdown and rest:
     1, 3, 6, 10, 20 and 39 zero-action env steps after each of a series of resets."""
-    env = _sand_ant("midpoint", 0.01)
+    env = _sand_ant()
     u = env.unwrapped
     rng = np.random.default_rng(seed)
     out = []
@@ -292,14 +293,15 @@ def ant_states(n: int, moving: bool, seed: int = 1) -> list[tuple[np.ndarray, np
             for _ in range(20):
                 env.step(rng.uniform(-1.0, 1.0, 8))
             out.append((u.data.qpos.copy(), u.data.qvel.copy(), rng.uniform(-1.0, 1.0, 8)))
-    for k in range(0 if moving else n):
-        env.reset(seed=seed + k)
+    reset = seed
+    while len(out) < n:                                  # touchdown and rest (moving: full already)
+        env.reset(seed=reset)
+        reset += 1
         for i in range(40):
             env.step(np.zeros(8))
-            if i in (0, 2, 5, 9, 19, 38) and len(out) < n:
+            if i in (0, 2, 5, 9, 19, 38):
                 out.append((u.data.qpos.copy(), u.data.qvel.copy(), np.zeros(8)))
-        if len(out) == n:
-            break
+    del out[n:]
     env.close()
     return out
 
