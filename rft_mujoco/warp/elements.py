@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from rft_mujoco.warp.common import LEADING_TOL, ZERO_SPEED, gravity_of
+from rft_mujoco.warp.common import F64, LEADING_TOL, ZERO_SPEED, gravity_of, v3d
 from rft_mujoco.warp.law import depth, stress
 from rft_mujoco.warp.occlusion import hidden
 
@@ -37,7 +37,7 @@ def force_pass(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), cen
                normal: wp.array(dtype=wp.vec3), area: wp.array(dtype=float), elem_mask: wp.array2d(dtype=int),
                xpos: wp.array2d(dtype=wp.vec3), xmat: wp.array2d(dtype=wp.mat33), xipos: wp.array2d(dtype=wp.vec3),
                gravity: wp.array(dtype=wp.vec3), kind: int, flat_height: wp.array(dtype=float),
-               tp: wp.array(dtype=float), heights: wp.array2d(dtype=float), coef: wp.array2d(dtype=float),
+               tp: wp.array(dtype=float), heights: wp.array2d(dtype=float), coef: wp.array2d(dtype=F64),
                xi_per_g: wp.array(dtype=float), mu_surf: wp.array(dtype=float), no_tension: int, no_forward: int,
                no_power: int, touch: wp.array2d(dtype=int), v_lin: wp.array2d(dtype=wp.vec3),
                v_ang: wp.array2d(dtype=wp.vec3), wrench: wp.array2d(dtype=wp.spatial_vector),
@@ -78,7 +78,8 @@ def force_pass(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), cen
     if wp.dot(n, v) < -LEADING_TOL:
         return
     xi_n = xi_per_g[w] * g_mag
-    f = stress(n, v, g, coef, mu_surf[w], no_tension, no_forward, no_power) * (xi_n * z * area[e])
+    s = stress(v3d(n), v3d(v), v3d(g), coef, F64(mu_surf[w]), no_tension, no_forward, no_power)
+    f = wp.vec3(float(s[0]), float(s[1]), float(s[2])) * (xi_n * z * area[e])
     wp.atomic_add(wrench, w, b, wp.spatial_vector(f, wp.cross(arm, f)))
     wp.atomic_add(count, w, b, 1)
     wp.atomic_max(max_depth, w, b, z)

@@ -46,6 +46,8 @@ from rft_mujoco.physics import terrain_spec as ts
 from rft_mujoco.physics.terrain import Terrain, as_terrain
 from rft_mujoco.warp import kernels as K
 from rft_mujoco.coupling import layout as _layout
+from rft_mujoco.coupling.handle import CONSTRAINTS, SOLVES
+from rft_mujoco.warp import implicit_eval as _implicit_eval
 from rft_mujoco.warp import occlusion as _occlusion
 
 
@@ -124,6 +126,7 @@ class _State:
         self.idx, self.order, self.kept = (z((n6, w), int) for _ in range(3))
         self.capacity, self.total = z((g, w), f8), z((g, w), f8)
         self.rest_flag, self.flow = z((g, w), int), z((g, w), int)
+        self.implicit = None                    # the implicit solve's buffers (rft_mujoco.warp.implicit_eval)
 
 
 def _terrain_spec(terrain: Terrain) -> tuple[int, np.ndarray, np.ndarray, float]:
@@ -194,6 +197,8 @@ class WarpSandHandle:
         self.guards = guards
         self.stabilize = bool(stabilize)
         self.passive = bool(passive)
+        self.solve = "explicit"
+        self.constraints = "linearized"
         self.device = mjw_model.body_parentid.device
         self._media0 = media
         self._xi_per_g0 = float(media.xi_n_at(1.0))
@@ -221,7 +226,7 @@ class WarpSandHandle:
             attached_index=i4(attached_index), body_rootid=i4(m.body_rootid), body_dofnum=i4(m.body_dofnum),
             body_dofadr=i4(m.body_dofadr), body_parentid=i4(m.body_parentid), dof_parentid=i4(m.dof_parentid),
             tp=wp.array(tp, dtype=float, device=dev), heights=wp.array(heights, dtype=float, device=dev),
-            coef=wp.array(law.COEFFICIENTS.astype(np.float32), dtype=float, device=dev))
+            coef=wp.array(law.COEFFICIENTS, dtype=wp.float64, device=dev))
         self._occ = _occlusion.device_arrays(layout.occluders, self.n_bodies, dev)
         self._states: dict[int, tuple[weakref.ref, _State]] = {}
         self._chained = None
@@ -362,6 +367,12 @@ class WarpSandHandle:
                               o["occ_rbound"], d.xpos, d.xmat, d.geom_xpos, st.touch, st.near])
         if self.stabilize:
             mjw.fwd_actuation(m, d)            # MuJoCo computes qfrc_actuator only after the control callback
+        if self.stabilize and self.solve == "implicit":
+            _implicit_eval.evaluate_implicit(self, m, d, st, guards, PER_WORLD_BLOCK)
+            wp.launch(K.commit, dim=wb, device=dev,
+                      inputs=[a["body_id"], st.user, st.sand, d.xfrc_applied, st.added, st.written])
+            return
+        if self.stabilize:
             wp.launch(K.free_twist, dim=nw, device=dev, block_dim=PER_WORLD_BLOCK, inputs=[
                 self.mj_model.nbody, a["body_rootid"], a["body_dofnum"], a["body_dofadr"], a["body_parentid"],
                 a["dof_parentid"], m.M_rownnz, m.M_rowadr, m.M_colind, m.opt.timestep,
@@ -436,7 +447,7 @@ class WarpSandHandle:
 def attach(mj_model, mjw_model, media: Media | str, bodies: Sequence[str | int] | None = None,
            surface_height: float | Terrain = 0.0, resolution: str | float = "default", *,
            guards: Guards = PUBLISHED, stabilize: bool = True, passive: bool = True, cull: bool = True,
-           data=None) -> WarpSandHandle:
+           solve: str = "explicit", constraints: str = "linearized", data=None) -> WarpSandHandle:
     """Attach 3D-RFT sand to a MuJoCo Warp model: ``mujoco_warp.step(mjw_model, d)`` then includes it in every
     world of ``d``.
 
@@ -450,6 +461,10 @@ def attach(mj_model, mjw_model, media: Media | str, bodies: Sequence[str | int] 
             (``surface_height``: a height in m, or a FlatSurface, HeightfieldSurface or SandRegion; ``cull``:
             True (default) culls elements inside the body's own and welded geoms at attach and, at each
             evaluation in each world, elements inside a geom of another weld group; False: neither).
+        solve: with ``stabilize=True``, "explicit" (default) or "implicit" (:mod:`rft_mujoco.warp.implicit`: the law
+            at the twist the step ends with, the CPU path's ``attach(solve="implicit")``).
+        constraints: the implicit solve's constraint forces: "linearized" (this step's rows in their zones) or
+            "lagged" (MuJoCo's last constraint forces), as the CPU handle's ``constraints``.
         data: optionally a ``mujoco_warp.Data`` to allocate buffers for now (:meth:`WarpSandHandle.bind`).
     Returns:
         a :class:`WarpSandHandle`; ``handle.detach()`` removes it.
@@ -469,7 +484,12 @@ def attach(mj_model, mjw_model, media: Media | str, bodies: Sequence[str | int] 
     terrain = as_terrain(surface_height)
     gravity_direction(mj_model.opt.gravity)              # raises on zero gravity
     lay = _layout.build(mj_model, bodies, resolution, cull)
+    if solve not in SOLVES:
+        raise ValueError(f"solve must be one of {SOLVES}, got {solve!r}")
+    if constraints not in CONSTRAINTS:
+        raise ValueError(f"constraints must be one of {CONSTRAINTS}, got {constraints!r}")
     handle = WarpSandHandle(mj_model, mjw_model, media, lay, terrain, guards, stabilize, passive)
+    handle.solve, handle.constraints = solve, constraints
     handle._install()
     if data is not None:
         handle.bind(data)

@@ -1,4 +1,4 @@
-"""The 3D-RFT law and the terrain in warp (float32): :func:`stress` ports
+"""The 3D-RFT law (float64) and the terrain (float32) in warp: :func:`stress` ports
 :func:`rft_mujoco.physics.law.stress_per_depth` (over ``xi_n``), :func:`depth` the terrains of
 :mod:`rft_mujoco.physics.terrain` (flat, heightfield, and a sand region of either)."""
 
@@ -7,12 +7,12 @@ from __future__ import annotations
 import warp as wp
 
 from rft_mujoco.physics import terrain_spec as ts
-from rft_mujoco.warp.common import FLAT, LEADING_TOL, VERTICAL_TOL
+from rft_mujoco.warp.common import F64, FLAT, LEADING_TOL, VERTICAL_TOL
 
 
-# --- the law (float32; rft_mujoco.physics.law.stress_per_depth) ---------------------------------------
+# --- the law (float64; rft_mujoco.physics.law.stress_per_depth) ---------------------------------------
 @wp.func
-def _cubic(c: wp.array2d(dtype=float), j: int, x1: float, x2: float, x3: float):
+def _cubic(c: wp.array2d(dtype=F64), j: int, x1: F64, x2: F64, x3: F64):
     """sum_k c[k, j] t_k(x1, x2, x3), the terms in the order of law.cubic_terms."""
     x11 = x1 * x1
     x22 = x2 * x2
@@ -25,17 +25,18 @@ def _cubic(c: wp.array2d(dtype=float), j: int, x1: float, x2: float, x3: float):
 
 
 @wp.func
-def stress(n: wp.vec3, v: wp.vec3, g: wp.vec3, c: wp.array2d(dtype=float), mu_surf: float, no_tension: int,
+def stress(n: wp.vec3d, v: wp.vec3d, g: wp.vec3d, c: wp.array2d(dtype=F64), mu_surf: F64, no_tension: int,
            no_forward: int, no_power: int):
-    """law.stress_per_depth / xi_n of one element: unit normal ``n``, unit direction ``v``, unit gravity ``g``."""
+    """law.stress_per_depth / xi_n of one element: unit normal ``n``, unit direction ``v``, unit gravity ``g``
+    (float64: the implicit solve differentiates it by forward differences of 1e-7 of the speed)."""
     gn = wp.dot(n, g)
     vn = wp.dot(n, v)
-    sign = float(1.0)
-    if wp.abs(gn) > VERTICAL_TOL:
-        if gn <= 0.0:
-            sign = -1.0
-    elif vn < -LEADING_TOL:
-        sign = -1.0
+    sign = F64(1.0)
+    if wp.abs(gn) > F64(VERTICAL_TOL):
+        if gn <= F64(0.0):
+            sign = F64(-1.0)
+    elif vn < -F64(LEADING_TOL):
+        sign = F64(-1.0)
     x1 = wp.dot(v, g)
     x2 = gn * sign
     x3 = vn * sign
@@ -45,18 +46,18 @@ def stress(n: wp.vec3, v: wp.vec3, g: wp.vec3, c: wp.array2d(dtype=float), mu_su
     a = f0 * (n * sign) + f1 * v + f2 * g
     an = wp.dot(a, n)
     t = a - an * n
-    if no_tension != 0 and an > 0.0:
-        an = 0.0
+    if no_tension != 0 and an > F64(0.0):
+        an = F64(0.0)
     tmag = wp.length(t)
-    cap = float(0.0)
-    if tmag > 0.0:
-        cap = wp.min(mu_surf * wp.abs(an) / tmag, 1.0)
+    cap = F64(0.0)
+    if tmag > F64(0.0):
+        cap = wp.min(mu_surf * wp.abs(an) / tmag, F64(1.0))
     t = t * cap
-    if no_forward != 0 and wp.dot(t, v) > 0.0:
-        t = wp.vec3(0.0, 0.0, 0.0)
+    if no_forward != 0 and wp.dot(t, v) > F64(0.0):
+        t = wp.vec3d()
     r = an * n + t
-    if no_power != 0 and wp.dot(r, v) > 0.0:
-        r = wp.vec3(0.0, 0.0, 0.0)
+    if no_power != 0 and wp.dot(r, v) > F64(0.0):
+        r = wp.vec3d()
     return r
 
 

@@ -11,8 +11,8 @@ from rft_mujoco.warp.common import (CAPACITY_TOL, DEPENDENT_TOL, F64, NOT_FINITE
 
 
 @wp.func
-def _flow_factor(h: F64, q: F64):
-    """rest._flow_factor."""
+def flow_factor(h: F64, q: F64):
+    """rest.flow_factor."""
     if h >= F64(0.0):
         return F64(0.0)
     if q <= F64(0.0):
@@ -21,18 +21,17 @@ def _flow_factor(h: F64, q: F64):
 
 
 @wp.func
-def _pivoted_solve(w: int, a: wp.array3d(dtype=F64), idx: wp.array2d(dtype=int), m: int,
-                   rhs: wp.array2d(dtype=F64), weight: wp.array2d(dtype=F64), x: wp.array2d(dtype=F64),
-                   diag0: wp.array2d(dtype=F64), rem: wp.array2d(dtype=F64), order: wp.array2d(dtype=int),
-                   kept: wp.array2d(dtype=int), low: wp.array3d(dtype=F64), gram: wp.array3d(dtype=F64),
-                   y: wp.array2d(dtype=F64)):
-    """rest.pivoted_solve of the matrix a[idx, idx, w] (the first m rows of idx[:, w]); the solution into x[:m, w]."""
+def pivoted_factor(w: int, a: wp.array3d(dtype=F64), idx: wp.array2d(dtype=int), m: int,
+                   weight: wp.array2d(dtype=F64), diag0: wp.array2d(dtype=F64), rem: wp.array2d(dtype=F64),
+                   order: wp.array2d(dtype=int), kept: wp.array2d(dtype=int), low: wp.array3d(dtype=F64),
+                   gram: wp.array3d(dtype=F64)):
+    """rest.pivoted_factor of the matrix a[idx, idx, w] (the first m rows of idx[:, w]): the kept rows in
+    ``order[:k, w]``, the Cholesky factor of B D B^T in ``gram``; returns k."""
     for i in range(m):
         d = a[idx[i, w], idx[i, w], w]
         diag0[i, w] = d
         rem[i, w] = d
         kept[i, w] = 0
-        x[i, w] = F64(0.0)
     k = int(0)
     while k < m:
         p = int(-1)
@@ -57,8 +56,6 @@ def _pivoted_solve(w: int, a: wp.array3d(dtype=F64), idx: wp.array2d(dtype=int),
             if kept[i, w] == 0:
                 rem[i, w] = rem[i, w] - low[i, k, w] * low[i, k, w]
         k += 1
-    if k == 0:
-        return
     for r in range(k):                              # B D B^T, B = a[order[:k], :]
         ir = idx[order[r, w], w]
         for c in range(r + 1):
@@ -69,6 +66,18 @@ def _pivoted_solve(w: int, a: wp.array3d(dtype=F64), idx: wp.array2d(dtype=int),
                 t += a[ir, ij, w] * weight[j, w] * a[ic, ij, w]
             gram[r, c, w] = t
     cholesky(w, gram, k)
+    return k
+
+
+@wp.func
+def pivoted_apply(w: int, a: wp.array3d(dtype=F64), idx: wp.array2d(dtype=int), m: int, k: int,
+                  rhs: wp.array2d(dtype=F64), weight: wp.array2d(dtype=F64), order: wp.array2d(dtype=int),
+                  gram: wp.array3d(dtype=F64), y: wp.array2d(dtype=F64), x: wp.array2d(dtype=F64)):
+    """rest.pivoted_apply: x[:m, w] from rhs[:m, w] and :func:`pivoted_factor`'s (k, order, gram)."""
+    for j in range(m):
+        x[j, w] = F64(0.0)
+    if k == 0:
+        return
     for r in range(k):
         t = rhs[order[r, w], w]
         for c in range(r):
@@ -86,6 +95,110 @@ def _pivoted_solve(w: int, a: wp.array3d(dtype=F64), idx: wp.array2d(dtype=int),
         for r in range(k):
             t += a[idx[order[r, w], w], ij, w] * y[r, w]
         x[j, w] = weight[j, w] * t
+
+
+@wp.func
+def group_sums(w: int, nb: int, slot: wp.array2d(dtype=int), wrench: wp.array2d(dtype=wp.spatial_vector),
+               arm: wp.array2d(dtype=wp.vec3d), n6: int, rft_g: wp.array2d(dtype=F64)):
+    """rft_g[6 r:6 r + 6, w] := the bodies' wrenches summed about their group's reference point (N, N m)."""
+    for i in range(n6):
+        rft_g[i, w] = F64(0.0)
+    for b in range(nb):
+        r = slot[b, w]
+        if r < 0:
+            continue
+        f = sv64(wrench[w, b])
+        fl = wp.vec3d(f[0], f[1], f[2])
+        tq = wp.vec3d(f[3], f[4], f[5]) + wp.cross(arm[b, w], fl)
+        for c in range(3):
+            rft_g[6 * r + c, w] = rft_g[6 * r + c, w] + fl[c]
+            rft_g[6 * r + 3 + c, w] = rft_g[6 * r + 3 + c, w] + tq[c]
+
+
+@wp.func
+def share(w: int, ng: int, nb: int, slot: wp.array2d(dtype=int), active: wp.array2d(dtype=int),
+          group_radius: wp.array(dtype=F64), wrench: wp.array2d(dtype=wp.spatial_vector),
+          arm: wp.array2d(dtype=wp.vec3d), rft_g: wp.array2d(dtype=F64), wv: wp.array2d(dtype=F64),
+          rest_flag: wp.array2d(dtype=int), size: wp.array2d(dtype=F64), total: wp.array2d(dtype=F64),
+          sand: wp.array2d(dtype=wp.spatial_vector)):
+    """Each touching body's part of its group's applied wrench ``wv`` (N, N m about the reference point;
+    coupling._share): a flowing group's bodies their own wrench scaled as the group's, a resting group's force
+    and moment shared by the size of the bodies' wrenches."""
+    for r in range(ng):
+        total[r, w] = F64(0.0)
+    for b in range(nb):
+        r = slot[b, w]
+        if r < 0:
+            continue
+        size[b, w] = norm6(sv64(wrench[w, b]), group_radius[active[r, w]])
+        total[r, w] = total[r, w] + size[b, w]
+    for b in range(nb):
+        r = slot[b, w]
+        if r < 0 or total[r, w] <= F64(0.0):
+            continue
+        o = 6 * r
+        rad = group_radius[active[r, w]]
+        if rest_flag[r, w] == 0:
+            gw = wp.spatial_vectord(rft_g[o, w], rft_g[o + 1, w], rft_g[o + 2, w], rft_g[o + 3, w],
+                                    rft_g[o + 4, w], rft_g[o + 5, w])
+            aw = wp.spatial_vectord(wv[o, w], wv[o + 1, w], wv[o + 2, w], wv[o + 3, w], wv[o + 4, w],
+                                    wv[o + 5, w])
+            gn = norm6(gw, rad)
+            ff = F64(0.0)
+            if gn > F64(0.0):
+                ff = norm6(aw, rad) / gn
+            sand[w, b] = sv32(sv64(wrench[w, b]) * ff)
+        else:
+            part = size[b, w] / total[r, w]
+            sand[w, b] = sv32(wp.spatial_vectord(part * wv[o, w], part * wv[o + 1, w], part * wv[o + 2, w],
+                                                 F64(0.0), F64(0.0), F64(0.0)))
+    for r in range(ng):
+        if rest_flag[r, w] == 0 or total[r, w] <= F64(0.0):
+            continue
+        o = 6 * r
+        mom = wp.vec3d(wv[o + 3, w], wv[o + 4, w], wv[o + 5, w])
+        for b in range(nb):
+            if slot[b, w] == r:
+                sb = sand[w, b]
+                mom = mom - wp.cross(arm[b, w], wp.vec3d(F64(sb[0]), F64(sb[1]), F64(sb[2])))
+        for b in range(nb):
+            if slot[b, w] == r:
+                part = size[b, w] / total[r, w]
+                sb = sand[w, b]
+                sand[w, b] = wp.spatial_vector(sb[0], sb[1], sb[2], float(part * mom[0]),
+                                               float(part * mom[1]), float(part * mom[2]))
+
+
+@wp.func
+def commit_diagnostics(w: int, nb: int, stabilize: int, touch: wp.array2d(dtype=int),
+                       bound_radius: wp.array(dtype=F64), wrench: wp.array2d(dtype=wp.spatial_vector),
+                       slot: wp.array2d(dtype=int), rest_flag: wp.array2d(dtype=int),
+                       sand: wp.array2d(dtype=wp.spatial_vector), scale: wp.array2d(dtype=float),
+                       resting: wp.array2d(dtype=int), status: wp.array(dtype=int), errors: wp.array(dtype=int)):
+    """The diagnostics and the status of the evaluation (SandHandle._commit); a non-finite wrench sets
+    NOT_FINITE and the world gets no sand."""
+    st = int(0)
+    for b in range(nb):
+        if touch[w, b] == 0:
+            continue
+        rb = bound_radius[b]
+        rn = norm6(sv64(wrench[w, b]), rb)
+        sb = sand[w, b]
+        if rn > F64(0.0):
+            scale[w, b] = float(norm6(sv64(sb), rb) / rn)
+            if stabilize != 0:
+                resting[w, b] = rest_flag[slot[b, w], w]
+        for c in range(6):
+            if not wp.isfinite(sb[c]):
+                st = -1
+            elif sb[c] != 0.0 and st == 0:
+                st = 1
+    if st < 0:
+        errors[w] = errors[w] | NOT_FINITE
+        for b in range(nb):
+            sand[w, b] = wp.spatial_vector()
+        st = 0
+    status[w] = st
 
 
 @wp.kernel
@@ -138,18 +251,7 @@ def rest_solve(
     else:
         # the groups' RFT wrenches about their reference points
         n6 = 6 * ng
-        for i in range(n6):
-            rft_g[i, w] = F64(0.0)
-        for b in range(nb):
-            r = slot[b, w]
-            if r < 0:
-                continue
-            f = sv64(wrench[w, b])
-            fl = wp.vec3d(f[0], f[1], f[2])
-            tq = wp.vec3d(f[3], f[4], f[5]) + wp.cross(arm[b, w], fl)
-            for c in range(3):
-                rft_g[6 * r + c, w] = rft_g[6 * r + c, w] + fl[c]
-                rft_g[6 * r + 3 + c, w] = rft_g[6 * r + 3 + c, w] + tq[c]
+        group_sums(w, nb, slot, wrench, arm, n6, rft_g)
         # rest.rest_wrenches in scaled coordinates: twists (v, R w), wrenches (f, tau / R)
         for r in range(ng):
             rad = group_radius[active[r, w]]
@@ -180,7 +282,7 @@ def rest_solve(
                         for e in range(6):
                             t += a[6 * r + c, 6 * r + e, w] * cap[6 * r + e, w]
                         q += cap[6 * r + c, w] * t
-                    ff = _flow_factor(h, q)
+                    ff = flow_factor(h, q)
                     for c in range(6):
                         wv[6 * r + c, w] = ff * cap[6 * r + c, w]
             m = int(0)
@@ -206,7 +308,8 @@ def rest_solve(
                     top = wp.max(top, t)
                 for i in range(m):
                     weight[i, w] = wp.max(weight[i, w], WEIGHT_FLOOR * top)
-                _pivoted_solve(w, a, idx, m, rhs, weight, x, diag0, rem, order, kept, low, gram, y)
+                k = pivoted_factor(w, a, idx, m, weight, diag0, rem, order, kept, low, gram)
+                pivoted_apply(w, a, idx, m, k, rhs, weight, order, gram, y, x)
                 for i in range(m):
                     wv[idx[i, w], w] = -x[i, w]
                 for r in range(ng):
@@ -236,7 +339,7 @@ def rest_solve(
         if h + F64(0.5) * q > F64(0.0):
             pscale = F64(0.0)
             if h < F64(0.0):
-                pscale = _flow_factor(h, q)
+                pscale = flow_factor(h, q)
         for r in range(ng):
             rad = group_radius[active[r, w]]
             for c in range(6):
@@ -244,70 +347,6 @@ def rest_solve(
                 if c >= 3:
                     sc = pscale * rad
                 wv[6 * r + c, w] = wv[6 * r + c, w] * sc
-        # each body's part (coupling._share)
-        for r in range(ng):
-            total[r, w] = F64(0.0)
-        for b in range(nb):
-            r = slot[b, w]
-            if r < 0:
-                continue
-            size[b, w] = norm6(sv64(wrench[w, b]), group_radius[active[r, w]])
-            total[r, w] = total[r, w] + size[b, w]
-        for b in range(nb):
-            r = slot[b, w]
-            if r < 0 or total[r, w] <= F64(0.0):
-                continue
-            o = 6 * r
-            rad = group_radius[active[r, w]]
-            if rest_flag[r, w] == 0:
-                gw = wp.spatial_vectord(rft_g[o, w], rft_g[o + 1, w], rft_g[o + 2, w], rft_g[o + 3, w],
-                                        rft_g[o + 4, w], rft_g[o + 5, w])
-                aw = wp.spatial_vectord(wv[o, w], wv[o + 1, w], wv[o + 2, w], wv[o + 3, w], wv[o + 4, w],
-                                        wv[o + 5, w])
-                gn = norm6(gw, rad)
-                ff = F64(0.0)
-                if gn > F64(0.0):
-                    ff = norm6(aw, rad) / gn
-                sand[w, b] = sv32(sv64(wrench[w, b]) * ff)
-            else:
-                share = size[b, w] / total[r, w]
-                sand[w, b] = sv32(wp.spatial_vectord(share * wv[o, w], share * wv[o + 1, w], share * wv[o + 2, w],
-                                                     F64(0.0), F64(0.0), F64(0.0)))
-        for r in range(ng):
-            if rest_flag[r, w] == 0 or total[r, w] <= F64(0.0):
-                continue
-            o = 6 * r
-            mom = wp.vec3d(wv[o + 3, w], wv[o + 4, w], wv[o + 5, w])
-            for b in range(nb):
-                if slot[b, w] == r:
-                    sb = sand[w, b]
-                    mom = mom - wp.cross(arm[b, w], wp.vec3d(F64(sb[0]), F64(sb[1]), F64(sb[2])))
-            for b in range(nb):
-                if slot[b, w] == r:
-                    share = size[b, w] / total[r, w]
-                    sb = sand[w, b]
-                    sand[w, b] = wp.spatial_vector(sb[0], sb[1], sb[2], float(share * mom[0]),
-                                                   float(share * mom[1]), float(share * mom[2]))
-    # diagnostics and status (SandHandle._commit)
-    st = int(0)
-    for b in range(nb):
-        if touch[w, b] == 0:
-            continue
-        rb = bound_radius[b]
-        rn = norm6(sv64(wrench[w, b]), rb)
-        sb = sand[w, b]
-        if rn > F64(0.0):
-            scale[w, b] = float(norm6(sv64(sb), rb) / rn)
-            if stabilize != 0:
-                resting[w, b] = rest_flag[slot[b, w], w]
-        for c in range(6):
-            if not wp.isfinite(sb[c]):
-                st = -1
-            elif sb[c] != 0.0 and st == 0:
-                st = 1
-    if st < 0:
-        errors[w] = errors[w] | NOT_FINITE
-        for b in range(nb):
-            sand[w, b] = wp.spatial_vector()
-        st = 0
-    status[w] = st
+        share(w, ng, nb, slot, active, group_radius, wrench, arm, rft_g, wv, rest_flag, size, total, sand)
+    commit_diagnostics(w, nb, stabilize, touch, bound_radius, wrench, slot, rest_flag, sand, scale, resting, status,
+                       errors)

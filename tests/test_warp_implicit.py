@@ -1,0 +1,185 @@
+"""The implicit solve on the batched sand (rft_mujoco.warp.attach(solve="implicit")) against the CPU path's
+(rft_mujoco.attach(solve="implicit")), on warp's CPU device (RFT_WARP_TEST_DEVICE=cuda:0 for a GPU).
+
+The same state: the sand of a first evaluation (no earlier solve on either side) agrees to float32 round-off of
+MuJoCo Warp's state. Trajectories: the loads that reach a sand body through a joint limit, a contact, a weld and
+dry friction (this step's constraint rows, linearized in their zones on both sides) give the same depth to a
+few micrometres over 0.5 s.
+"""
+
+import os
+
+import mujoco
+import numpy as np
+import pytest
+
+mjw = pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (pip install 'rft_mujoco[warp]')")
+wp = pytest.importorskip("warp", reason="warp-lang is not installed (pip install 'rft_mujoco[warp]')")
+
+import rft_mujoco  # noqa: E402
+import rft_mujoco.warp as rw  # noqa: E402
+from rft_mujoco.models.quadruped import FOOT_BODIES  # noqa: E402
+from rft_mujoco.studies.loadpath_scenes import MEDIA as LOADPATH_MEDIA  # noqa: E402
+from rft_mujoco.studies.loadpath_scenes import RESOLUTION, SCENES  # noqa: E402
+
+DEVICE = os.environ.get("RFT_WARP_TEST_DEVICE", "cpu")
+MEDIA = "li_loose_glass_beads"
+FORCE_RTOL = 1e-4
+"""The same state: max |F_warp - F_cpu| over bodies relative to the largest body force (the Newton solves stop
+on tolerances of 1e-3 of the twist change; float32 state moves where they stop by less than this)."""
+DEPTH_TOL = 5e-5
+"""m: |z_warp - z_cpu| of a load path's sand body over its trajectory (measured: 0 - 43 micrometres)."""
+SNAPSHOT_STEPS = (5, 20, 60, 150, 360)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _device():
+    wp.config.quiet = True
+    with wp.ScopedDevice(DEVICE):
+        yield
+
+
+@pytest.fixture(scope="module")
+def quadruped():
+    path = os.path.join(os.path.dirname(rft_mujoco.__file__), "models", "quadruped.xml")
+    model = mujoco.MjModel.from_xml_path(os.path.abspath(path))
+    model.geom_contype[0] = model.geom_conaffinity[0] = 0
+    return model, mjw.put_model(model)
+
+
+def _states(model, bodies):
+    """States of a CPU stand-up from ``home`` (trunk 1 cm low) with the implicit solve: falling, then resting."""
+    handle = rft_mujoco.attach(model, MEDIA, bodies, monitor=False, solve="implicit")
+    d = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, d, model.key("home").id)
+    d.qpos[2] -= 0.01
+    d.ctrl[:] = model.key("home").ctrl
+    states = []
+    try:
+        for k in range(max(SNAPSHOT_STEPS) + 1):
+            if k in SNAPSHOT_STEPS:
+                states.append((d.qpos.astype(np.float32).astype(float), d.qvel.astype(np.float32).astype(float)))
+            mujoco.mj_step(model, d)
+    finally:
+        handle.detach()
+    return states
+
+
+def _cpu_first_evaluation(model, bodies, state, constraints):
+    """The CPU implicit sand of one mj_forward at ``state`` on a fresh MjData (no earlier solve)."""
+    handle = rft_mujoco.attach(model, MEDIA, bodies, monitor=False, solve="implicit", reuse_tol=0.0)
+    handle.constraints = constraints
+    try:
+        d = mujoco.MjData(model)
+        mujoco.mj_resetDataKeyframe(model, d, model.key("home").id)
+        d.qpos[:], d.qvel[:] = state
+        d.ctrl[:] = model.key("home").ctrl
+        mujoco.mj_forward(model, d)
+        diag = handle.diagnostics(d)
+        return diag.force.copy(), diag.resting.copy()
+    finally:
+        handle.detach()
+
+
+@pytest.mark.parametrize("constraints", ["linearized", "lagged"])
+@pytest.mark.parametrize("bodies", [None, FOOT_BODIES], ids=["all_bodies", "feet"])
+def test_the_same_state_gives_the_cpu_paths_wrenches(quadruped, bodies, constraints):
+    model, mjw_model = quadruped
+    states = _states(model, bodies)
+    d = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, d, model.key("home").id)
+    dw = mjw.put_data(model, d, nworld=len(states), nconmax=4, njmax=64)
+    dw.qpos.assign(np.array([s[0] for s in states], dtype=np.float32))
+    dw.qvel.assign(np.array([s[1] for s in states], dtype=np.float32))
+    dw.ctrl.assign(np.tile(model.key("home").ctrl, (len(states), 1)).astype(np.float32))
+    handle = rw.attach(model, mjw_model, MEDIA, bodies, solve="implicit", constraints=constraints, data=dw)
+    try:
+        mjw.forward(mjw_model, dw)
+        diag = handle.diagnostics(dw)
+    finally:
+        handle.detach()
+    flows = rests = 0
+    for i, state in enumerate(states):
+        force, resting = _cpu_first_evaluation(model, bodies, state, constraints)
+        assert np.abs(force).max() > 1.0
+        err = np.abs(diag.force[i] - force).max() / np.abs(force).max()
+        assert err < FORCE_RTOL, (i, err)
+        assert np.array_equal(diag.resting[i], resting), i
+        flows += int((~resting & (np.abs(force).sum(axis=1) > 0)).any())
+        rests += int(resting.any())
+    assert flows >= 2 and rests >= 1                      # both branches of the solve compared
+    assert not diag.errors.any()
+
+
+@pytest.mark.parametrize("scene,integrator,dt", [("joint_limit", "implicitfast", 0.002), ("contact", "Euler", 0.005),
+                                                 ("weld", "implicitfast", 0.002), ("frictionloss", "RK4", 0.002)])
+def test_load_paths_sink_as_on_the_cpu_path(scene, integrator, dt):
+    """A load through a joint limit, a contact, a weld or dry friction: this step's rows meet the sand on both
+    paths; the sand body's depth agrees over 0.5 s and it ends at rest, carrying the load."""
+    xml, bodies = SCENES[scene]
+    model = mujoco.MjModel.from_xml_string(xml.format(dt=dt, integrator=integrator))
+    d = mujoco.MjData(model)
+    mujoco.mj_forward(model, d)
+    mjw_model = mjw.put_model(model)
+    dw = mjw.put_data(model, d, nworld=1, nconmax=16, njmax=64)
+    cpu = rft_mujoco.attach(model, LOADPATH_MEDIA, bodies, resolution=RESOLUTION, monitor=False, solve="implicit")
+    handle = rw.attach(model, mjw_model, LOADPATH_MEDIA, bodies, resolution=RESOLUTION, solve="implicit", data=dw)
+    b = cpu.body_ids[0]
+    z0 = d.xipos[b, 2]
+    worst = 0.0
+    try:
+        for _ in range(int(round(0.5 / dt))):
+            mujoco.mj_step(model, d)
+            mjw.step(mjw_model, dw)
+            worst = max(worst, abs(dw.xipos.numpy()[0, b, 2] - d.xipos[b, 2]))
+        handle.check(dw)
+        fc, fw = cpu.diagnostics(d).force, handle.diagnostics(dw).force[0]
+        resting = handle.diagnostics(dw).resting[0]
+        cpu_resting = cpu.diagnostics(d).resting
+    finally:
+        handle.detach()
+        cpu.detach()
+    assert z0 - d.xipos[b, 2] > 0.005                      # it sank
+    assert worst < DEPTH_TOL, worst
+    assert resting.all() and cpu_resting.all()
+    assert abs(fw[:, 2].sum() - fc[:, 2].sum()) < 1e-3 * abs(fc[:, 2].sum())
+
+
+def test_a_light_plate_that_sinks_and_slides_ends_the_step_as_on_the_cpu_path():
+    """A 0.2 kg plate 10 mm deep, sliding at 0.5 m/s and sinking at 0.05 m/s: in one 2 ms step the explicit
+    treatment throws it up at 61 mm/s (F_z 13 N against its 2 N weight); the implicit solve ends the step nearly
+    still vertically and keeps a drag, with the CPU path's numbers."""
+    xml = """<mujoco><option timestep="0.002"/><worldbody><body name="plate" pos="0 0 -0.01"><freejoint/>
+             <geom type="box" size="0.05 0.05 0.005" mass="0.2"/></body></worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(model)
+    d.qvel[:3] = (0.5, 0.0, -0.05)
+    mjw_model = mjw.put_model(model)
+    out = {}
+    for solve in ("explicit", "implicit"):
+        dw = mjw.put_data(model, d, nworld=1)
+        handle = rw.attach(model, mjw_model, MEDIA, ["plate"], resolution=0.005, solve=solve, data=dw)
+        try:
+            mjw.step(mjw_model, dw)
+            out[solve] = (handle.diagnostics(dw).force[0, 0], dw.qvel.numpy()[0, :3].astype(float))
+        finally:
+            handle.detach()
+    cpu = rft_mujoco.attach(model, MEDIA, ["plate"], resolution=0.005, monitor=False, solve="implicit")
+    try:
+        mujoco.mj_step(model, d)
+        force = cpu.diagnostics(d).force[0]
+    finally:
+        cpu.detach()
+    force_w, vel_w = out["implicit"]
+    assert np.abs(force_w - force).max() < FORCE_RTOL * np.abs(force).max()
+    assert np.abs(vel_w - d.qvel[:3]).max() < 1e-5
+    assert out["explicit"][1][2] > 0.05 and abs(vel_w[2]) < 0.005      # thrown up / nearly still
+    assert force_w[0] < -4.0                                              # N: the drag kept
+
+
+def test_attach_checks_solve_and_constraints(quadruped):
+    model, mjw_model = quadruped
+    with pytest.raises(ValueError, match="solve must be one of"):
+        rw.attach(model, mjw_model, MEDIA, FOOT_BODIES, solve="newton")
+    with pytest.raises(ValueError, match="constraints must be one of"):
+        rw.attach(model, mjw_model, MEDIA, FOOT_BODIES, solve="implicit", constraints="late")
