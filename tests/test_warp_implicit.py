@@ -18,9 +18,8 @@ wp = pytest.importorskip("warp", reason="warp-lang is not installed (pip install
 
 import rft_mujoco  # noqa: E402
 import rft_mujoco.warp as rw  # noqa: E402
+from test_warp import _device, quadruped  # noqa: E402,F401  (the warp device and the floorless quadruped)
 from rft_mujoco.models.quadruped import FOOT_BODIES  # noqa: E402
-from rft_mujoco.studies.loadpath_scenes import MEDIA as LOADPATH_MEDIA  # noqa: E402
-from rft_mujoco.studies.loadpath_scenes import RESOLUTION, SCENES  # noqa: E402
 
 DEVICE = os.environ.get("RFT_WARP_TEST_DEVICE", "cpu")
 MEDIA = "li_loose_glass_beads"
@@ -30,21 +29,6 @@ on tolerances of 1e-3 of the twist change; float32 state moves where they stop b
 DEPTH_TOL = 5e-5
 """m: |z_warp - z_cpu| of a load path's sand body over its trajectory (measured: 0 - 43 micrometres)."""
 SNAPSHOT_STEPS = (5, 20, 60, 150, 360)
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _device():
-    wp.config.quiet = True
-    with wp.ScopedDevice(DEVICE):
-        yield
-
-
-@pytest.fixture(scope="module")
-def quadruped():
-    path = os.path.join(os.path.dirname(rft_mujoco.__file__), "models", "quadruped.xml")
-    model = mujoco.MjModel.from_xml_path(os.path.abspath(path))
-    model.geom_contype[0] = model.geom_conaffinity[0] = 0
-    return model, mjw.put_model(model)
 
 
 def _states(model, bodies):
@@ -116,33 +100,13 @@ def test_the_same_state_gives_the_cpu_paths_wrenches(quadruped, bodies, constrai
 def test_load_paths_sink_as_on_the_cpu_path(scene, integrator, dt):
     """A load through a joint limit, a contact, a weld or dry friction: this step's rows meet the sand on both
     paths; the sand body's depth agrees over 0.5 s and it ends at rest, carrying the load."""
-    xml, bodies = SCENES[scene]
-    model = mujoco.MjModel.from_xml_string(xml.format(dt=dt, integrator=integrator))
-    d = mujoco.MjData(model)
-    mujoco.mj_forward(model, d)
-    mjw_model = mjw.put_model(model)
-    dw = mjw.put_data(model, d, nworld=1, nconmax=16, njmax=64)
-    cpu = rft_mujoco.attach(model, LOADPATH_MEDIA, bodies, resolution=RESOLUTION, monitor=False, solve="implicit")
-    handle = rw.attach(model, mjw_model, LOADPATH_MEDIA, bodies, resolution=RESOLUTION, solve="implicit", data=dw)
-    b = cpu.body_ids[0]
-    z0 = d.xipos[b, 2]
-    worst = 0.0
-    try:
-        for _ in range(int(round(0.5 / dt))):
-            mujoco.mj_step(model, d)
-            mjw.step(mjw_model, dw)
-            worst = max(worst, abs(dw.xipos.numpy()[0, b, 2] - d.xipos[b, 2]))
-        handle.check(dw)
-        fc, fw = cpu.diagnostics(d).force, handle.diagnostics(dw).force[0]
-        resting = handle.diagnostics(dw).resting[0]
-        cpu_resting = cpu.diagnostics(d).resting
-    finally:
-        handle.detach()
-        cpu.detach()
-    assert z0 - d.xipos[b, 2] > 0.005                      # it sank
-    assert worst < DEPTH_TOL, worst
-    assert resting.all() and cpu_resting.all()
-    assert abs(fw[:, 2].sum() - fc[:, 2].sum()) < 1e-3 * abs(fc[:, 2].sum())
+    from rft_mujoco.studies.warp_loadpaths import compare
+
+    r = compare(scene, integrator, dt, steps=int(round(0.5 / dt)), device=DEVICE)
+    assert r["depth_cpu_m"] > 0.005                                   # it sank
+    assert r["worst_dz_m"] < DEPTH_TOL, r
+    assert r["rest_cpu"] and r["rest_warp"]
+    assert abs(r["fz_warp_n"] - r["fz_cpu_n"]) < 1e-3 * abs(r["fz_cpu_n"])
 
 
 def test_a_light_plate_that_sinks_and_slides_ends_the_step_as_on_the_cpu_path():
@@ -183,3 +147,21 @@ def test_attach_checks_solve_and_constraints(quadruped):
         rw.attach(model, mjw_model, MEDIA, FOOT_BODIES, solve="newton")
     with pytest.raises(ValueError, match="constraints must be one of"):
         rw.attach(model, mjw_model, MEDIA, FOOT_BODIES, solve="implicit", constraints="late")
+
+
+def test_the_swimmer_at_the_animals_density_swims_as_on_the_cpu_path():
+    """The any-mass case (issue 26): the bundled swimmer (the animal's density, 22 g) driven by the swim study's
+    serpenoid, 3 mm elements, 2 ms: warp's wave efficiency is the CPU path's (docs/warp.md: both within 3.1% of
+    the quasi-static limit at every amplitude)."""
+    import warnings
+
+    from rft_mujoco.studies.swim import swim
+    from rft_mujoco.studies.swim_warp import swim_batched
+
+    (batched,) = swim_batched((0.5,), cycles=2, device=DEVICE)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cpu = swim(0.5, 1.0, density_scale=1.0, timestep=0.002, cycles=2, resolution=0.003, solve="implicit")
+    assert cpu["eta"] > 0.05 and batched["steps"] == 1000
+    assert abs(batched["eta"] - cpu["eta"]) < 0.02 * cpu["eta"], (batched["eta"], cpu["eta"])
+    assert batched["tracking_rms_rad"] < 0.05

@@ -542,8 +542,8 @@ def attach(model, media: Media | str, bodies: Sequence[str | int] | None = None,
             False: every geom's whole surface feels sand (overlaps count twice; for comparisons).
         solve: with ``stabilize=True``, "explicit" (default: rest, or flow scaled not to reverse the motion,
             constraint forces of the previous solve) or "implicit" (the law at the twist the step ends with, per
-            direction, this step's constraints linearized in the zones the step ends in; not on warp:
-            docs/rest.md "The implicit solve").
+            direction, this step's constraints linearized in the zones the step ends in; also on warp:
+            ``rft_mujoco.warp.attach(solve="implicit")``; docs/rest.md "The implicit solve").
         reuse_tol: with the rest treatment's explicit solve on flat sand (compiled backend), a body's RFT
             wrench is taken again from its last full evaluation while, in the body's frame, the unit vector of
             its twist (COM velocity, 0.1 m x angular velocity) and the gravity direction have each moved by less

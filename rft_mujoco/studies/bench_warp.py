@@ -13,7 +13,8 @@ Needs ``rft_mujoco[warp]``. Prints tables and writes ``world_steps.png`` to ``--
 2. **Throughput** (:func:`throughput`): world-steps per second (worlds x steps / wall time) of
    ``mujoco_warp.step`` for nworld worlds of the quadruped standing on sand (settled for 0.5 s on the CPU
    path, its floor replaced by the sand): without sand, with sand on the four feet, with sand on every body
-   (the CPU bench's case), and on every body without culling (``cull=False``); and the CPU path for
+   (the CPU bench's case), on every body without culling (``cull=False``) and with the implicit solve
+   (``solve="implicit"``: this step's constraint rows linearized, the capacity test); and the CPU path for
    comparison (one MjData stepped with ``mujoco.mj_step`` and the CPU attach, one thread: its world-steps/s
    does not depend on N). Each number is the median of three timed runs after a warm-up (compilation
    excluded); on CUDA the step is replayed from a CUDA graph.
@@ -40,7 +41,8 @@ from rft_mujoco.tables import table as _table
 from rft_mujoco.models.quadruped import FOOT_BODIES
 
 CASES = (("no sand", None, {}), ("sand: feet", FOOT_BODIES, {}), ("sand: every body", "all", {}),
-         ("sand: every body, cull=False", "all", {"cull": False}))
+         ("sand: every body, cull=False", "all", {"cull": False}),
+         ("sand: every body, implicit", "all", {"solve": "implicit"}))
 """Throughput cases: label, the attached bodies (None: no sand; "all": every body with geoms), attach options."""
 KNEE_DEEP = 0.15
 """Sand surface (m) of the knee-deep parity case: the quadruped's knees (``home``) at the surface."""
@@ -214,7 +216,7 @@ def plot(rows: list[dict], out: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
-    colors = dict(zip([c[0] for c in CASES], ["0.4", "tab:orange", "tab:red", "tab:purple"]))
+    colors = dict(zip([c[0] for c in CASES], ["0.4", "tab:orange", "tab:red", "tab:purple", "tab:green"]))
     warp_rows = [r for r in rows if r["backend"].startswith("mujoco_warp")]
     backend = warp_rows[0]["backend"] if warp_rows else "mujoco_warp"
     nmax = max((r["nworld"] for r in warp_rows), default=1)

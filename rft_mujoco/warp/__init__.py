@@ -9,6 +9,7 @@ Quick start::
     sand = rw.attach(mj_model, m, "li_loose_glass_beads", bodies=["foot"], surface_height=0.0, data=d)
     mjw.step(m, d)                      # every world includes the sand
     sand.forces(d)                      # (nworld, B, 3) N
+    # attach(..., solve="implicit"): the CPU path's implicit solve in every world (docs/warp.md)
 
 The core library (``rft_mujoco``) never imports this package.
 """

@@ -32,6 +32,26 @@ def touch_pass(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), cen
         touch[w, b] = 1
 
 
+@wp.func
+def exposed_depth(w: int, b: int, p: wp.vec3, g: wp.vec3, kind: int, flat_height: wp.array(dtype=float),
+                  tp: wp.array(dtype=float), heights: wp.array2d(dtype=float), area: float,
+                  occ_start: wp.array(dtype=int), occ_geom: wp.array(dtype=int), occ_kind: wp.array(dtype=int),
+                  occ_size: wp.array(dtype=wp.vec3), occ_rbound: wp.array(dtype=float),
+                  occ_hs_start: wp.array(dtype=int), occ_hs: wp.array(dtype=wp.vec4), margin: float,
+                  near: wp.array2d(dtype=int), geom_xpos: wp.array2d(dtype=wp.vec3),
+                  geom_xmat: wp.array2d(dtype=wp.mat33), occluded: wp.array2d(dtype=float)):
+    """The depth (m) of an element of attached body b at world point ``p`` when it is submerged and not inside
+    one of the body's occluders, else 0; a submerged hidden element's ``area`` (m^2) goes to ``occluded[w, b]``."""
+    z = depth(p, g, w, kind, flat_height, tp, heights)
+    if not (z > 0.0):
+        return 0.0
+    if hidden(w, b, p, occ_start, occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin, near,
+              geom_xpos, geom_xmat) != 0:
+        wp.atomic_add(occluded, w, b, area)
+        return 0.0
+    return z
+
+
 @wp.kernel
 def force_pass(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), centroid: wp.array(dtype=wp.vec3),
                normal: wp.array(dtype=wp.vec3), area: wp.array(dtype=float), elem_mask: wp.array2d(dtype=int),
@@ -61,12 +81,9 @@ def force_pass(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), cen
     rot = xmat[w, bid]
     p = xpos[w, bid] + rot * centroid[e]
     g, g_mag = gravity_of(gravity, w)
-    z = depth(p, g, w, kind, flat_height, tp, heights)
+    z = exposed_depth(w, b, p, g, kind, flat_height, tp, heights, area[e], occ_start, occ_geom, occ_kind,
+                      occ_size, occ_rbound, occ_hs_start, occ_hs, margin, near, geom_xpos, geom_xmat, occluded)
     if not (z > 0.0):
-        return
-    if hidden(w, b, p, occ_start, occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin, near,
-              geom_xpos, geom_xmat) != 0:
-        wp.atomic_add(occluded, w, b, area[e])
         return
     arm = p - xipos[w, bid]
     vel = v_lin[w, b] + wp.cross(v_ang[w, b], arm)

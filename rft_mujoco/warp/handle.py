@@ -5,7 +5,9 @@ every world, as the CPU coupling (:func:`rft_mujoco.attach`) does for one MjData
 at attach inside the body's own geoms and inside geoms welded to it), the same run-time culling (an element
 inside a geom of another weld group -- a calf inside its thigh at the knee, a rock -- carries nothing while it
 is inside; ``cull=False`` turns both off), law, terrain, weld groups and rest treatment
-(:mod:`rft_mujoco.physics.rest`), ported to warp kernels (:mod:`rft_mujoco.warp.kernels`); and the same
+(:mod:`rft_mujoco.physics.rest`), ported to warp kernels (:mod:`rft_mujoco.warp.kernels`), or with
+``solve="implicit"`` the implicit solve (:mod:`rft_mujoco.warp.implicit`: the law at the twist the step ends with,
+this step's constraint rows linearized in their zones); and the same
 ``xfrc_applied`` bookkeeping (the row ends as user wrench + sand wrench whether the user left it alone, zeroed
 or reassigned it).
 
@@ -86,7 +88,7 @@ class WarpDiagnostics:
 class _State:
     """Buffers of one (handle, mujoco_warp Data): per-world parameters, the book, work arrays, outputs."""
 
-    def __init__(self, handle: "WarpSandHandle", nworld: int) -> None:
+    def __init__(self, handle: "WarpSandHandle", nworld: int, data) -> None:
         dev = handle.device
         w, b, g, nv = nworld, handle.n_bodies, handle.n_groups, handle.nv
         n6 = 6 * g
@@ -127,6 +129,8 @@ class _State:
         self.capacity, self.total = z((g, w), f8), z((g, w), f8)
         self.rest_flag, self.flow = z((g, w), int), z((g, w), int)
         self.implicit = None                    # the implicit solve's buffers (rft_mujoco.warp.implicit_eval)
+        if handle.stabilize and handle.solve == "implicit":
+            self.implicit = _implicit_eval.ImplicitState(handle, data, self)
 
 
 def _terrain_spec(terrain: Terrain) -> tuple[int, np.ndarray, np.ndarray, float]:
@@ -197,8 +201,7 @@ class WarpSandHandle:
         self.guards = guards
         self.stabilize = bool(stabilize)
         self.passive = bool(passive)
-        self.solve = "explicit"
-        self.constraints = "linearized"
+        self._solve, self._constraints = "explicit", "linearized"
         self.device = mjw_model.body_parentid.device
         self._media0 = media
         self._xi_per_g0 = float(media.xi_n_at(1.0))
@@ -232,6 +235,29 @@ class WarpSandHandle:
         self._chained = None
         self.attached = False
 
+    @property
+    def solve(self) -> str:
+        """"explicit" or "implicit" (:func:`attach`); set it between steps (new buffers are made at the next
+        evaluation: re-capture CUDA graphs)."""
+        return self._solve
+
+    @solve.setter
+    def solve(self, value: str) -> None:
+        if value not in SOLVES:
+            raise ValueError(f"solve must be one of {SOLVES}, got {value!r}")
+        self._solve = value
+
+    @property
+    def constraints(self) -> str:
+        """The implicit solve's constraint forces: "linearized" or "lagged" (:func:`attach`)."""
+        return self._constraints
+
+    @constraints.setter
+    def constraints(self, value: str) -> None:
+        if value not in CONSTRAINTS:
+            raise ValueError(f"constraints must be one of {CONSTRAINTS}, got {value!r}")
+        self._constraints = value
+
     # --- per-data buffers ---------------------------------------------------------------------------
     def bind(self, data) -> _State:
         """The buffers of ``data`` (a ``mujoco_warp.Data`` of this model), allocated on first use. Call it
@@ -241,7 +267,7 @@ class WarpSandHandle:
         if entry is not None and entry[0]() is data:
             return entry[1]
         nworld = int(data.time.shape[0])
-        state = _State(self, nworld)
+        state = _State(self, nworld, data)
         self._states[key] = (weakref.ref(data, lambda _r, k=key: self._states.pop(k, None)), state)
         return state
 
@@ -484,12 +510,8 @@ def attach(mj_model, mjw_model, media: Media | str, bodies: Sequence[str | int] 
     terrain = as_terrain(surface_height)
     gravity_direction(mj_model.opt.gravity)              # raises on zero gravity
     lay = _layout.build(mj_model, bodies, resolution, cull)
-    if solve not in SOLVES:
-        raise ValueError(f"solve must be one of {SOLVES}, got {solve!r}")
-    if constraints not in CONSTRAINTS:
-        raise ValueError(f"constraints must be one of {CONSTRAINTS}, got {constraints!r}")
     handle = WarpSandHandle(mj_model, mjw_model, media, lay, terrain, guards, stabilize, passive)
-    handle.solve, handle.constraints = solve, constraints
+    handle.solve, handle.constraints = solve, constraints           # checked
     handle._install()
     if data is not None:
         handle.bind(data)

@@ -442,25 +442,26 @@ def final_twists(ngroups: wp.array(dtype=int), slot: wp.array2d(dtype=int), acti
                  body_id: wp.array(dtype=int), group_ref: wp.array(dtype=int), xipos: wp.array2d(dtype=wp.vec3),
                  rest: wp.array2d(dtype=int), u: wp.array2d(dtype=F64), endt: wp.array2d(dtype=F64),
                  arm: wp.array2d(dtype=wp.vec3d), v_lin: wp.array2d(dtype=wp.vec3d),
-                 v_ang: wp.array2d(dtype=wp.vec3d), skip: wp.array(dtype=int)):
-    """Each touching body's motion at its COM for its final law wrench: its group's probe twist when the group
-    rests, its end-of-step twist when it flows (reference.evaluate_implicit); ``skip[w]`` := 1 where no group
-    touches (the law pass leaves those worlds alone)."""
+                 v_ang: wp.array2d(dtype=wp.vec3d), redo: wp.array2d(dtype=int),
+                 law_wrench: wp.array2d(dtype=wp.spatial_vectord), count: wp.array2d(dtype=int),
+                 max_depth: wp.array2d(dtype=float)):
+    """Each touching body's motion at its COM for its final law wrench (reference.evaluate_implicit): a flowing
+    group's end-of-step twist (``redo[w, b]`` := 1, its law wrench, count and depth zeroed for the law pass); a
+    resting group's is its probe twist, whose wrench the last probe pass left in ``law_wrench`` (``redo`` 0)."""
     w = wp.tid()
-    skip[w] = 0
-    if ngroups[w] == 0:
-        skip[w] = 1
-        return
     for b in range(body_id.shape[0]):
+        redo[w, b] = 0
         r = slot[b, w]
-        if r < 0:
+        if r < 0 or ngroups[w] == 0:
             continue
-        if rest[r, w] != 0:
-            lin, om = com_motion(w, b, r, body_id, group_ref, active, xipos, u, arm)
-        else:
+        if rest[r, w] == 0:
+            redo[w, b] = 1
+            law_wrench[w, b] = wp.spatial_vectord()
+            count[w, b] = 0
+            max_depth[w, b] = 0.0
             lin, om = com_motion(w, b, r, body_id, group_ref, active, xipos, endt, arm)
-        v_lin[w, b] = lin
-        v_ang[w, b] = om
+            v_lin[w, b] = lin
+            v_ang[w, b] = om
 
 
 @wp.kernel

@@ -21,14 +21,16 @@ _IMPLICIT = (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.
 class ImplicitState:
     """The implicit solve's buffers of one (handle, mujoco_warp Data): world index last, as the explicit path's."""
 
-    def __init__(self, handle, data, nworld: int) -> None:
+    def __init__(self, handle, data, st) -> None:
         dev = handle.device
+        nworld = st.nworld
         w, b, g, nv, e = nworld, handle.n_bodies, handle.n_groups, handle.nv, handle.n_elements
         n6 = 6 * g
         f8 = wp.float64
         z = lambda shape, dtype=f8: wp.zeros(shape, dtype=dtype, device=dev)  # noqa: E731
         self.e_depth = z((w, e), float)
-        self.done, self.lagged, self.use_prior, self.skip = (z(w, int) for _ in range(4))
+        self.done, self.lagged, self.use_prior = (z(w, int) for _ in range(3))
+        self.redo = z((w, b), int)
         self.prior_flow = wp.array(np.full((g, w), -1, dtype=np.int32), dtype=int, device=dev)
         self.qend = z((1, nv, w))
         self.rest = z((g, w), int)
@@ -52,34 +54,38 @@ class ImplicitState:
         njmax = int(data.efc.type.shape[1])
         self.quad = z((njmax, w), int)
         self.const, self.est = z((njmax, w)), z((njmax, w))
+        m = handle.mjw_model
+        self.rows, self.damping = _rows(m, data, self), _damping(m)
+        self.law = _law(handle, m, data, st, self)
 
 
 def _rows(m, d, ist: ImplicitState) -> Rows:
     r = Rows()
     efc = d.efc
     r.nefc, r.kind, r.id, r.D, r.aref, r.frictionloss = d.nefc, efc.type, efc.id, efc.D, efc.aref, efc.frictionloss
-    r.J, r.J_rownnz, r.J_rowadr, r.J_colind, r.sparse = efc.J, efc.J_rownnz, efc.J_rowadr, efc.J_colind, int(m.is_sparse)
+    r.J, r.J_rownnz, r.J_rowadr, r.J_colind = efc.J, efc.J_rownnz, efc.J_rowadr, efc.J_colind
+    r.sparse = int(m.is_sparse)
     r.quad, r.fconst, r.est = ist.quad, ist.const, ist.est
     return r
 
 
 def _damping(m) -> Damping:
     dm = Damping()
-    dm.on = int(int(m.opt.integrator) in _IMPLICIT)
+    dm.on = 0                                   # set at each evaluation (the integrator, the constraints mode)
     dm.dof_damping, dm.jnt_dofadr = m.dof_damping, m.jnt_dofadr
     dm.trntype, dm.trnid, dm.biastype = m.actuator_trntype, m.actuator_trnid, m.actuator_biastype
     dm.biasprm, dm.gear = m.actuator_biasprm, m.actuator_gear
     return dm
 
 
-def _law(handle, m, d, st, ist: ImplicitState, guards) -> I.Law:
+def _law(handle, m, d, st, ist: ImplicitState) -> I.Law:
     a = handle._a
     lw = I.Law()
     lw.body_id, lw.elem_body, lw.centroid, lw.normal, lw.area = (a["body_id"], a["elem_body"], a["centroid"],
                                                                  a["normal"], a["area"])
     lw.group_ref, lw.xpos, lw.xmat, lw.xipos, lw.gravity = a["group_ref"], d.xpos, d.xmat, d.xipos, m.opt.gravity
     lw.coef, lw.xi_per_g, lw.mu_surf = a["coef"], st.xi_per_g, st.mu_surf
-    lw.no_tension, lw.no_forward, lw.no_power = guards
+    lw.no_tension = lw.no_forward = lw.no_power = 0           # the handle's guards, set at each evaluation
     lw.e_depth = ist.e_depth
     return lw
 
@@ -87,8 +93,8 @@ def _law(handle, m, d, st, ist: ImplicitState, guards) -> I.Law:
 def evaluate_implicit(handle, m, d, st, guards: tuple[int, int, int], blk: int) -> None:
     """The implicit solve of every world of ``d`` (after ``user_part``, ``touch_pass``, ``near_occluders`` and
     ``fwd_actuation``): the bodies' sand wrenches into ``st.sand`` and the diagnostics."""
-    if st.implicit is None:
-        st.implicit = ImplicitState(handle, d, st.nworld)
+    if st.implicit is None:                     # solve switched to "implicit" after bind
+        st.implicit = ImplicitState(handle, d, st)
     ist = st.implicit
     a, o, dev, nw = handle._a, handle._occ, handle.device, st.nworld
     we = (nw, handle.n_elements)
@@ -98,9 +104,9 @@ def evaluate_implicit(handle, m, d, st, guards: tuple[int, int, int], blk: int) 
         o["occ_kind"], o["occ_size"], o["occ_rbound"], o["occ_hs_start"], o["occ_hs"], o["margin"], st.near,
         d.geom_xpos, d.geom_xmat, ist.e_depth, st.occluded])
     linearized = int(handle.constraints == "linearized")
-    rows, dm, lw = _rows(m, d, ist), _damping(m), _law(handle, m, d, st, ist, guards)
-    if not linearized:
-        dm.on = 0
+    rows, dm, lw = ist.rows, ist.damping, ist.law
+    lw.no_tension, lw.no_forward, lw.no_power = guards
+    dm.on = int(linearized and int(m.opt.integrator) in _IMPLICIT)
     law_inputs = [a["body_id"], a["elem_body"], a["centroid"], a["normal"], a["area"], d.xpos, d.xmat, d.xipos,
                   m.opt.gravity, a["coef"], st.xi_per_g, st.mu_surf, *guards]
     for p in range(I.ZONE_PASSES if linearized else 1):
@@ -112,22 +118,18 @@ def evaluate_implicit(handle, m, d, st, guards: tuple[int, int, int], blk: int) 
             d.subtree_com, d.xipos, d.xfrc_applied, st.user, st.touch, rows, st.last_time, st.errors, ist.done,
             ist.lagged, ist.use_prior, ist.prior_flow, st.ngroups, st.active, st.slot, st.mf, st.qacc, ist.qend,
             st.jac, st.minv_jt, st.twist, st.free, st.u, st.vs, st.a, st.arm, ist.rest, ist.applied, ist.endt,
-            ist.start, ist.v_lin, ist.v_ang])
-        ist.law_wrench.zero_()
+            ist.start, ist.v_lin, ist.v_ang, ist.redo, ist.law_wrench, st.count, st.max_depth])
         wp.launch(law_pass, dim=we, device=dev, inputs=[
-            *law_inputs, ist.done, ist.e_depth, ist.v_lin, ist.v_ang, ist.law_wrench, st.count, st.max_depth])
+            *law_inputs, ist.redo, ist.e_depth, ist.v_lin, ist.v_ang, ist.law_wrench, st.count, st.max_depth])
         wp.launch(I.implicit_solve, dim=nw, device=dev, block_dim=blk, inputs=[
             p, ist.done, st.ngroups, ist.use_prior, ist.prior_flow, st.active, st.slot, a["group_radius"], st.a,
             st.vs, st.u, st.twist, ist.start, ist.law_wrench, st.arm, lw, ist.work, ist.rest, ist.applied,
             ist.endt])
     wp.launch(I.final_twists, dim=nw, device=dev, block_dim=blk, inputs=[
         st.ngroups, st.slot, st.active, a["body_id"], a["group_ref"], d.xipos, ist.rest, st.u, ist.endt, st.arm,
-        ist.v_lin, ist.v_ang, ist.skip])
-    ist.law_wrench.zero_()
-    st.count.zero_()
-    st.max_depth.zero_()
+        ist.v_lin, ist.v_ang, ist.redo, ist.law_wrench, st.count, st.max_depth])
     wp.launch(law_pass, dim=we, device=dev, inputs=[
-        *law_inputs, ist.skip, ist.e_depth, ist.v_lin, ist.v_ang, ist.law_wrench, st.count, st.max_depth])
+        *law_inputs, ist.redo, ist.e_depth, ist.v_lin, ist.v_ang, ist.law_wrench, st.count, st.max_depth])
     wp.launch(I.implicit_finish, dim=nw, device=dev, block_dim=blk, inputs=[
         st.ngroups, st.active, st.slot, a["group_radius"], a["bound_radius"], st.touch, ist.law_wrench, st.arm,
         ist.rest, ist.applied, ist.prior_flow, st.wrench, st.rft_g, st.size, st.total, st.sand, st.rft, st.scale,

@@ -108,12 +108,20 @@ def implicit_free(
         free: wp.array2d(dtype=F64), u: wp.array2d(dtype=F64), vs: wp.array2d(dtype=F64), a: wp.array3d(dtype=F64),
         arm: wp.array2d(dtype=wp.vec3d), rest: wp.array2d(dtype=int), applied: wp.array2d(dtype=F64),
         endt: wp.array2d(dtype=F64), start: wp.array2d(dtype=F64), v_lin: wp.array2d(dtype=wp.vec3d),
-        v_ang: wp.array2d(dtype=wp.vec3d)):
+        v_ang: wp.array2d(dtype=wp.vec3d), redo: wp.array2d(dtype=int),
+        law_wrench: wp.array2d(dtype=wp.spatial_vectord), count: wp.array2d(dtype=int),
+        max_depth: wp.array2d(dtype=float)):
     """One thread per world, a zone pass: at pass 0 the touching groups and whether this evaluation follows the
     last one; at later passes the rows' zones at the last solve's end accelerations (the world is ``done`` when
     none changed) and the twists its flowing groups start from. Then the free motion, the scaled mobility, the
-    probe twists ``u`` and their motions at the touching bodies' COMs (``v_lin``, ``v_ang``)."""
+    probe twists ``u`` and their motions at the touching bodies' COMs (``v_lin``, ``v_ang``); ``redo[w, b]`` 1
+    for the touching bodies of a world that computed them (their law wrench, count and depth zeroed for the law
+    pass), 0 elsewhere."""
     w = wp.tid()
+    nb = body_id.shape[0]
+    if pass_index == 0 or done[w] == 0:
+        for b in range(nb):
+            redo[w, b] = 0
     nv = qvel.shape[1]
     dt = F64(timestep[w % timestep.shape[0]])
     if pass_index == 0:
@@ -176,10 +184,14 @@ def implicit_free(
     mobility(w, ng, dt, body_id, group_ref, group_radius, active, body_rootid, body_dofnum, body_dofadr,
              body_parentid, dof_parentid, qvel, cdof, subtree_com, xipos, mf, qacc, jac, minv_jt, twist, free, vs, a)
     blend(w, ng, active, group_radius, twist, free, u)
-    for b in range(body_id.shape[0]):
+    for b in range(nb):
         r = slot[b, w]
         if r < 0:
             continue
         lin, om = com_motion(w, b, r, body_id, group_ref, active, xipos, u, arm)
         v_lin[w, b] = lin
         v_ang[w, b] = om
+        redo[w, b] = 1
+        law_wrench[w, b] = wp.spatial_vectord()
+        count[w, b] = 0
+        max_depth[w, b] = 0.0

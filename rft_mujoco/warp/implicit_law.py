@@ -18,8 +18,8 @@ import warp as wp
 from rft_mujoco.physics import elements as _elements
 from rft_mujoco.physics import implicit as _implicit
 from rft_mujoco.warp.common import F64, LEADING_TOL, ZERO_SPEED, gravity_of, v3d
-from rft_mujoco.warp.law import depth, stress
-from rft_mujoco.warp.occlusion import hidden
+from rft_mujoco.warp.elements import exposed_depth
+from rft_mujoco.warp.law import stress
 
 wp.set_module_options({"enable_backward": False})      # forward only: no adjoints to compile
 
@@ -112,14 +112,9 @@ def candidates(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), cen
     bid = body_id[b]
     p = xpos[w, bid] + xmat[w, bid] * centroid[e]
     g, _mag = gravity_of(gravity, w)
-    z = depth(p, g, w, kind, flat_height, tp, heights)
-    if not (z > 0.0):
-        return
-    if hidden(w, b, p, occ_start, occ_geom, occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin, near,
-              geom_xpos, geom_xmat) != 0:
-        wp.atomic_add(occluded, w, b, area[e])
-        return
-    e_depth[w, e] = z
+    e_depth[w, e] = exposed_depth(w, b, p, g, kind, flat_height, tp, heights, area[e], occ_start, occ_geom,
+                                  occ_kind, occ_size, occ_rbound, occ_hs_start, occ_hs, margin, near, geom_xpos,
+                                  geom_xmat, occluded)
 
 
 @wp.kernel
@@ -127,18 +122,20 @@ def law_pass(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), centr
              normal: wp.array(dtype=wp.vec3), area: wp.array(dtype=float), xpos: wp.array2d(dtype=wp.vec3),
              xmat: wp.array2d(dtype=wp.mat33), xipos: wp.array2d(dtype=wp.vec3), gravity: wp.array(dtype=wp.vec3),
              coef: wp.array2d(dtype=F64), xi_per_g: wp.array(dtype=float), mu_surf: wp.array(dtype=float),
-             no_tension: int, no_forward: int, no_power: int, skip: wp.array(dtype=int),
+             no_tension: int, no_forward: int, no_power: int, redo: wp.array2d(dtype=int),
              e_depth: wp.array2d(dtype=float), v_lin: wp.array2d(dtype=wp.vec3d), v_ang: wp.array2d(dtype=wp.vec3d),
              wrench: wp.array2d(dtype=wp.spatial_vectord), count: wp.array2d(dtype=int),
              max_depth: wp.array2d(dtype=float)):
     """The regularized law of every candidate element at its body's COM twist (``v_lin`` m/s, ``v_ang`` rad/s),
     summed into ``wrench[w, b]`` (N, N m about the COM; zeroed by the caller), the loaded count and the deepest
-    loaded depth (m). Worlds with ``skip[w] != 0`` are left alone."""
+    loaded depth (m), for the bodies with ``redo[w, b] != 0`` (the others are left alone)."""
     w, e = wp.tid()
     z = e_depth[w, e]
-    if z <= 0.0 or skip[w] != 0:
+    if z <= 0.0:
         return
     b = elem_body[e]
+    if redo[w, b] == 0:
+        return
     bid = body_id[b]
     p, n = element_frame(w, bid, e, xpos, xmat, centroid, normal)
     arm = p - v3d(xipos[w, bid])

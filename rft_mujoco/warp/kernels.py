@@ -17,6 +17,12 @@ The kernels live in modules by what they are (this module gathers them; the impo
 * :mod:`~rft_mujoco.warp.rest`: the rest solve and the diagnostics;
 * :mod:`~rft_mujoco.warp.book`: the ``xfrc_applied`` bookkeeping.
 
+The implicit solve (``attach(solve="implicit")``) has its own modules and launch order:
+:mod:`~rft_mujoco.warp.implicit` (its docstring), :mod:`~rft_mujoco.warp.implicit_law`,
+:mod:`~rft_mujoco.warp.implicit_free`, :mod:`~rft_mujoco.warp.system`; it shares ``user_part``, ``touch_pass``,
+``near_occluders`` and ``commit`` with this list, and the rest solve's factor and share
+(:mod:`~rft_mujoco.warp.rest`).
+
 Launch order of one evaluation (:meth:`rft_mujoco.warp.handle.WarpSandHandle._evaluate`)::
 
     user_part        (nworld, B)   xfrc_applied -> the user's part (the dispatcher's book); broadphase; zeroing
