@@ -165,3 +165,13 @@ def test_the_swimmer_at_the_animals_density_swims_as_on_the_cpu_path():
     assert cpu["eta"] > 0.05 and batched["steps"] == 1000
     assert abs(batched["eta"] - cpu["eta"]) < 0.02 * cpu["eta"], (batched["eta"], cpu["eta"])
     assert batched["tracking_rms_rad"] < 0.05
+
+
+def test_the_load_path_comparison_cli_prints_its_table(capsys):
+    from rft_mujoco.studies.warp_loadpaths import main
+
+    assert main(["--scenes", "weld", "--integrators", "Euler", "--timesteps", "0.005", "--steps", "20"]) == 0
+    out = capsys.readouterr().out
+    assert "depth warp mm" in out and "weld" in out
+    with pytest.raises(SystemExit):
+        main(["--steps", "0"])
