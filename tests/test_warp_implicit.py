@@ -175,3 +175,31 @@ def test_the_load_path_comparison_cli_prints_its_table(capsys):
     assert "depth warp mm" in out and "weld" in out
     with pytest.raises(SystemExit):
         main(["--steps", "0"])
+
+
+def test_the_solve_can_be_switched_between_steps(quadruped):
+    """``handle.solve = "implicit"`` after the buffers exist: the next step makes the implicit solve's buffers and
+    runs it (the same forces as a handle attached with it); a bad value raises on assignment."""
+    model, mjw_model = quadruped
+    d = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, d, model.key("home").id)
+    d.qpos[2] -= 0.01
+    d.ctrl[:] = model.key("home").ctrl
+    forces = []
+    for switch in (True, False):
+        dw = mjw.put_data(model, d, nworld=2, nconmax=4, njmax=64)
+        handle = rw.attach(model, mjw_model, MEDIA, FOOT_BODIES, data=dw,
+                           solve="explicit" if switch else "implicit")
+        try:
+            if switch:
+                assert handle.bind(dw).implicit is None
+                handle.solve = "implicit"
+                with pytest.raises(ValueError, match="solve must be one of"):
+                    handle.solve = "newton"
+            mjw.step(mjw_model, dw)
+            forces.append(handle.forces(dw))
+            assert handle.bind(dw).implicit is not None
+        finally:
+            handle.detach()
+    assert np.abs(forces[0]).max() > 1.0
+    assert np.array_equal(forces[0], forces[1])
