@@ -203,3 +203,14 @@ def test_the_solve_can_be_switched_between_steps(quadruped):
             handle.detach()
     assert np.abs(forces[0]).max() > 1.0
     assert np.array_equal(forces[0], forces[1])
+
+
+def test_the_slanted_shin_quadruped_stands_still_on_warp():
+    """Issue 26's no-glide robot (62 kg, slanted triangle-mesh shins) set down in two warp worlds with the implicit
+    solve: at rest within 0.6 s of touching, drifting under 10 mm in all (the CPU path's glide study: 0.434 s,
+    5.2 mm), both worlds the same."""
+    from rft_mujoco.studies.glide_warp import stand_batched
+
+    r = stand_batched("implicit", duration=0.6, worlds=2, device=DEVICE)
+    assert r["t_rest_s"] < 0.6 and r["drift_total_m"] < 0.010, r
+    assert 0.15 < r["sinkage_m"] < 0.25 and r["spread_m"] < 1e-6
