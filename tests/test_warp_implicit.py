@@ -18,6 +18,7 @@ wp = pytest.importorskip("warp", reason="warp-lang is not installed (pip install
 
 import rft_mujoco  # noqa: E402
 import rft_mujoco.warp as rw  # noqa: E402
+from rft_mujoco.warp import kernels as K  # noqa: E402
 from test_warp import _device, quadruped  # noqa: E402,F401  (the warp device and the floorless quadruped)
 from rft_mujoco.models.quadruped import FOOT_BODIES  # noqa: E402
 
@@ -49,9 +50,9 @@ def _states(model, bodies):
     return states
 
 
-def _cpu_first_evaluation(model, bodies, state, constraints):
+def _cpu_first_evaluation(model, bodies, state, constraints, media=MEDIA, **kwargs):
     """The CPU implicit sand of one mj_forward at ``state`` on a fresh MjData (no earlier solve)."""
-    handle = rft_mujoco.attach(model, MEDIA, bodies, monitor=False, solve="implicit", reuse_tol=0.0)
+    handle = rft_mujoco.attach(model, media, bodies, monitor=False, solve="implicit", reuse_tol=0.0, **kwargs)
     handle.constraints = constraints
     try:
         d = mujoco.MjData(model)
@@ -214,3 +215,45 @@ def test_the_slanted_shin_quadruped_stands_still_on_warp():
     r = stand_batched("implicit", duration=0.6, worlds=2, device=DEVICE)
     assert r["t_rest_s"] < 0.6 and r["drift_total_m"] < 0.010, r
     assert 0.15 < r["sinkage_m"] < 0.25 and r["spread_m"] < 1e-6
+
+
+def _warp_worlds(model, states):
+    d = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, d, model.key("home").id)
+    dw = mjw.put_data(model, d, nworld=len(states), nconmax=4, njmax=64)
+    dw.qpos.assign(np.array([s[0] for s in states], dtype=np.float32))
+    dw.qvel.assign(np.array([s[1] for s in states], dtype=np.float32))
+    dw.ctrl.assign(np.tile(model.key("home").ctrl, (len(states), 1)).astype(np.float32))
+    return dw
+
+
+def test_a_heightfield_per_world_media_and_a_bad_world(quadruped):
+    """The implicit solve with what a batch varies: a heightfield terrain, another medium in one world, NaN input
+    in another (that world alone flagged and left without sand, the error naming it and its cause; the
+    diagnostics taken before ``check`` keep the flag: they are copies); each good world the CPU path's wrenches."""
+    from test_warp import _heightfield
+
+    model, mjw_model = quadruped
+    terrain = _heightfield()
+    other = rft_mujoco.get_media(MEDIA).replace(rho_c=1700.0, mu_surf=0.3, name="other")
+    state = _states(model, FOOT_BODIES)[2]
+    expect = [_cpu_first_evaluation(model, FOOT_BODIES, state, "linearized", media=m, surface_height=terrain)[0]
+              for m in (MEDIA, other)]
+    assert np.abs(expect[1] - expect[0]).max() > 0.05 * np.abs(expect[0]).max()       # the media differ
+    dw = _warp_worlds(model, [state] * 3)
+    qfrc = np.zeros((3, model.nv), dtype=np.float32)
+    qfrc[2, 7] = np.nan
+    dw.qfrc_applied.assign(qfrc)
+    handle = rw.attach(model, mjw_model, MEDIA, FOOT_BODIES, surface_height=terrain, solve="implicit", data=dw)
+    try:
+        handle.set_media(dw, other, worlds=[1])
+        mjw.forward(mjw_model, dw)
+        diag = handle.diagnostics(dw)
+        with pytest.raises(FloatingPointError, match=r"worlds \[2\]: non-finite acceleration without sand in 1 "):
+            handle.check(dw)
+    finally:
+        handle.detach()
+    for i in range(2):
+        assert np.abs(diag.force[i] - expect[i]).max() < FORCE_RTOL * np.abs(expect[i]).max(), i
+    assert diag.errors[0] == diag.errors[1] == 0 and diag.errors[2] & int(K.BAD_ACCELERATION)
+    assert np.all(diag.force[2] == 0.0)

@@ -348,13 +348,13 @@ class WarpSandHandle:
         sand, rft = st.sand.numpy().astype(np.float64), st.rft.numpy().astype(np.float64)
         return WarpDiagnostics(sand[:, :, :3], sand[:, :, 3:], st.count.numpy().astype(np.int64),
                                st.max_depth.numpy().astype(np.float64), st.scale.numpy().astype(np.float64),
-                               rft[:, :, :3], st.resting.numpy().astype(bool), st.status.numpy(),
-                               st.errors.numpy(), st.occluded.numpy().astype(np.float64))
+                               rft[:, :, :3], st.resting.numpy().astype(bool), st.status.numpy().copy(),
+                               st.errors.numpy().copy(), st.occluded.numpy().astype(np.float64))
 
     def check(self, data) -> None:
         """Raise FloatingPointError naming the worlds whose evaluation failed since the last check (and clear)."""
         st = self._state(data)
-        err = st.errors.numpy()
+        err = st.errors.numpy().copy()            # numpy() is a view on the CPU device
         bad = np.flatnonzero(err)
         if bad.size:
             st.errors.zero_()
