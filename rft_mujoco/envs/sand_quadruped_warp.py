@@ -118,6 +118,8 @@ class BatchedSandQuadruped:
         device: warp device (default: warp's preferred one).
         nconmax, njmax: MuJoCo Warp's contact and constraint capacity per world.
         use_graph: on CUDA, record the ``frame_skip`` physics steps in a CUDA graph (replayed each env step).
+        solve: the sand solve, "explicit" (default) or "implicit" (:func:`rft_mujoco.warp.attach`), as the CPU
+            tasks' ``solve``.
         seed: of the generator that draws resets, commands and media.
     """
 
@@ -130,7 +132,7 @@ class BatchedSandQuadruped:
                  sand_bodies: Sequence[str] = FOOT_BODIES, media_ranges: MediaRanges | None = None,
                  include_sand_in_observation: bool = False, max_episode_steps: int = MAX_EPISODE_STEPS,
                  device: str | None = None, nconmax: int = 24, njmax: int = 128, use_graph: bool = True,
-                 seed: int | None = None) -> None:
+                 seed: int | None = None, solve: str = "explicit") -> None:
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         ranges = np.asarray(command_ranges, dtype=float)
@@ -167,7 +169,8 @@ class BatchedSandQuadruped:
             mujoco.mj_resetDataKeyframe(self.model, data, key.id)
             self.data = mjw.put_data(self.model, data, nworld=nw, nconmax=nconmax, njmax=njmax)
             self.sand = rw.attach(self.model, self.mjw_model, self.base_media, bodies=list(sand_bodies),
-                                  surface_height=self._surface_z, resolution=resolution, data=self.data)
+                                  surface_height=self._surface_z, resolution=resolution, data=self.data,
+                                  solve=solve)
         self.n_sand_bodies = self.sand.n_bodies
         obs_size = 49 + (FEATURES_PER_BODY * self.n_sand_bodies if self._include_sand else 0)
         self.single_observation_space = Box(-np.inf, np.inf, (obs_size,), np.float64)
