@@ -476,12 +476,13 @@ def implicit_finish(ngroups: wp.array(dtype=int), active: wp.array2d(dtype=int),
                     errors: wp.array(dtype=int)):
     """One thread per world: the bodies' parts of their groups' applied wrenches (coupling._share, on the law
     wrenches at the final twists), the diagnostics, and the groups that flowed (the next evaluation starts them
-    in flow when it follows this one)."""
+    in flow when it follows this one; as on the CPU path, an evaluation where no group touches leaves them)."""
     w = wp.tid()
     nb = slot.shape[0]
     ng = ngroups[w]
-    for g in range(prior_flow.shape[0]):
-        prior_flow[g, w] = -1
+    if ng > 0:                                   # an evaluation with no touching group keeps the last one's
+        for g in range(prior_flow.shape[0]):
+            prior_flow[g, w] = -1
     for b in range(nb):
         wrench[w, b] = wp.spatial_vector()
         if slot[b, w] >= 0:
