@@ -290,3 +290,20 @@ def test_a_pile_with_sparse_constraint_rows_moves_as_on_the_cpu_path():
     assert rows >= 60 and d.xpos[-1, 2] < 0.05                      # the lid came down onto the boxes
     assert worst < 1e-5, worst                                       # m
     assert resting[0].all() and np.array_equal(*resting)
+
+
+def test_the_implicit_kernels_compile_for_a_gpu(tmp_path):
+    """No GPU is lent to this project's test machine: the implicit solve's kernels (and the element pass they
+    share) are compiled ahead of time to PTX for sm_90 (an H100/H200) with warp's NVRTC, so that CUDA code
+    generation errors (float64 atomics, structs of arrays, the per-world loops) show here."""
+    from rft_mujoco.warp import elements, implicit, implicit_free, implicit_law
+
+    for module in (implicit_law, implicit_free, implicit, elements):
+        try:
+            out = wp.compile_aot_module(module, device=None, arch=90, module_dir=tmp_path, use_ptx=True)
+        except RuntimeError as exc:                       # pragma: no cover - a warp build without NVRTC
+            if "nvrtc" in str(exc).lower():
+                pytest.skip(f"warp cannot compile CUDA here: {exc}")
+            raise
+        ptx = [p for p in out if p.suffix == ".ptx"]
+        assert ptx and ptx[0].stat().st_size > 10_000, (module.__name__, out)
