@@ -26,12 +26,11 @@ from __future__ import annotations
 import warp as wp
 
 from rft_mujoco.physics import implicit as _implicit
-from rft_mujoco.physics import rest as _rest
-from rft_mujoco.warp.common import CAPACITY_TOL, F64, TINY, WEIGHT_FLOOR, sv32, sv64
+from rft_mujoco.warp.common import CAPACITY_TOL, F64, TINY, WEIGHT_FLOOR, sv32
 from rft_mujoco.warp.implicit_law import SPEED_SCALE, group_law
-from rft_mujoco.warp.twists import com_motion
 from rft_mujoco.warp.rest import (commit_diagnostics, flow_factor, group_sums, pivoted_apply, pivoted_factor,
                                   share)
+from rft_mujoco.warp.twists import com_motion
 
 wp.set_module_options({"enable_backward": False})      # forward only: no adjoints to compile
 
@@ -39,7 +38,6 @@ NEWTON_ITERATIONS = wp.constant(_implicit.NEWTON_ITERATIONS)
 NEWTON_RTOL = wp.constant(F64(_implicit.NEWTON_RTOL))
 REST_RETRY = wp.constant(F64(_implicit.REST_RETRY))
 ZONE_PASSES = _implicit.ZONE_PASSES
-assert _rest.CAPACITY_TOL > 0.0
 
 
 @wp.func
