@@ -66,17 +66,23 @@ def _cpu_first_evaluation(model, bodies, state, constraints, media=MEDIA, **kwar
         handle.detach()
 
 
-@pytest.mark.parametrize("constraints", ["linearized", "lagged"])
-@pytest.mark.parametrize("bodies", [None, FOOT_BODIES], ids=["all_bodies", "feet"])
-def test_the_same_state_gives_the_cpu_paths_wrenches(quadruped, bodies, constraints):
-    model, mjw_model = quadruped
-    states = _states(model, bodies)
+def _warp_worlds(model, states):
+    """A mujoco_warp Data with one world per (qpos, qvel) of ``states``, the ``home`` controls."""
     d = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, d, model.key("home").id)
     dw = mjw.put_data(model, d, nworld=len(states), nconmax=4, njmax=64)
     dw.qpos.assign(np.array([s[0] for s in states], dtype=np.float32))
     dw.qvel.assign(np.array([s[1] for s in states], dtype=np.float32))
     dw.ctrl.assign(np.tile(model.key("home").ctrl, (len(states), 1)).astype(np.float32))
+    return dw
+
+
+@pytest.mark.parametrize("constraints", ["linearized", "lagged"])
+@pytest.mark.parametrize("bodies", [None, FOOT_BODIES], ids=["all_bodies", "feet"])
+def test_the_same_state_gives_the_cpu_paths_wrenches(quadruped, bodies, constraints):
+    model, mjw_model = quadruped
+    states = _states(model, bodies)
+    dw = _warp_worlds(model, states)
     handle = rw.attach(model, mjw_model, MEDIA, bodies, solve="implicit", constraints=constraints, data=dw)
     try:
         mjw.forward(mjw_model, dw)
@@ -215,16 +221,6 @@ def test_the_slanted_shin_quadruped_stands_still_on_warp():
     r = stand_batched("implicit", duration=0.6, worlds=2, device=DEVICE)
     assert r["t_rest_s"] < 0.6 and r["drift_total_m"] < 0.010, r
     assert 0.15 < r["sinkage_m"] < 0.25 and r["spread_m"] < 1e-6
-
-
-def _warp_worlds(model, states):
-    d = mujoco.MjData(model)
-    mujoco.mj_resetDataKeyframe(model, d, model.key("home").id)
-    dw = mjw.put_data(model, d, nworld=len(states), nconmax=4, njmax=64)
-    dw.qpos.assign(np.array([s[0] for s in states], dtype=np.float32))
-    dw.qvel.assign(np.array([s[1] for s in states], dtype=np.float32))
-    dw.ctrl.assign(np.tile(model.key("home").ctrl, (len(states), 1)).astype(np.float32))
-    return dw
 
 
 def test_a_heightfield_per_world_media_and_a_bad_world(quadruped):
