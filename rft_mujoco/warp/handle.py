@@ -393,12 +393,11 @@ class WarpSandHandle:
                               o["occ_rbound"], d.xpos, d.xmat, d.geom_xpos, st.touch, st.near])
         if self.stabilize:
             mjw.fwd_actuation(m, d)            # MuJoCo computes qfrc_actuator only after the control callback
-        if self.stabilize and self.solve == "implicit":
-            _implicit_eval.evaluate_implicit(self, m, d, st, guards, PER_WORLD_BLOCK)
-            wp.launch(K.commit, dim=wb, device=dev,
-                      inputs=[a["body_id"], st.user, st.sand, d.xfrc_applied, st.added, st.written])
-            return
-        if self.stabilize:
+            if self.solve == "implicit":
+                _implicit_eval.evaluate_implicit(self, m, d, st, guards, PER_WORLD_BLOCK)
+                wp.launch(K.commit, dim=wb, device=dev,
+                          inputs=[a["body_id"], st.user, st.sand, d.xfrc_applied, st.added, st.written])
+                return
             wp.launch(K.free_twist, dim=nw, device=dev, block_dim=PER_WORLD_BLOCK, inputs=[
                 self.mj_model.nbody, a["body_rootid"], a["body_dofnum"], a["body_dofadr"], a["body_parentid"],
                 a["dof_parentid"], m.M_rownnz, m.M_rowadr, m.M_colind, m.opt.timestep,

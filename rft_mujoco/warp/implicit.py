@@ -27,7 +27,7 @@ import warp as wp
 
 from rft_mujoco.physics import implicit as _implicit
 from rft_mujoco.warp.common import CAPACITY_TOL, F64, TINY, WEIGHT_FLOOR, sv32
-from rft_mujoco.warp.implicit_law import SPEED_SCALE, group_law
+from rft_mujoco.warp.implicit_law import SPEED_SCALE, Law, group_law
 from rft_mujoco.warp.rest import (commit_diagnostics, flow_factor, group_sums, pivoted_apply, pivoted_factor,
                                   share)
 from rft_mujoco.warp.twists import com_motion
@@ -49,8 +49,9 @@ def _radius_scale(w: int, i: int, active: wp.array2d(dtype=int), group_radius: w
 
 
 @wp.func
-def lu_solve(w: int, mat: wp.array3d(dtype=F64), n: int, x: wp.array2d(dtype=F64), piv: wp.array2d(dtype=int)):
-    """x[:n, w] := mat[:n, :n, w]^-1 x[:n, w] by LU with partial pivoting (mat overwritten; np.linalg.solve)."""
+def lu_solve(w: int, mat: wp.array3d(dtype=F64), n: int, x: wp.array2d(dtype=F64)):
+    """x[:n, w] := mat[:n, :n, w]^-1 x[:n, w] by LU with partial pivoting, the row swaps applied to x as they are
+    made (mat overwritten; np.linalg.solve)."""
     for c in range(n):
         p = c
         best = wp.abs(mat[c, c, w])
@@ -58,7 +59,6 @@ def lu_solve(w: int, mat: wp.array3d(dtype=F64), n: int, x: wp.array2d(dtype=F64
             if wp.abs(mat[r, c, w]) > best:
                 best = wp.abs(mat[r, c, w])
                 p = r
-        piv[c, w] = p
         if p != c:
             for j in range(n):
                 t = mat[c, j, w]
@@ -83,29 +83,6 @@ def lu_solve(w: int, mat: wp.array3d(dtype=F64), n: int, x: wp.array2d(dtype=F64
         for j in range(c + 1, n):
             t -= mat[c, j, w] * x[j, w]
         x[c, w] = t / mat[c, c, w]
-
-
-@wp.struct
-class Law:
-    """What :func:`rft_mujoco.warp.implicit_law.group_law` reads besides the twists (one evaluation's)."""
-
-    body_id: wp.array(dtype=int)
-    elem_body: wp.array(dtype=int)
-    centroid: wp.array(dtype=wp.vec3)
-    normal: wp.array(dtype=wp.vec3)
-    area: wp.array(dtype=float)
-    group_ref: wp.array(dtype=int)
-    xpos: wp.array2d(dtype=wp.vec3)
-    xmat: wp.array2d(dtype=wp.mat33)
-    xipos: wp.array2d(dtype=wp.vec3)
-    gravity: wp.array(dtype=wp.vec3)
-    coef: wp.array2d(dtype=F64)
-    xi_per_g: wp.array(dtype=float)
-    mu_surf: wp.array(dtype=float)
-    no_tension: int
-    no_forward: int
-    no_power: int
-    e_depth: wp.array2d(dtype=float)
 
 
 @wp.struct
@@ -142,21 +119,14 @@ class Work:
     lj: wp.array3d(dtype=F64)
     blocks: wp.array3d(dtype=F64)
     mat: wp.array3d(dtype=F64)
-    piv: wp.array2d(dtype=int)
 
 
 @wp.func
 def _law(w: int, kf: int, ng: int, lw_: Law, wk: Work, active: wp.array2d(dtype=int), slot: wp.array2d(dtype=int),
          group_radius: wp.array(dtype=F64)):
     """wk.wf[:kf] := the law's scaled wrench at the flowing rows' scaled twists wk.ufull (and wk.lj its
-    derivative blocks); the gravity of the world from ``lw_``."""
-    gv = lw_.gravity[w % lw_.gravity.shape[0]]
-    mag = wp.length(gv)
-    g = wp.vec3d(F64(gv[0] / mag), F64(gv[1] / mag), F64(gv[2] / mag))
-    xi_n = F64(lw_.xi_per_g[w] * mag)
-    group_law(w, wk.flow, slot, active, 6 * ng, lw_.body_id, lw_.elem_body, lw_.centroid, lw_.normal, lw_.area,
-              lw_.group_ref, group_radius, lw_.xpos, lw_.xmat, lw_.xipos, g, xi_n, lw_.coef, F64(lw_.mu_surf[w]),
-              lw_.no_tension, lw_.no_forward, lw_.no_power, lw_.e_depth, wk.ufull, wk.lw, wk.lj)
+    derivative blocks)."""
+    group_law(w, lw_, wk.flow, slot, active, 6 * ng, group_radius, wk.ufull, wk.lw, wk.lj)
     for i in range(kf):
         wk.wf[i, w] = wk.lw[wk.fidx[i, w], w]
 
@@ -229,7 +199,7 @@ def newton_flow(w: int, kf: int, ng: int, lw_: Law, wk: Work, active: wp.array2d
                     d = F64(1.0)
                 wk.mat[i, j, w] = d - t
             wk.step[i, w] = -wk.res[i, w]
-        lu_solve(w, wk.mat, kf, wk.step, wk.piv)
+        lu_solve(w, wk.mat, kf, wk.step)
         norm0 = F64(0.0)
         for i in range(kf):
             norm0 += wk.res[i, w] * wk.res[i, w]

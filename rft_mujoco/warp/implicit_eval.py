@@ -13,7 +13,7 @@ import warp as wp
 
 from rft_mujoco.warp import implicit as I
 from rft_mujoco.warp.implicit_free import Damping, Rows, implicit_free
-from rft_mujoco.warp.implicit_law import candidates, law_pass
+from rft_mujoco.warp.implicit_law import Law, candidates, law_pass
 
 _IMPLICIT = (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
 
@@ -38,17 +38,14 @@ class ImplicitState:
         self.v_lin, self.v_ang = z((w, b), wp.vec3d), z((w, b), wp.vec3d)
         self.law_wrench = z((w, b), wp.spatial_vectord)
         wk = I.Work()
-        for name in ("cap", "uprobe", "weight", "diag0", "rem", "y", "x", "rhs", "veff", "wvec", "uf", "wf", "res",
-                     "step", "ufull", "lw"):
+        for name in ("cap", "weight", "diag0", "rem", "y", "x", "rhs", "order", "kept", "low", "gram", "capacity",
+                     "flow"):                   # the explicit rest solve's work, the same shapes (one runs at a time)
+            setattr(wk, name, getattr(st, name))
+        wk.ridx = st.idx
+        for name in ("uprobe", "veff", "wvec", "uf", "wf", "res", "step", "ufull", "lw"):
             setattr(wk, name, z((n6, w)))
-        for name in ("capacity", "wall"):
-            setattr(wk, name, z((g, w)))
-        for name in ("flow", "untried"):
-            setattr(wk, name, z((g, w), int))
-        for name in ("ridx", "fidx", "order", "kept", "piv"):
-            setattr(wk, name, z((n6, w), int))
-        for name in ("low", "gram", "aeff", "mat"):
-            setattr(wk, name, z((n6, n6, w)))
+        wk.wall, wk.untried, wk.fidx = z((g, w)), z((g, w), int), z((n6, w), int)
+        wk.aeff, wk.mat = z((n6, n6, w)), z((n6, n6, w))
         wk.lj, wk.blocks = z((n6, 6, w)), z((n6, 6, w))
         self.work = wk
         njmax = int(data.efc.type.shape[1])
@@ -78,9 +75,9 @@ def _damping(m) -> Damping:
     return dm
 
 
-def _law(handle, m, d, st, ist: ImplicitState) -> I.Law:
+def _law(handle, m, d, st, ist: ImplicitState) -> Law:
     a = handle._a
-    lw = I.Law()
+    lw = Law()
     lw.body_id, lw.elem_body, lw.centroid, lw.normal, lw.area = (a["body_id"], a["elem_body"], a["centroid"],
                                                                  a["normal"], a["area"])
     lw.group_ref, lw.xpos, lw.xmat, lw.xipos, lw.gravity = a["group_ref"], d.xpos, d.xmat, d.xipos, m.opt.gravity
@@ -107,8 +104,6 @@ def evaluate_implicit(handle, m, d, st, guards: tuple[int, int, int], blk: int) 
     rows, dm, lw = ist.rows, ist.damping, ist.law
     lw.no_tension, lw.no_forward, lw.no_power = guards
     dm.on = int(linearized and int(m.opt.integrator) in _IMPLICIT)
-    law_inputs = [a["body_id"], a["elem_body"], a["centroid"], a["normal"], a["area"], d.xpos, d.xmat, d.xipos,
-                  m.opt.gravity, a["coef"], st.xi_per_g, st.mu_surf, *guards]
     for p in range(I.ZONE_PASSES if linearized else 1):
         wp.launch(implicit_free, dim=nw, device=dev, block_dim=blk, inputs=[
             p, linearized, handle.mj_model.nbody, a["body_rootid"], a["body_dofnum"], a["body_dofadr"],
@@ -119,8 +114,8 @@ def evaluate_implicit(handle, m, d, st, guards: tuple[int, int, int], blk: int) 
             ist.lagged, ist.use_prior, ist.prior_flow, st.ngroups, st.active, st.slot, st.mf, st.qacc, ist.qend,
             st.jac, st.minv_jt, st.twist, st.free, st.u, st.vs, st.a, st.arm, ist.rest, ist.applied, ist.endt,
             ist.start, ist.v_lin, ist.v_ang, ist.redo, ist.law_wrench, st.count, st.max_depth])
-        wp.launch(law_pass, dim=we, device=dev, inputs=[
-            *law_inputs, ist.redo, ist.e_depth, ist.v_lin, ist.v_ang, ist.law_wrench, st.count, st.max_depth])
+        wp.launch(law_pass, dim=we, device=dev,
+                  inputs=[lw, ist.redo, ist.v_lin, ist.v_ang, ist.law_wrench, st.count, st.max_depth])
         wp.launch(I.implicit_solve, dim=nw, device=dev, block_dim=blk, inputs=[
             p, ist.done, st.ngroups, ist.use_prior, ist.prior_flow, st.active, st.slot, a["group_radius"], st.a,
             st.vs, st.u, st.twist, ist.start, ist.law_wrench, st.arm, lw, ist.work, ist.rest, ist.applied,
@@ -128,8 +123,8 @@ def evaluate_implicit(handle, m, d, st, guards: tuple[int, int, int], blk: int) 
     wp.launch(I.final_twists, dim=nw, device=dev, block_dim=blk, inputs=[
         st.ngroups, st.slot, st.active, a["body_id"], a["group_ref"], d.xipos, ist.rest, st.u, ist.endt, st.arm,
         ist.v_lin, ist.v_ang, ist.redo, ist.law_wrench, st.count, st.max_depth])
-    wp.launch(law_pass, dim=we, device=dev, inputs=[
-        *law_inputs, ist.redo, ist.e_depth, ist.v_lin, ist.v_ang, ist.law_wrench, st.count, st.max_depth])
+    wp.launch(law_pass, dim=we, device=dev,
+              inputs=[lw, ist.redo, ist.v_lin, ist.v_ang, ist.law_wrench, st.count, st.max_depth])
     wp.launch(I.implicit_finish, dim=nw, device=dev, block_dim=blk, inputs=[
         st.ngroups, st.active, st.slot, a["group_radius"], a["bound_radius"], st.touch, ist.law_wrench, st.arm,
         ist.rest, ist.applied, ist.prior_flow, st.wrench, st.rft_g, st.size, st.total, st.sand, st.rft, st.scale,

@@ -28,6 +28,30 @@ LEADING_RAMP = wp.constant(F64(_elements.LEADING_RAMP))
 SPEED_SCALE = wp.constant(F64(_implicit.SPEED_SCALE))
 
 
+@wp.struct
+class Law:
+    """What the law passes read besides the twists: the elements, the poses, gravity, the medium of each world, the
+    guards and the candidates' depths (built once per (handle, Data): :mod:`rft_mujoco.warp.implicit_eval`)."""
+
+    body_id: wp.array(dtype=int)
+    elem_body: wp.array(dtype=int)
+    centroid: wp.array(dtype=wp.vec3)
+    normal: wp.array(dtype=wp.vec3)
+    area: wp.array(dtype=float)
+    group_ref: wp.array(dtype=int)
+    xpos: wp.array2d(dtype=wp.vec3)
+    xmat: wp.array2d(dtype=wp.mat33)
+    xipos: wp.array2d(dtype=wp.vec3)
+    gravity: wp.array(dtype=wp.vec3)
+    coef: wp.array2d(dtype=F64)
+    xi_per_g: wp.array(dtype=float)
+    mu_surf: wp.array(dtype=float)
+    no_tension: int
+    no_forward: int
+    no_power: int
+    e_depth: wp.array2d(dtype=float)
+
+
 @wp.func
 def _m33d(m: wp.mat33):
     return wp.mat33d(F64(m[0, 0]), F64(m[0, 1]), F64(m[0, 2]), F64(m[1, 0]), F64(m[1, 1]), F64(m[1, 2]),
@@ -118,33 +142,28 @@ def candidates(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), cen
 
 
 @wp.kernel
-def law_pass(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), centroid: wp.array(dtype=wp.vec3),
-             normal: wp.array(dtype=wp.vec3), area: wp.array(dtype=float), xpos: wp.array2d(dtype=wp.vec3),
-             xmat: wp.array2d(dtype=wp.mat33), xipos: wp.array2d(dtype=wp.vec3), gravity: wp.array(dtype=wp.vec3),
-             coef: wp.array2d(dtype=F64), xi_per_g: wp.array(dtype=float), mu_surf: wp.array(dtype=float),
-             no_tension: int, no_forward: int, no_power: int, redo: wp.array2d(dtype=int),
-             e_depth: wp.array2d(dtype=float), v_lin: wp.array2d(dtype=wp.vec3d), v_ang: wp.array2d(dtype=wp.vec3d),
-             wrench: wp.array2d(dtype=wp.spatial_vectord), count: wp.array2d(dtype=int),
-             max_depth: wp.array2d(dtype=float)):
+def law_pass(lw: Law, redo: wp.array2d(dtype=int), v_lin: wp.array2d(dtype=wp.vec3d),
+             v_ang: wp.array2d(dtype=wp.vec3d), wrench: wp.array2d(dtype=wp.spatial_vectord),
+             count: wp.array2d(dtype=int), max_depth: wp.array2d(dtype=float)):
     """The regularized law of every candidate element at its body's COM twist (``v_lin`` m/s, ``v_ang`` rad/s),
     summed into ``wrench[w, b]`` (N, N m about the COM; zeroed by the caller), the loaded count and the deepest
     loaded depth (m), for the bodies with ``redo[w, b] != 0`` (the others are left alone)."""
     w, e = wp.tid()
-    z = e_depth[w, e]
+    z = lw.e_depth[w, e]
     if z <= 0.0:
         return
-    b = elem_body[e]
+    b = lw.elem_body[e]
     if redo[w, b] == 0:
         return
-    bid = body_id[b]
-    p, n = element_frame(w, bid, e, xpos, xmat, centroid, normal)
-    arm = p - v3d(xipos[w, bid])
+    bid = lw.body_id[b]
+    p, n = element_frame(w, bid, e, lw.xpos, lw.xmat, lw.centroid, lw.normal)
+    arm = p - v3d(lw.xipos[w, bid])
     vel = v_lin[w, b] + wp.cross(v_ang[w, b], arm)
     if _loaded(n, vel) == F64(0.0):
         return
-    g, g_mag = gravity_of(gravity, w)
-    scale = F64(xi_per_g[w] * g_mag) * F64(z) * F64(area[e])
-    f = _ramped_force(n, vel, v3d(g), coef, F64(mu_surf[w]), no_tension, no_forward, no_power, scale)
+    g, xi_n = _gravity(w, lw)
+    f = _ramped_force(n, vel, g, lw.coef, F64(lw.mu_surf[w]), lw.no_tension, lw.no_forward, lw.no_power,
+                      xi_n * F64(z) * F64(lw.area[e]))
     tq = wp.cross(arm, f)
     wp.atomic_add(wrench, w, b, wp.spatial_vectord(f[0], f[1], f[2], tq[0], tq[1], tq[2]))
     wp.atomic_add(count, w, b, 1)
@@ -152,27 +171,32 @@ def law_pass(body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int), centr
 
 
 @wp.func
-def group_law(w: int, flow: wp.array2d(dtype=int), slot: wp.array2d(dtype=int), active: wp.array2d(dtype=int),
-              n6: int, body_id: wp.array(dtype=int), elem_body: wp.array(dtype=int),
-              centroid: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), area: wp.array(dtype=float),
-              group_ref: wp.array(dtype=int), group_radius: wp.array(dtype=F64), xpos: wp.array2d(dtype=wp.vec3),
-              xmat: wp.array2d(dtype=wp.mat33), xipos: wp.array2d(dtype=wp.vec3), g: wp.vec3d, xi_n: F64,
-              coef: wp.array2d(dtype=F64), mu: F64, no_tension: int, no_forward: int, no_power: int,
-              e_depth: wp.array2d(dtype=float), u: wp.array2d(dtype=F64), lw: wp.array2d(dtype=F64),
-              lj: wp.array3d(dtype=F64)):
+def _gravity(w: int, lw: Law):
+    """World w's unit gravity (float64) and ``xi_n`` (N/m^3) of its medium."""
+    gv = lw.gravity[w % lw.gravity.shape[0]]
+    mag = wp.length(gv)
+    return wp.vec3d(F64(gv[0] / mag), F64(gv[1] / mag), F64(gv[2] / mag)), F64(lw.xi_per_g[w] * mag)
+
+
+@wp.func
+def group_law(w: int, lw: Law, flow: wp.array2d(dtype=int), slot: wp.array2d(dtype=int),
+              active: wp.array2d(dtype=int), n6: int, group_radius: wp.array(dtype=F64), u: wp.array2d(dtype=F64),
+              out_w: wp.array2d(dtype=F64), out_j: wp.array3d(dtype=F64)):
     """The regularized law at the scaled twists ``u[6 r:6 r + 6, w]`` (m/s, rad/s times the radius) of the groups
-    r with ``flow[r, w] != 0``, about their reference points: ``lw[6 r:6 r + 6, w]`` the scaled wrench (N, N m
-    over the radius) and ``lj[6 r + i, j, w]`` its derivative in the scaled twist (elements.body_wrench_jacobians
+    r with ``flow[r, w] != 0``, about their reference points: ``out_w[6 r:6 r + 6, w]`` the scaled wrench (N, N m
+    over the radius) and ``out_j[6 r + i, j, w]`` its derivative in the scaled twist (elements.body_wrench_jacobians
     shifted to the reference point, implicit._newton_flow's ``sw df / sv``)."""
+    g, xi_n = _gravity(w, lw)
+    mu = F64(lw.mu_surf[w])
     for i in range(n6):
-        lw[i, w] = F64(0.0)
+        out_w[i, w] = F64(0.0)
         for j in range(6):
-            lj[i, j, w] = F64(0.0)
-    for e in range(elem_body.shape[0]):
-        z = e_depth[w, e]
+            out_j[i, j, w] = F64(0.0)
+    for e in range(lw.elem_body.shape[0]):
+        z = lw.e_depth[w, e]
         if z <= 0.0:
             continue
-        b = elem_body[e]
+        b = lw.elem_body[e]
         r = slot[b, w]
         if r < 0:
             continue
@@ -181,26 +205,26 @@ def group_law(w: int, flow: wp.array2d(dtype=int), slot: wp.array2d(dtype=int), 
         grp = active[r, w]
         rad = group_radius[grp]
         o = 6 * r
-        bid = body_id[b]
-        p, n = element_frame(w, bid, e, xpos, xmat, centroid, normal)
-        arm = p - v3d(xipos[w, body_id[group_ref[grp]]])
+        bid = lw.body_id[b]
+        p, n = element_frame(w, bid, e, lw.xpos, lw.xmat, lw.centroid, lw.normal)
+        arm = p - v3d(lw.xipos[w, lw.body_id[lw.group_ref[grp]]])
         om = wp.vec3d(u[o + 3, w], u[o + 4, w], u[o + 5, w]) / rad
         vel = wp.vec3d(u[o, w], u[o + 1, w], u[o + 2, w]) + wp.cross(om, arm)
         speed = _loaded(n, vel)
         if speed == F64(0.0):
             continue
-        f, dfdv = element_jacobian(n, vel, speed, g, coef, mu, no_tension, no_forward, no_power,
-                                   xi_n * F64(z) * F64(area[e]))
+        f, dfdv = element_jacobian(n, vel, speed, g, lw.coef, mu, lw.no_tension, lw.no_forward, lw.no_power,
+                                   xi_n * F64(z) * F64(lw.area[e]))
         tq = wp.cross(arm, f)
         cr = wp.skew(arm)
         dfw = -(dfdv * cr)                    # d f / d omega: v = u_lin - [arm]x omega
         dtv = cr * dfdv
         dtw = cr * dfw
         for i in range(3):
-            lw[o + i, w] = lw[o + i, w] + f[i]
-            lw[o + 3 + i, w] = lw[o + 3 + i, w] + tq[i] / rad
+            out_w[o + i, w] = out_w[o + i, w] + f[i]
+            out_w[o + 3 + i, w] = out_w[o + 3 + i, w] + tq[i] / rad
             for j in range(3):
-                lj[o + i, j, w] = lj[o + i, j, w] + dfdv[i, j]
-                lj[o + i, 3 + j, w] = lj[o + i, 3 + j, w] + dfw[i, j] / rad
-                lj[o + 3 + i, j, w] = lj[o + 3 + i, j, w] + dtv[i, j] / rad
-                lj[o + 3 + i, 3 + j, w] = lj[o + 3 + i, 3 + j, w] + dtw[i, j] / (rad * rad)
+                out_j[o + i, j, w] = out_j[o + i, j, w] + dfdv[i, j]
+                out_j[o + i, 3 + j, w] = out_j[o + i, 3 + j, w] + dfw[i, j] / rad
+                out_j[o + 3 + i, j, w] = out_j[o + 3 + i, j, w] + dtv[i, j] / rad
+                out_j[o + 3 + i, 3 + j, w] = out_j[o + 3 + i, 3 + j, w] + dtw[i, j] / (rad * rad)
