@@ -72,15 +72,21 @@ def stand(solve: str = "explicit", duration: float = DURATION, resolution="defau
                 raise FloatingPointError(f"the {solve} solve gave NaN at step {i}")
     finally:
         sand.detach()
-    moving = np.flatnonzero(speed >= REST_SPEED)
-    last = moving[-1] + 1 if moving.size else 0
-    t_rest = math.inf if last >= n else last * model.opt.timestep
-    rest_idx = min(last, n - 1)
-    return dict(solve=solve, t_rest_s=t_rest,
-                drift_after_rest_m=float(np.linalg.norm(xy[-1] - xy[rest_idx])) if math.isfinite(t_rest) else math.nan,
-                drift_total_m=float(np.linalg.norm(xy[-1] - xy[0])), trunk_x_m=xy[::10, 0].tolist(),
+    return dict(solve=solve, **rest_and_drift(xy, speed, model.opt.timestep), trunk_x_m=xy[::10, 0].tolist(),
                 final_height_m=float(data.qpos[2]), sinkage_m=z0 - float(data.qpos[2]),
                 max_speed_end=float(speed[-1]), wall_s=time.perf_counter() - t0)
+
+
+def rest_and_drift(xy: np.ndarray, speed: np.ndarray, dt: float) -> dict:
+    """From the trunk's horizontal track ``xy`` (n, 2) m and the largest speed ``speed`` (n,) after each of n
+    steps of ``dt`` s: ``t_rest_s`` (after which every speed stays below :data:`REST_SPEED`; inf if it never
+    does), ``drift_after_rest_m`` (nan then) and ``drift_total_m``."""
+    n = speed.shape[0]
+    moving = np.flatnonzero(speed >= REST_SPEED)
+    last = moving[-1] + 1 if moving.size else 0
+    t_rest = math.inf if last >= n else last * dt
+    after = float(np.linalg.norm(xy[-1] - xy[min(last, n - 1)])) if math.isfinite(t_rest) else math.nan
+    return dict(t_rest_s=t_rest, drift_after_rest_m=after, drift_total_m=float(np.linalg.norm(xy[-1] - xy[0])))
 
 
 def passes(r: dict) -> bool:

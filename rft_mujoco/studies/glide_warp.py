@@ -11,7 +11,6 @@ horizontal drift after that and in all, and its sinkage; :func:`stand_batched` r
 from __future__ import annotations
 
 import argparse
-import math
 import time
 import warnings
 
@@ -62,13 +61,7 @@ def stand_batched(solve: str = "implicit", duration: float = _glide.DURATION, wo
             sand.detach()
     if not np.all(np.isfinite(qpos)):
         raise FloatingPointError(f"the {solve} solve gave NaN on warp")
-    moving = np.flatnonzero(speed >= _glide.REST_SPEED)
-    last = moving[-1] + 1 if moving.size else 0
-    t_rest = math.inf if last >= n else last * model.opt.timestep
-    rest_idx = min(last, n - 1)
-    return dict(solve=solve, t_rest_s=t_rest,
-                drift_after_rest_m=float(np.linalg.norm(xy[-1] - xy[rest_idx])) if math.isfinite(t_rest) else math.nan,
-                drift_total_m=float(np.linalg.norm(xy[-1] - xy[0])), sinkage_m=z0 - float(qpos[0, 2]),
+    return dict(solve=solve, **_glide.rest_and_drift(xy, speed, model.opt.timestep), sinkage_m=z0 - float(qpos[0, 2]),
                 spread_m=float(np.abs(qpos[:, :3] - qpos[:1, :3]).max()), wall_s=time.perf_counter() - t0)
 
 

@@ -127,6 +127,14 @@ def wave_shape(amplitude: float, phases: int = 16) -> tuple[float, float, float]
     return float(np.mean(ratios)), float(np.mean(lams)), float(sum(links))
 
 
+def serpenoid(amplitude, frequency: float, t: float) -> np.ndarray:
+    """The joint targets (rad) of the study's drive at time ``t`` (s): ``ramp a sin(2 pi f t - 2 pi i / 6)`` for
+    joints i, the amplitude ramped in over the first period. ``amplitude``: rad, a number or an (n, 1) column
+    (one row of targets each)."""
+    ramp = min(1.0, t * frequency)
+    return ramp * amplitude * np.sin(2 * math.pi * frequency * t - 2 * math.pi * np.arange(N_JOINTS) / N_JOINTS)
+
+
 def swim(amplitude: float, frequency: float, *, cull: bool = True, density_scale: float = DENSITY_SCALE,
          timestep: float | None = None, cycles: int = CYCLES, resolution: str | float = "default",
          **attach_kwargs) -> dict:
@@ -143,14 +151,11 @@ def swim(amplitude: float, frequency: float, *, cull: bool = True, density_scale
     dt = model.opt.timestep
     steps = int(round(cycles / frequency / dt))
     start = int(round((cycles - MEASURED_CYCLES) / frequency / dt))
-    i = np.arange(N_JOINTS)
     err2, n_err, com0 = 0.0, 0, None
     t0 = time.perf_counter()
     try:
         for k in range(steps):
-            t = data.time
-            ramp = min(1.0, t * frequency)
-            data.ctrl[:] = ramp * amplitude * np.sin(2 * math.pi * frequency * t - 2 * math.pi * i / N_JOINTS)
+            data.ctrl[:] = serpenoid(amplitude, frequency, data.time)
             mujoco.mj_step(model, data)
             if k == start:
                 com0 = data.subtree_com[head, :2].copy()

@@ -47,7 +47,6 @@ def swim_batched(amplitudes=(0.5, 0.9), frequency: float = 1.0,
     steps = int(round(cycles / frequency / dt))
     start = int(round((cycles - _swim.MEASURED_CYCLES) / frequency / dt))
     head = model.body("head").id
-    joints = np.arange(nj)
     t0 = time.perf_counter()
     with wp.ScopedDevice(device):
         m = mjw.put_model(model)
@@ -56,9 +55,7 @@ def swim_batched(amplitudes=(0.5, 0.9), frequency: float = 1.0,
         err2, com0 = np.zeros(n), None
         try:
             for k in range(steps):
-                t = k * dt
-                ramp = min(1.0, t * frequency)
-                ctrl = ramp * amps[:, None] * np.sin(2 * math.pi * frequency * t - 2 * math.pi * joints / nj)
+                ctrl = _swim.serpenoid(amps[:, None], frequency, k * dt)
                 d.ctrl.assign(ctrl.astype(np.float32))
                 mjw.step(m, d)
                 if k == start:
