@@ -67,6 +67,19 @@ ROCK_PUSH = 10.0
 """N: the sideways push (+x) on the ball of the ``rock`` scene (xfrc_applied, the user's load)."""
 
 
+def scene(name: str, dt: float, integrator: str):
+    """(model, data, sand bodies) of scene ``name`` at timestep ``dt`` (s) and ``integrator`` (a MuJoCo name), the
+    data at the scene's start: the ``actuator_limit`` servo's target far below (saturated at its force range)."""
+    import mujoco
+
+    xml, bodies = SCENES[name]
+    model = mujoco.MjModel.from_xml_string(xml.format(dt=dt, integrator=integrator))
+    data = mujoco.MjData(model)
+    if model.nu:
+        data.ctrl[:] = -1.0
+    return model, data, bodies
+
+
 def expected_force(name: str, model) -> np.ndarray:
     """(3,) the force (N) the sand must carry at rest, and a (3,) mask of the components checked."""
     g = -float(model.opt.gravity[2])

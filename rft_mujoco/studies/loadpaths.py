@@ -47,7 +47,7 @@ import mujoco
 import numpy as np
 
 from rft_mujoco.coupling.handle import attach
-from rft_mujoco.studies.loadpath_scenes import MEDIA, RESOLUTION, ROCK_PUSH, SCENES, expected_force
+from rft_mujoco.studies.loadpath_scenes import MEDIA, RESOLUTION, ROCK_PUSH, SCENES, expected_force, scene
 from rft_mujoco.studies.quasistatic import scene_rest_depth
 from rft_mujoco.studies.recorder import StageRecorder
 
@@ -103,13 +103,9 @@ def quasi_static_depth(name: str) -> float:
 def run_case(name: str, dt: float, integrator: str, *, stabilize: bool = True, backend: str = "auto",
              solve: str = "explicit") -> Result:
     """One scene at one (dt, integrator); ``stabilize``, ``backend`` and ``solve`` go to :func:`attach`."""
-    xml, bodies = SCENES[name]
     res = Result(name, dt, integrator, rest_depth=quasi_static_depth(name))
     t0 = time.perf_counter()
-    model = mujoco.MjModel.from_xml_string(xml.format(dt=dt, integrator=integrator))
-    data = mujoco.MjData(model)
-    if model.nu:
-        data.ctrl[:] = -1.0                       # the actuator_limit servo: a target far below (saturated)
+    model, data, bodies = scene(name, dt, integrator)
     n = int(round(DURATION / dt))
     speeds = np.empty(n)
     vel = np.zeros(6)

@@ -20,6 +20,7 @@ import numpy as np
 
 from rft_mujoco.coupling.handle import attach as cpu_attach
 from rft_mujoco.studies.loadpath_scenes import MEDIA, RESOLUTION, ROCK_PUSH, SCENES
+from rft_mujoco.studies.loadpath_scenes import scene as loadpath_scene
 from rft_mujoco.tables import table as _table
 
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
@@ -40,11 +41,7 @@ def compare(scene: str, integrator: str = "implicitfast", dt: float = 0.002, ste
         raise ValueError(f"scene must be one of {sorted(SCENES)}, got {scene!r}")
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-    xml, bodies = SCENES[scene]
-    model = mujoco.MjModel.from_xml_string(xml.format(dt=dt, integrator=integrator))
-    d = mujoco.MjData(model)
-    if model.nu:
-        d.ctrl[:] = -1.0                     # the actuator_limit servo: a target far below (saturated)
+    model, d, bodies = loadpath_scene(scene, dt, integrator)
     mujoco.mj_forward(model, d)
     ball = model.body("ball").id if scene == "rock" else -1
     t0 = time.perf_counter()
